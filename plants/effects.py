@@ -1,0 +1,434 @@
+"""The vocabulary of physical effects (DESIGN.md §3), each defined once.
+
+An effect is the torque it adds on each joint in the *inverse-dynamics* sense: the motor must
+supply it on top of the rest, so the equation of motion is
+
+    τ_applied = Σ_effects torque(q, q̇, q̈; θ)          (τ_applied: the torque that reaches the joint)
+
+The same `torque` serves the simulator (truth), the regressors (adaptation and fitting: for a
+linear effect the regressor is ∂torque/∂θ, derived with `jax.jacfwd`, exact for a linear term)
+and the diagnosis (what a missing effect leaves in a residual).
+
+| name | torque on joint i | linear parameters | other parameters |
+|---|---|---|---|
+| rigid | H(q) q̈ + C(q, q̇) q̇ (structure) | a1, a2, a3 (manus2) / M_i (axis) | |
+| viscous | b_i q̇_i | b_i | |
+| coulomb | Fc_i sgn(q̇_i) | Fc_i | |
+| stribeck | dFs_i exp(−(q̇_i/vs)²) sgn(q̇_i), dFs_i = Fs_i − Fc_i | dFs_i | vs |
+| asymmetry | dFc_i |sgn(q̇_i)| + db_i |q̇_i| | dFc_i, db_i | |
+| offset | off_i | off_i | |
+| gravity | gc_i cos(q_i) + gs_i sin(q_i) | gc_i, gs_i | |
+| cogging | A_i sin(N q_i) + B_i cos(N q_i) | A_i, B_i | N [cycles/rev] |
+| delay | the commanded torque arrives d seconds late | | d [s] |
+| compliance | a shaft spring between motor and link | | f [Hz], ζ, motor fraction |
+
+`asymmetry` makes the Coulomb and viscous levels direction dependent: Fc⁺ = Fc + dFc,
+Fc⁻ = Fc − dFc, b⁺ = b + db, b⁻ = b − db.
+
+Friction effects (coulomb, stribeck, asymmetry) are set-valued at q̇ = 0: the simulator treats
+them implicitly (stiction: a joint at rest stays at rest while the other torques stay inside the
+static level). Adaptive control can ask for a boundary layer instead of the sign: `boundary=φ`
+replaces sgn(v) by sat(v/φ).
+
+Defaults are the thesis's values where it gives them (rigid, viscous, coulomb, the 39/rev
+cogging order, the 1 ms delay, the 200 Hz shaft mode); the other amplitudes are illustrative
+and say so.
+"""
+
+from __future__ import annotations
+
+import abc
+import re
+from typing import ClassVar
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jax import Array
+
+from plants.errors import ModelError
+from plants.structures import Manus2, Structure
+
+
+def sign(v: Array, boundary: float = 0.0) -> Array:
+    """sgn(v); with a boundary layer φ > 0, the saturated ramp clip(v/φ, −1, 1)."""
+    if boundary > 0:
+        return jnp.clip(v / boundary, -1.0, 1.0)
+    return jnp.sign(v)
+
+
+def per_joint(prefix: str, s: Structure) -> tuple[str, ...]:
+    return tuple(f"{prefix}{i + 1}" for i in range(s.n_joints))
+
+
+def stack(p: dict, names: tuple[str, ...]) -> Array:
+    return jnp.stack([jnp.asarray(p[k]) for k in names])
+
+
+class Effect(eqx.Module):
+    """One physical effect. Configuration only (its non-linear parameters); no state."""
+
+    name: ClassVar[str]
+    # "inertial" (rigid), "load" (smooth torque), "friction" (set-valued at rest),
+    # "timing" (delay), "mode" (compliance).
+    kind: ClassVar[str]
+    # Which side of a compliant shaft it acts on: the motor (friction, cogging, offset) or
+    # the link (inertia, gravity).
+    side: ClassVar[str] = "motor"
+
+    def names(self, s: Structure) -> tuple[str, ...]:
+        """Linear parameter names, in regressor column order."""
+        return ()
+
+    def defaults(self, s: Structure) -> tuple[float, ...]:
+        return ()
+
+    def torque(self, s: Structure, q, qd, qdd, p: dict, boundary: float = 0.0) -> Array:
+        """Torque this effect adds on each joint, shape (n,)."""
+        return jnp.zeros(s.n_joints, jnp.result_type(qd))
+
+    @property
+    def linear(self) -> bool:
+        return self.kind in ("inertial", "load", "friction")
+
+    @property
+    def spec(self) -> str:
+        """The text that `parse_effects` turns back into this effect."""
+        return self.name
+
+    def describe(self) -> dict:
+        """Non-linear parameters, for reports."""
+        return {}
+
+
+def _two(s: Structure, manus2: tuple[float, float], axis: float) -> tuple[float, ...]:
+    return manus2 if isinstance(s, Manus2) else (axis,) * s.n_joints
+
+
+class Rigid(Effect):
+    """Inertia and Coriolis/centripetal torques of the structure."""
+
+    name: ClassVar[str] = "rigid"
+    kind: ClassVar[str] = "inertial"
+    side: ClassVar[str] = "link"
+
+    def names(self, s):
+        return s.rigid_names
+
+    def defaults(self, s):
+        return s.rigid_defaults
+
+    def torque(self, s, q, qd, qdd, p, boundary=0.0):
+        return s.rigid_torque(q, qd, qdd, p)
+
+
+class Viscous(Effect):
+    """Viscous friction b_i q̇_i [N·m·s/rad]; thesis §3.5: b = 0.222, 0.181."""
+
+    name: ClassVar[str] = "viscous"
+    kind: ClassVar[str] = "load"
+
+    def names(self, s):
+        return per_joint("b", s)
+
+    def defaults(self, s):
+        return _two(s, (0.222, 0.181), 1.5)  # axis: b = 1.5 N·s/m, thesis eq. 4.1
+
+    def torque(self, s, q, qd, qdd, p, boundary=0.0):
+        return stack(p, self.names(s)) * qd
+
+
+class Coulomb(Effect):
+    """Coulomb friction Fc_i sgn(q̇_i) [N·m]; thesis §3.5: Fc = 0.099, 0.139."""
+
+    name: ClassVar[str] = "coulomb"
+    kind: ClassVar[str] = "friction"
+
+    def names(self, s):
+        return per_joint("Fc", s)
+
+    def defaults(self, s):
+        return _two(s, (0.099, 0.139), 0.5)
+
+    def torque(self, s, q, qd, qdd, p, boundary=0.0):
+        return stack(p, self.names(s)) * sign(qd, boundary)
+
+
+class Stribeck(Effect):
+    """Static friction above the Coulomb level, fading with speed: dFs_i exp(−(q̇_i/vs)²) sgn(q̇_i).
+
+    The thesis notes stiction but does not measure it: the defaults (dFs ≈ half of Fc,
+    vs = 0.05 rad/s) are illustrative.
+    """
+
+    name: ClassVar[str] = "stribeck"
+    kind: ClassVar[str] = "friction"
+    vs: Array = eqx.field(default=0.05, converter=jnp.asarray)  # Stribeck velocity [rad/s or m/s]
+
+    def names(self, s):
+        return per_joint("dFs", s)
+
+    def defaults(self, s):
+        return _two(s, (0.05, 0.07), 0.25)
+
+    def torque(self, s, q, qd, qdd, p, boundary=0.0):
+        return stack(p, self.names(s)) * jnp.exp(-((qd / self.vs) ** 2)) * sign(qd, boundary)
+
+    @property
+    def spec(self):
+        return f"stribeck:{float(self.vs):g}"
+
+    def describe(self):
+        return {"vs": float(self.vs)}
+
+
+class Asymmetry(Effect):
+    """Direction-dependent friction: dFc_i |sgn(q̇_i)| + db_i |q̇_i| (illustrative defaults)."""
+
+    name: ClassVar[str] = "asymmetry"
+    kind: ClassVar[str] = "friction"
+
+    def names(self, s):
+        return per_joint("dFc", s) + per_joint("db", s)
+
+    def defaults(self, s):
+        return _two(s, (0.03, 0.04), 0.1) + _two(s, (0.05, 0.04), 0.3)
+
+    def torque(self, s, q, qd, qdd, p, boundary=0.0):
+        n = s.n_joints
+        th = stack(p, self.names(s))
+        return th[:n] * jnp.abs(sign(qd, boundary)) + th[n:] * jnp.abs(qd)
+
+
+class Offset(Effect):
+    """A constant torque off_i (amplifier or sensor bias; illustrative defaults)."""
+
+    name: ClassVar[str] = "offset"
+    kind: ClassVar[str] = "load"
+
+    def names(self, s):
+        return per_joint("off", s)
+
+    def defaults(self, s):
+        return _two(s, (0.05, -0.04), 0.2)
+
+    def torque(self, s, q, qd, qdd, p, boundary=0.0):
+        return stack(p, self.names(s)) + 0 * qd
+
+
+class Gravity(Effect):
+    """A tilted work plane: gc_i cos(q_i) + gs_i sin(q_i) on each absolute angle.
+
+    Defaults: a plane tilted by about 1° (illustrative).
+    """
+
+    name: ClassVar[str] = "gravity"
+    kind: ClassVar[str] = "load"
+    side: ClassVar[str] = "link"
+
+    def names(self, s):
+        return per_joint("gc", s) + per_joint("gs", s)
+
+    def defaults(self, s):
+        return _two(s, (0.07, 0.05), 0.2) + _two(s, (0.02, -0.02), 0.0)
+
+    def torque(self, s, q, qd, qdd, p, boundary=0.0):
+        n = s.n_joints
+        th = stack(p, self.names(s))
+        return th[:n] * jnp.cos(q) + th[n:] * jnp.sin(q)
+
+
+class Cogging(Effect):
+    """Position-periodic torque A_i sin(N q_i) + B_i cos(N q_i), N cycles per revolution.
+
+    Thesis App. A: the MANUS-2 motors show 39/rev cogging (39 cogs), 6/rev torque ripple and a
+    1/rev position-dependent friction; the order N selects which. Amplitudes illustrative.
+    """
+
+    name: ClassVar[str] = "cogging"
+    kind: ClassVar[str] = "load"
+    order: Array = eqx.field(default=39.0, converter=jnp.asarray)  # cycles per revolution
+
+    def names(self, s):
+        return per_joint("A", s) + per_joint("B", s)
+
+    def defaults(self, s):
+        return _two(s, (0.02, 0.015), 0.2) + _two(s, (0.01, -0.01), 0.1)
+
+    def torque(self, s, q, qd, qdd, p, boundary=0.0):
+        n = s.n_joints
+        th = stack(p, self.names(s))
+        return th[:n] * jnp.sin(self.order * q) + th[n:] * jnp.cos(self.order * q)
+
+    @property
+    def spec(self):
+        return f"cogging:{float(self.order):g}"
+
+    def describe(self):
+        return {"order": float(self.order)}
+
+
+class Delay(Effect):
+    """The commanded torque arrives `seconds` late (thesis §3.2: the amplifier's 1 ms)."""
+
+    name: ClassVar[str] = "delay"
+    kind: ClassVar[str] = "timing"
+    seconds: float = eqx.field(default=0.001, static=True)
+
+    @property
+    def spec(self):
+        return f"delay:{self.seconds * 1e3:g}ms"
+
+    def describe(self):
+        return {"delay_ms": self.seconds * 1e3}
+
+
+class Compliance(Effect):
+    """A structural mode: the motor drives the link through a shaft spring and damper.
+
+    Thesis Fig. 4-16 (1-DOF form): motor mass m = 0.1, link mass m2 = 0.9, shaft k2 = 170000,
+    b2 = 2.0. Here the mode is given by its undamped frequency f = √(k2 (1/m + 1/m2)) / 2π =
+    218.7 Hz, the shaft's damping ratio ζ = b2 / (2 √(k2 μ)) with μ the reduced mass
+    (0.0081 for b2 = 2.0), and the motor's fraction r = m/(m + m2) = 0.1 of the inertia.
+    The encoder sits on the motor.
+    """
+
+    name: ClassVar[str] = "compliance"
+    kind: ClassVar[str] = "mode"
+    f_hz: Array = eqx.field(default=218.7, converter=jnp.asarray)
+    zeta: Array = eqx.field(default=0.0081, converter=jnp.asarray)
+    motor_fraction: float = eqx.field(default=0.1, static=True)
+
+    def shaft(self, inertia: Array) -> tuple[Array, Array]:
+        """Shaft stiffness and damping for a joint of total inertia `inertia`."""
+        mu = inertia * self.motor_fraction * (1 - self.motor_fraction)
+        w = 2 * jnp.pi * self.f_hz
+        return w**2 * mu, 2 * self.zeta * w * mu
+
+    @property
+    def spec(self):
+        return f"compliance:{float(self.f_hz):g}"
+
+    def describe(self):
+        return {"f_hz": float(self.f_hz), "zeta": float(self.zeta), "motor_fraction": self.motor_fraction}
+
+
+VOCABULARY: dict[str, type[Effect]] = {
+    cls.name: cls
+    for cls in (Rigid, Viscous, Coulomb, Stribeck, Asymmetry, Offset, Gravity, Cogging, Delay, Compliance)
+}
+ORDER = tuple(VOCABULARY)
+
+
+def _number(text: str, what: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise ModelError(f"{what}: {text!r} is not a number") from None
+
+
+def parse_effect(text: str) -> Effect:
+    """One effect from its spec: `name` or `name:value` (cogging:39, stribeck:0.02,
+    delay:2ms or delay:0.002, compliance:218.7)."""
+    name, _, arg = text.strip().partition(":")
+    name = name.strip().lower()
+    if name not in VOCABULARY:
+        raise ModelError(f"unknown effect {name!r}: the vocabulary is {', '.join(ORDER)}")
+    cls = VOCABULARY[name]
+    if not arg:
+        return cls()
+    if cls is Cogging:
+        return Cogging(order=_number(arg, "cogging order"))
+    if cls is Stribeck:
+        return Stribeck(vs=_number(arg, "Stribeck velocity"))
+    if cls is Compliance:
+        return Compliance(f_hz=_number(arg.lower().removesuffix("hz"), "compliance frequency"))
+    if cls is Delay:
+        m = re.fullmatch(r"\s*([0-9.eE+-]+)\s*(ms|s)?\s*", arg)
+        if not m:
+            raise ModelError(f"delay: {arg!r} is not a duration such as 1ms or 0.001")
+        value = _number(m.group(1), "delay")
+        return Delay(seconds=value * 1e-3 if m.group(2) == "ms" else value)
+    raise ModelError(f"effect {name!r} takes no argument (got {arg!r})")
+
+
+def parse_effects(text: str | list[str] | tuple) -> tuple[Effect, ...]:
+    """`"rigid,viscous,coulomb"` -> effects in the vocabulary's order, each at most once."""
+    items = text.split(",") if isinstance(text, str) else list(text)
+    effects = [e if isinstance(e, Effect) else parse_effect(e) for e in items if not (isinstance(e, str) and not e.strip())]
+    if not effects:
+        raise ModelError("empty effect list: name at least one of " + ", ".join(ORDER))
+    seen = [e.name for e in effects]
+    dup = sorted({n for n in seen if seen.count(n) > 1})
+    if dup:
+        raise ModelError(f"effect {dup[0]!r} given twice")
+    return tuple(sorted(effects, key=lambda e: ORDER.index(e.name)))
+
+
+class Model(eqx.Module):
+    """A structure plus a tuple of effects. Its linear parameters are the effects' in order;
+    its regressor is the stack of their columns."""
+
+    structure: Structure
+    effects: tuple[Effect, ...]
+
+    def __init__(self, structure: Structure, effects):
+        self.structure = structure
+        self.effects = parse_effects(effects) if isinstance(effects, str) else tuple(effects)
+
+    # -- bookkeeping ---------------------------------------------------------------------
+    @property
+    def n_joints(self) -> int:
+        return self.structure.n_joints
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(k for e in self.effects for k in e.names(self.structure))
+
+    def defaults(self) -> dict[str, float]:
+        s = self.structure
+        return {k: v for e in self.effects for k, v in zip(e.names(s), e.defaults(s), strict=True)}
+
+    def get(self, name: str) -> Effect | None:
+        return next((e for e in self.effects if e.name == name), None)
+
+    def has(self, name: str) -> bool:
+        return self.get(name) is not None
+
+    def with_effect(self, effect: Effect) -> "Model":
+        kept = tuple(e for e in self.effects if e.name != effect.name)
+        return Model(self.structure, parse_effects(kept + (effect,)))
+
+    def without(self, name: str) -> "Model":
+        return Model(self.structure, tuple(e for e in self.effects if e.name != name))
+
+    @property
+    def spec(self) -> str:
+        return ",".join(e.spec for e in self.effects)
+
+    @property
+    def effect_names(self) -> list[str]:
+        return [e.name for e in self.effects]
+
+    def vector(self, params: dict) -> Array:
+        """θ as a vector in regressor column order."""
+        return stack(params, self.names)
+
+    def unvector(self, theta) -> dict:
+        return {k: theta[i] for i, k in enumerate(self.names)}
+
+    # -- torques and regressors -----------------------------------------------------------
+    def torque(self, q, qd, qdd, params: dict, boundary: float = 0.0, kinds=None, side=None) -> Array:
+        """Σ of the linear effects' torques, shape (n,); only those of `kinds` (e.g.
+        ("friction",)) and acting on `side` ("motor" or "link") when given."""
+        s = self.structure
+        total = jnp.zeros(s.n_joints, jnp.result_type(qd, float))
+        for e in self.effects:
+            if e.linear and (kinds is None or e.kind in kinds) and (side is None or e.side == side):
+                total = total + e.torque(s, q, qd, qdd, params, boundary)
+        return total
+
+    def regressor(self, q, qd, qdd, boundary: float = 0.0) -> Array:
+        """Y(q, q̇, q̈) with torque = Y θ, shape (n, P): ∂torque/∂θ, exact for linear effects."""
+        theta0 = jnp.zeros(len(self.names), jnp.result_type(qd, float))
+        return jax.jacfwd(lambda th: self.torque(q, qd, qdd, self.unvector(th), boundary))(theta0)

@@ -1,0 +1,16 @@
+"""Errors that reach a user: each says what is wrong in one line, naming the thing at fault."""
+
+
+class ManusError(Exception):
+    """A problem with the user's input or set-up (bad file, unknown effect, dead link, ...).
+
+    The command line prints its message on one line and exits non-zero, without a traceback.
+    """
+
+
+class RecordingError(ManusError):
+    """A recording file that breaks the contract of DESIGN.md §2."""
+
+
+class ModelError(ManusError):
+    """A model that cannot be built or identified (unknown effect, unidentifiable parameter)."""

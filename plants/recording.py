@@ -1,0 +1,412 @@
+"""Recording files (DESIGN.md §2): what a rig logged, in CSV, NPZ or the EMPS `.mat` form.
+
+    # sample_rate_hz: 1000
+    # counts_per_rev: 131072
+    # structure: manus2
+    t,q1,q2,tau1,tau2,qd1,qd2
+    0.0000,0.474383559,2.405186002,0.155845,1.208326,0.607345,0.003299
+
+Columns: `t` [s]; `q1..qn` measured positions; `tau1..taun` commanded torques; optional
+`qd1..qdn` true velocities; any other column is kept in `extra`. A file that breaks the rules is
+refused with a `RecordingError` naming the file, the line and the problem. One exception, so that
+a run killed mid-write is still readable: an incomplete last line (no newline at the end of the
+file) is dropped with a warning.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+import os
+import re
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from plants.errors import RecordingError
+from plants.structures import Structure, structure_named
+
+STRUCTURES = ("manus2", "axis")
+
+
+@dataclass
+class Recording:
+    t: np.ndarray  # (T,) seconds, strictly increasing
+    q: np.ndarray  # (T, n) measured positions
+    tau: np.ndarray  # (T, n) commanded torques
+    qd: np.ndarray | None = None  # (T, n) true velocities (simulations only)
+    meta: dict[str, str] = field(default_factory=dict)
+    extra: dict[str, np.ndarray] = field(default_factory=dict)
+    path: str = "<memory>"
+
+    @property
+    def n_joints(self) -> int:
+        return self.q.shape[1]
+
+    def __len__(self) -> int:
+        return self.t.shape[0]
+
+    @property
+    def sample_rate_hz(self) -> float:
+        if "sample_rate_hz" in self.meta:
+            return float(self.meta["sample_rate_hz"])
+        return 1.0 / float(np.median(np.diff(self.t)))
+
+    @property
+    def dt(self) -> float:
+        return 1.0 / self.sample_rate_hz
+
+    @property
+    def counts_per_rev(self) -> float | None:
+        c = self.meta.get("counts_per_rev")
+        return float(c) if c is not None else None
+
+    @property
+    def position_step(self) -> float | None:
+        """The encoder's grid in position units, when the metadata tells it."""
+        if "position_step" in self.meta:
+            return float(self.meta["position_step"])
+        c = self.counts_per_rev
+        return 2 * math.pi / c if c else None
+
+    @property
+    def structure_name(self) -> str:
+        return self.meta.get("structure") or ("manus2" if self.n_joints == 2 else "axis")
+
+    @property
+    def structure(self) -> Structure:
+        return structure_named(self.structure_name, self.n_joints)
+
+    @property
+    def has_truth(self) -> bool:
+        return self.qd is not None
+
+    def columns(self) -> dict[str, np.ndarray]:
+        cols = {"t": self.t}
+        for name, arr in (("q", self.q), ("tau", self.tau), ("qd", self.qd)):
+            if arr is not None:
+                cols.update({f"{name}{i + 1}": arr[:, i] for i in range(self.n_joints)})
+        cols.update(self.extra)
+        return cols
+
+    def window(self, start: int, stop: int) -> "Recording":
+        """Samples start:stop, as a recording of its own."""
+        sl = slice(start, stop)
+        return Recording(self.t[sl], self.q[sl], self.tau[sl], None if self.qd is None else self.qd[sl],
+                         dict(self.meta), {k: v[sl] for k, v in self.extra.items()}, self.path)
+
+
+# -- reading ------------------------------------------------------------------------------------
+
+def read(path: str | os.PathLike) -> Recording:
+    """Read a recording: `.csv`, `.npz`, or an EMPS `.mat` file."""
+    path = Path(path)
+    if not path.exists():
+        raise RecordingError(f"{path}: no such file")
+    if path.is_dir():
+        raise RecordingError(f"{path}: is a directory, not a recording")
+    suffix = path.suffix.lower()
+    if suffix == ".npz":
+        return _read_npz(path)
+    if suffix == ".mat":
+        return _read_mat(path)
+    return _read_csv(path)
+
+
+def _fail(path, line, problem):
+    where = f"{path}:{line}" if line else f"{path}"
+    raise RecordingError(f"{where}: {problem}")
+
+
+def _read_csv(path: Path) -> Recording:
+    raw = path.read_bytes()
+    if not raw.strip():
+        _fail(path, None, "empty file")
+    if b"\x00" in raw[:65536]:
+        _fail(path, None, "binary file, not a CSV recording (expected text: '# key: value' lines, a header, rows)")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as e:
+        _fail(path, text_line(raw, e.start), "not UTF-8 text: binary or corrupted file")
+    lines = text.split("\n")
+    complete = text.endswith("\n")
+    if complete:
+        lines = lines[:-1]
+    meta: dict[str, str] = {}
+    header_at = None
+    for i, line in enumerate(lines):
+        s = line.strip()
+        if not s:
+            continue
+        if s.startswith("#"):
+            key, sep, value = s[1:].partition(":")
+            if not sep:
+                continue  # a plain comment
+            meta[key.strip()] = value.strip()
+            continue
+        header_at = i
+        break
+    if header_at is None:
+        _fail(path, None, "no header row (expected e.g. 't,q1,q2,tau1,tau2')")
+    header = [h.strip() for h in lines[header_at].split(",")]
+    _check_header(path, header_at + 1, header)
+    ncol = len(header)
+    body = [(i + 1, line) for i, line in enumerate(lines[header_at + 1:], start=header_at + 1) if line.strip()]
+    # A run killed mid-write leaves an incomplete last line: drop it with a warning.
+    if body and not complete:
+        lineno, last = body[-1]
+        if not _row_ok(last, ncol):
+            warnings.warn(f"{path}:{lineno}: incomplete last line dropped (the file was cut mid-write)", stacklevel=2)
+            body = body[:-1]
+    if not body:
+        _fail(path, header_at + 2, "no data rows after the header")
+    data = np.empty((len(body), ncol))
+    for r, (lineno, line) in enumerate(body):
+        fields = line.split(",")
+        if len(fields) != ncol:
+            _fail(path, lineno, f"ragged row: {len(fields)} fields where the header has {ncol}")
+        try:
+            data[r] = [float(x) for x in fields]
+        except ValueError:
+            bad = next(j for j, x in enumerate(fields) if not _is_float(x))
+            _fail(path, lineno, f"column {header[bad]!r}: {fields[bad].strip()!r} is not a number")
+    cols = {h: data[:, j] for j, h in enumerate(header)}
+    rows = np.array([lineno for lineno, _ in body])
+    return _assemble(path, cols, meta, lambda r: f":{rows[r]}")
+
+
+def text_line(raw: bytes, offset: int) -> int:
+    return raw[:offset].count(b"\n") + 1
+
+
+def _is_float(x: str) -> bool:
+    try:
+        float(x)
+        return True
+    except ValueError:
+        return False
+
+
+def _row_ok(line: str, ncol: int) -> bool:
+    fields = line.split(",")
+    return len(fields) == ncol and all(_is_float(x) for x in fields)
+
+
+def _check_header(path, lineno, header):
+    dup = sorted({h for h in header if header.count(h) > 1})
+    if dup:
+        _fail(path, lineno, f"column {dup[0]!r} appears twice in the header")
+    if "" in header:
+        _fail(path, lineno, "empty column name in the header")
+
+
+def _numbered(cols: dict, prefix: str) -> list[int]:
+    return sorted(int(m.group(1)) for k in cols if (m := re.fullmatch(prefix + r"(\d+)", k)))
+
+
+def _assemble(path, cols: dict, meta: dict, locate) -> Recording:
+    """Check the columns against the contract and build the Recording. `locate(r)` says where
+    data row r is (":123" for a CSV line, " sample 123" for arrays)."""
+    if "t" not in cols:
+        _fail(path, None, "missing column 't'")
+    joints = _numbered(cols, "q")
+    if not joints:
+        _fail(path, None, "missing column 'q1' (measured positions q1..qn)")
+    n = max(joints)
+    for prefix in ("q", "tau"):
+        for i in range(1, n + 1):
+            if f"{prefix}{i}" not in cols:
+                _fail(path, None, f"missing column '{prefix}{i}' (the file has q1..q{n})")
+    extra_tau = [i for i in _numbered(cols, "tau") if i > n]
+    if extra_tau:
+        _fail(path, None, f"column 'tau{extra_tau[0]}' has no matching 'q{extra_tau[0]}'")
+    qd_cols = _numbered(cols, "qd")
+    if qd_cols and qd_cols != list(range(1, n + 1)):
+        missing = sorted(set(range(1, n + 1)) - set(qd_cols))
+        _fail(path, None, f"true velocities incomplete: missing column 'qd{missing[0]}'" if missing
+              else f"column 'qd{max(qd_cols)}' has no matching 'q{max(qd_cols)}'")
+    core = ["t"] + [f"{p}{i}" for p in ("q", "tau") + (("qd",) if qd_cols else ()) for i in range(1, n + 1)]
+    for name in core:
+        bad = np.flatnonzero(~np.isfinite(cols[name]))
+        if bad.size:
+            value = cols[name][bad[0]]
+            raise RecordingError(f"{path}{locate(bad[0])}: column {name!r} is {value} (NaN or infinite)")
+    t = cols["t"]
+    if t.size < 2:
+        _fail(path, None, f"only {t.size} sample: a recording needs at least 2")
+    back = np.flatnonzero(np.diff(t) <= 0)
+    if back.size:
+        r = back[0] + 1
+        raise RecordingError(f"{path}{locate(r)}: time does not increase (t = {t[r]:.9g} after {t[r - 1]:.9g})")
+    meta = {k: str(v) for k, v in meta.items()}
+    _check_meta(path, meta, n, t)
+    q = np.stack([cols[f"q{i}"] for i in range(1, n + 1)], 1)
+    tau = np.stack([cols[f"tau{i}"] for i in range(1, n + 1)], 1)
+    qd = np.stack([cols[f"qd{i}"] for i in range(1, n + 1)], 1) if qd_cols else None
+    extra = {k: v for k, v in cols.items() if k not in core}
+    return Recording(t, q, tau, qd, meta, extra, str(path))
+
+
+def _positive(path, meta, key):
+    if key in meta:
+        try:
+            v = float(meta[key])
+        except ValueError:
+            _fail(path, None, f"metadata {key}: {meta[key]!r} is not a number")
+        if not (v > 0 and math.isfinite(v)):
+            _fail(path, None, f"metadata {key}: {meta[key]!r} must be positive")
+
+
+def _check_meta(path, meta, n, t):
+    for key in ("sample_rate_hz", "counts_per_rev", "position_step"):
+        _positive(path, meta, key)
+    structure = meta.get("structure")
+    if structure is not None:
+        if structure not in STRUCTURES:
+            _fail(path, None, f"metadata structure: {structure!r} is not one of {', '.join(STRUCTURES)}")
+        if structure == "manus2" and n != 2:
+            _fail(path, None, f"metadata structure: manus2 has 2 joints, the file has {n}")
+    if "sample_rate_hz" in meta:
+        rate = float(meta["sample_rate_hz"])
+        step = float(np.median(np.diff(t)))
+        if abs(step * rate - 1) > 0.01:
+            hint = " (is t in milliseconds?)" if abs(step * rate / 1000 - 1) < 0.01 else ""
+            _fail(path, None, f"t advances by {step:.6g} per sample but sample_rate_hz is {rate:g}{hint}")
+
+
+def _read_npz(path: Path) -> Recording:
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: np.asarray(z[k]) for k in z.files}
+    except Exception as e:  # a zip that is not one, a pickle, a truncated file
+        _fail(path, None, f"not a readable .npz recording ({type(e).__name__}: {e})")
+    if not arrays:
+        _fail(path, None, "empty file: the .npz holds no arrays")
+    cols, meta = {}, {}
+    for k, v in arrays.items():
+        if v.ndim == 0:
+            meta[k] = v.item().decode() if isinstance(v.item(), bytes) else str(v.item())
+        elif v.ndim == 1:
+            try:
+                cols[k] = v.astype(float)
+            except (TypeError, ValueError):
+                _fail(path, None, f"array {k!r} is not numeric ({v.dtype})")
+        else:
+            _fail(path, None, f"array {k!r} has shape {v.shape}: expected one column per name (1-D)")
+    lengths = {k: len(v) for k, v in cols.items()}
+    if len(set(lengths.values())) > 1:
+        ref = lengths.get("t", next(iter(lengths.values())))
+        odd = next(k for k, n in lengths.items() if n != ref)
+        _fail(path, None, f"array {odd!r} has {lengths[odd]} samples where 't' has {ref} (ragged)")
+    return _assemble(path, cols, meta, lambda r: f" sample {r}")
+
+
+def _read_mat(path: Path) -> Recording:
+    """An EMPS benchmark file: position qm, force gtau·vir, structure axis."""
+    from scipy.io import loadmat
+
+    try:
+        m = loadmat(path)
+    except Exception as e:
+        _fail(path, None, f"not a readable MATLAB file ({type(e).__name__}: {e})")
+    for key in ("t", "qm", "vir", "gtau"):
+        if key not in m:
+            _fail(path, None, f"missing variable {key!r} (an EMPS file has t, qm, qg, vir, gtau)")
+    col = lambda k: np.asarray(m[k], float).ravel()
+    cols = {"t": col("t"), "q1": col("qm"), "tau1": float(col("gtau")[0]) * col("vir")}
+    for k in ("qg", "vir", "pulses_N"):
+        if k in m:
+            cols[k] = col(k)
+    meta = {"structure": "axis", "source": "EMPS benchmark (Janot, Gautier, Brunot 2019)"}
+    for k in ("gtau", "kp", "kv"):
+        if k in m:
+            meta[k] = repr(float(col(k)[0]))
+    lengths = {k: len(v) for k, v in cols.items()}
+    if len(set(lengths.values())) > 1:
+        _fail(path, None, f"variables of different lengths: {lengths}")
+    return _assemble(path, cols, meta, lambda r: f" sample {r}")
+
+
+# -- writing ------------------------------------------------------------------------------------
+
+def _format(v) -> str:
+    return f"{v:.12g}"
+
+
+def write(rec: Recording, path: str | os.PathLike) -> Path:
+    """Write `.csv` or `.npz` (by suffix)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cols = rec.columns()
+    if path.suffix.lower() == ".npz":
+        np.savez(path, **cols, **{k: np.asarray(v) for k, v in rec.meta.items()})
+        return path
+    with RecordingWriter(path, list(cols), rec.meta) as w:
+        w.append(np.stack(list(cols.values()), 1))
+    return path
+
+
+class RecordingWriter:
+    """Writes a CSV recording as a run goes: rows are buffered and flushed to the file at least
+    every `flush_seconds`, so a process killed hard leaves everything up to its last flush (and
+    at worst one incomplete last line, which `read` drops with a warning)."""
+
+    def __init__(self, path, columns: list[str], meta: dict | None = None, flush_seconds: float = 0.1):
+        import time
+
+        self._clock = time.monotonic
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.columns = list(columns)
+        self.flush_seconds = flush_seconds
+        self._f = open(self.path, "w", buffering=1 << 20)
+        for k, v in (meta or {}).items():
+            self._f.write(f"# {k}: {v}\n")
+        self._f.write(",".join(self.columns) + "\n")
+        self._pending: list[str] = []
+        self._last = self._clock()
+        self.rows = 0
+        self.flush()
+
+    def append(self, rows) -> None:
+        rows = np.atleast_2d(np.asarray(rows, float))
+        if rows.shape[1] != len(self.columns):
+            raise ValueError(f"{self.path}: row of {rows.shape[1]} values for {len(self.columns)} columns")
+        buf = io.StringIO()
+        np.savetxt(buf, rows, fmt="%.12g", delimiter=",")
+        self._pending.append(buf.getvalue())
+        self.rows += len(rows)
+        if self._clock() - self._last >= self.flush_seconds:
+            self.flush()
+
+    def flush(self) -> None:
+        if self._pending:
+            self._f.write("".join(self._pending))
+            self._pending.clear()
+        self._f.flush()
+        self._last = self._clock()
+
+    def close(self) -> None:
+        if not self._f.closed:
+            self.flush()
+            self._f.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def from_trajectory(traj, rate_hz: float, structure: str, counts_per_rev: float | None = None,
+                    meta: dict | None = None) -> Recording:
+    """A recording of a simulated closed-loop run (with its true velocities and reference)."""
+    n = traj.q.shape[1]
+    m = {"sample_rate_hz": f"{rate_hz:g}", "structure": structure}
+    if counts_per_rev:
+        m["counts_per_rev"] = f"{counts_per_rev:g}"
+    m.update(meta or {})
+    extra = {f"qref{i + 1}": np.asarray(traj.q_ref[:, i]) for i in range(n)}
+    return Recording(np.asarray(traj.t), np.asarray(traj.q), np.asarray(traj.tau), np.asarray(traj.qd_true), m, extra)

@@ -1,0 +1,99 @@
+"""Reference trajectories: the thesis's benign and complex ones (App. C) and a multi-sine.
+
+A reference defines its position q(t) once; velocity and acceleration come from forward-mode
+differentiation, so they are exact and cannot drift out of step with the position.
+"""
+
+from __future__ import annotations
+
+import abc
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+
+from plants.stepper import Reference, RefSample
+
+CENTRE = (0.464, 2.409)  # thesis App. C: workspace centre of MANUS-2 [rad]
+
+
+class PositionReference(Reference):
+    """A reference given by its position; `__call__` adds exact derivatives."""
+
+    @abc.abstractmethod
+    def position(self, t) -> Array: ...
+
+    def __call__(self, t) -> RefSample:
+        t = jnp.asarray(t, float)
+        d1 = lambda s: jax.jvp(self.position, (s,), (jnp.ones_like(s),))
+        q, qd = d1(t)
+        _, qdd = jax.jvp(lambda s: d1(s)[1], (t,), (jnp.ones_like(t),))
+        return RefSample(q, qd, qdd)
+
+
+class Hold(PositionReference):
+    """Stay at `q`."""
+
+    q: Array = eqx.field(converter=lambda x: jnp.asarray(x, float))
+
+    def position(self, t):
+        return self.q + 0 * t
+
+
+class Benign(PositionReference):
+    """Thesis eqs. C.11–C.12: both joints 0.1 rad at 0.5 Hz, in antiphase."""
+
+    centre: tuple = CENTRE
+
+    def position(self, t):
+        w = 0.1 * (1 - jnp.cos(jnp.pi * t))
+        return jnp.stack([self.centre[0] - w, self.centre[1] + w])
+
+
+class Complex(PositionReference):
+    """Thesis eqs. C.13–C.14: joint 1 0.1 rad at 2 Hz, joint 2 0.2 rad at 1 Hz."""
+
+    centre: tuple = CENTRE
+
+    def position(self, t):
+        return jnp.stack([self.centre[0] - 0.1 * (1 - jnp.cos(4 * jnp.pi * t)),
+                          self.centre[1] + 0.2 * (1 - jnp.cos(2 * jnp.pi * t))])
+
+
+class MultiSine(PositionReference):
+    """An excitation for identification: per joint a sum of sines with log-spaced frequencies
+    in [f_min, f_max] Hz, amplitudes ∝ 1/f (flat velocity spectrum) summing to `amplitude`,
+    random phases (`seed`) and different frequencies on each joint; faded in over `ramp` s so
+    that it starts at `centre` at rest."""
+
+    centre: Array
+    freqs: Array  # (n, k) Hz
+    amps: Array  # (n, k)
+    phases: Array  # (n, k)
+    ramp: float = 0.5
+
+    def __init__(self, centre=CENTRE, amplitude=0.15, f_min=0.2, f_max=3.0, components=6, seed=0, ramp=0.5):
+        centre = np.atleast_1d(np.asarray(centre, float))
+        n = centre.size
+        rng = np.random.default_rng(seed)
+        base = np.geomspace(f_min, f_max, components)
+        ratio = (f_max / f_min) ** (1 / (components - 1)) if components > 1 else 1.3
+        freqs = np.stack([base * ratio ** (i / n) for i in range(n)])  # interleaved: no shared lines
+        amps = amplitude * (1 / freqs) / (1 / freqs).sum(1, keepdims=True)
+        self.centre = jnp.asarray(centre)
+        self.freqs = jnp.asarray(freqs)
+        self.amps = jnp.asarray(amps)
+        self.phases = jnp.asarray(rng.uniform(0, 2 * np.pi, freqs.shape))
+        self.ramp = float(ramp)
+
+    def position(self, t):
+        x = jnp.clip(t / self.ramp, 0.0, 1.0) if self.ramp > 0 else 1.0
+        fade = x * x * x * (10 - 15 * x + 6 * x * x)  # smoothstep: zero slope and curvature at 0
+        w = 2 * jnp.pi * self.freqs
+        wave = jnp.sum(self.amps * (jnp.sin(w * t + self.phases) - jnp.sin(self.phases)), axis=1)
+        return self.centre + fade * wave
+
+
+REFERENCES = {"benign": Benign, "complex": Complex, "multisine": MultiSine}

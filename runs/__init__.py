@@ -1,0 +1,1 @@
+"""Experiments and the `manus` command: they wire plants, estimators and adaptive together."""

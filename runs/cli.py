@@ -1,0 +1,104 @@
+"""The `manus` command. Each sub-command is a module `runs/cmd_<name>.py` with
+
+    NAME = "fit"                     # the sub-command (defaults to the module's suffix)
+    HELP = "one line"
+    def add_arguments(parser): ...
+    def run(args) -> dict            # the result; `--json` prints it, else `render(result)`
+    def render(result) -> str        # optional: the human-readable report
+
+Contract (DESIGN.md §4): `--json` prints one JSON object on stdout and nothing else there;
+progress and notes go to stderr; figures go to `--out DIR` (default runs/out/); an error is one
+line on stderr and a non-zero exit code.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import os
+import pkgutil
+import sys
+
+import runs
+
+# Measured on this CPU (../shared/notes/jax-cpu-performance.md): compile a whole scan body as one
+# function, and expose both cores as devices for sharded batches. Must precede the JAX import.
+XLA_FLAGS = ("--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000000",
+             "--xla_force_host_platform_device_count=2")
+
+
+def configure_jax() -> None:
+    flags = os.environ.get("XLA_FLAGS", "")
+    extra = [f for f in XLA_FLAGS if f.split("=")[0] not in flags]
+    os.environ["XLA_FLAGS"] = " ".join([flags, *extra]).strip()
+    os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+
+
+def commands() -> dict[str, object]:
+    found = {}
+    for info in pkgutil.iter_modules(runs.__path__):
+        if info.name.startswith("cmd_"):
+            module = importlib.import_module(f"runs.{info.name}")
+            found[getattr(module, "NAME", info.name[4:].replace("_", "-"))] = module
+    return dict(sorted(found.items()))
+
+
+def parser(cmds: dict) -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="manus", description="Adaptive control of interactive robots: "
+                                "simulate, estimate velocity, fit and diagnose models, adapt, run hardware.")
+    p.add_argument("--debug", action="store_true", help="show the full traceback of an error")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name, module in cmds.items():
+        sp = sub.add_parser(name, help=module.HELP, description=module.HELP)
+        module.add_arguments(sp)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    cmds = commands()
+    args = parser(cmds).parse_args(argv)
+    configure_jax()
+    from plants.errors import ManusError
+
+    module = cmds[args.command]
+    try:
+        result = module.run(args)
+    except ManusError as e:
+        if args.debug:
+            raise
+        print(f"manus {args.command}: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"manus {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except Exception as e:  # an unexpected failure: still one line, the traceback on request
+        if args.debug:
+            raise
+        print(f"manus {args.command}: internal error: {type(e).__name__}: {e} (run with --debug for the traceback)",
+              file=sys.stderr)
+        return 1
+    if getattr(args, "json", False):
+        print(json.dumps(result, default=_jsonable))
+    elif hasattr(module, "render"):
+        text = module.render(result)
+        if text:
+            print(text)
+    return 0
+
+
+def _jsonable(x):
+    import numpy as np
+
+    if isinstance(x, np.generic):
+        return x.item()
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    raise TypeError(f"not JSON serializable: {type(x).__name__}")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

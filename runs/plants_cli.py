@@ -1,0 +1,50 @@
+"""Building plants and controllers from command-line options (shared by several commands)."""
+
+from __future__ import annotations
+
+from plants.errors import ManusError
+
+THESIS_TRUTH = "rigid,viscous,coulomb,delay"  # the thesis's plant: §3.5 friction, §3.2 delay
+
+
+def add_plant_options(parser, truth_default: str = THESIS_TRUTH) -> None:
+    g = parser.add_argument_group("plant")
+    g.add_argument("--truth", default=truth_default, metavar="EFFECTS",
+                   help=f"effects of the simulated plant, e.g. rigid,viscous,coulomb,cogging:39,delay:1ms "
+                        f"(default {truth_default})")
+    g.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                   help="set a truth parameter, e.g. --param Fc1=0.2 (repeatable)")
+    g.add_argument("--structure", choices=("manus2", "axis"), default="manus2")
+    g.add_argument("--joints", type=int, default=1, help="number of joints of an axis structure")
+    g.add_argument("--rate", type=float, default=1000.0, help="control rate [Hz] (default 1000)")
+    g.add_argument("--substeps", type=int, default=10, help="physics sub-steps per control period")
+    g.add_argument("--counts", type=float, default=131072, help="encoder counts per revolution (0: no quantization)")
+    g.add_argument("--torque-noise", type=float, default=0.0, help="white torque disturbance std [N·m]")
+
+
+def parse_params(items: list[str]) -> dict[str, float]:
+    out = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        try:
+            if not sep:
+                raise ValueError
+            out[name.strip()] = float(value)
+        except ValueError:
+            raise ManusError(f"--param {item!r}: expected NAME=VALUE with a number, e.g. Fc1=0.2") from None
+    return out
+
+
+def build_plant(args):
+    """The simulator the options describe."""
+    import math
+
+    from plants import Encoder, Model, Simulator, structure_named
+
+    if args.rate <= 0 or args.substeps < 1:
+        raise ManusError("--rate must be positive and --substeps at least 1")
+    n = 2 if args.structure == "manus2" else args.joints
+    model = Model(structure_named(args.structure, n), args.truth)
+    encoder = Encoder(step=2 * math.pi / args.counts) if args.counts > 0 else None
+    return Simulator(model, parse_params(args.param), rate_hz=args.rate, substeps=args.substeps,
+                     encoder=encoder, torque_noise=args.torque_noise)

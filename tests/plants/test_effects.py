@@ -1,0 +1,83 @@
+"""Each effect is defined once by its torque; its regressor must reproduce it exactly."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from plants.effects import VOCABULARY, Model, parse_effects
+from plants.errors import ModelError
+from plants.structures import Axis, Manus2
+
+LINEAR = [name for name, cls in VOCABULARY.items() if cls().linear]
+
+
+def random_state(rng, n):
+    return (rng.uniform(-3, 3, n), rng.normal(0, 1, n), rng.normal(0, 5, n))
+
+
+@pytest.mark.parametrize("structure", [Manus2(), Axis(n_joints=3)], ids=["manus2", "axis3"])
+@pytest.mark.parametrize("name", LINEAR)
+def test_regressor_times_theta_is_the_torque(structure, name):
+    model = Model(structure, "rigid," + name if name != "rigid" else "rigid")
+    rng = np.random.default_rng(1)
+    for _ in range(5):
+        q, qd, qdd = random_state(rng, structure.n_joints)
+        theta = rng.normal(0, 1, len(model.names))
+        params = model.unvector(jnp.asarray(theta))
+        Y = model.regressor(q, qd, qdd)
+        np.testing.assert_allclose(Y @ theta, model.torque(q, qd, qdd, params), rtol=1e-12, atol=1e-12)
+
+
+def test_manus2_rigid_regressor_matches_the_thesis_equations():
+    """Eqs. 3.2–3.3 / C.1–C.2 written out by hand (an independent reference)."""
+    model = Model(Manus2(), "rigid")
+    q, qd, qdd = np.array([0.3, 2.1]), np.array([0.7, -1.2]), np.array([2.0, -0.5])
+    c, s = np.cos(q[1] - q[0]), np.sin(q[1] - q[0])
+    expected = np.array([[qdd[0], c * qdd[1] - s * qd[1] ** 2, 0.0],
+                         [0.0, c * qdd[0] + s * qd[0] ** 2, qdd[1]]])
+    np.testing.assert_allclose(model.regressor(q, qd, qdd), expected, atol=1e-14)
+
+
+def test_closed_form_torques_of_friction_effects():
+    s = Manus2()
+    q, qd = np.array([0.1, 0.2]), np.array([0.3, -0.02])
+    m = Model(s, "rigid,coulomb,stribeck:0.05,asymmetry,cogging:6")
+    p = m.defaults()
+    tau = np.asarray(m.torque(q, qd, np.zeros(2), p, kinds=("friction", "load")))
+    expected = (np.array([0.099, -0.139])
+                + np.array([0.05 * np.exp(-36), -0.07 * np.exp(-(0.02 / 0.05) ** 2)])
+                + np.array([0.03 + 0.05 * 0.3, 0.04 + 0.04 * 0.02])
+                + np.array([0.02 * np.sin(0.6) + 0.01 * np.cos(0.6), 0.015 * np.sin(1.2) - 0.01 * np.cos(1.2)]))
+    np.testing.assert_allclose(tau, expected, rtol=1e-12)
+
+
+def test_boundary_layer_replaces_the_sign_by_a_saturated_ramp():
+    m = Model(Axis(n_joints=1), "rigid,coulomb")
+    p = {"M1": 1.0, "Fc1": 2.0}
+    tau = lambda v, phi: float(m.torque(np.zeros(1), np.array([v]), np.zeros(1), p, boundary=phi, kinds=("friction",))[0])
+    assert tau(0.001, 0.0) == 2.0 and tau(0.0, 0.0) == 0.0
+    assert tau(0.001, 0.01) == pytest.approx(0.2) and tau(-0.5, 0.01) == -2.0
+
+
+def test_parse_specs_and_errors():
+    effects = parse_effects("delay:2ms, rigid,cogging:39,stribeck:0.02")
+    assert [e.name for e in effects] == ["rigid", "stribeck", "cogging", "delay"]
+    assert effects[-1].seconds == pytest.approx(0.002)
+    assert Model(Manus2(), effects).spec == "rigid,stribeck:0.02,cogging:39,delay:2ms"
+    with pytest.raises(ModelError, match="unknown effect 'friction'.*vocabulary is rigid"):
+        parse_effects("rigid,friction")
+    with pytest.raises(ModelError, match="given twice"):
+        parse_effects("rigid,viscous,viscous")
+    with pytest.raises(ModelError, match="not a number"):
+        parse_effects("cogging:many")
+    with pytest.raises(ModelError, match="takes no argument"):
+        parse_effects("viscous:3")
+
+
+def test_thesis_defaults():
+    d = Model(Manus2(), "rigid,viscous,coulomb").defaults()
+    assert d == {"a1": 0.349, "a2": 0.241, "a3": 0.246, "b1": 0.222, "b2": 0.181, "Fc1": 0.099, "Fc2": 0.139}
+    c = parse_effects("compliance")[0]
+    k, b = c.shaft(jnp.asarray(1.0))  # the thesis's 1-DOF model: m = 0.1, m2 = 0.9
+    assert float(k) == pytest.approx(170000, rel=0.001) and float(b) == pytest.approx(2.0, rel=0.01)

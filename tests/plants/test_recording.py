@@ -1,0 +1,121 @@
+"""Recording files: round trips, the EMPS files, and bad files refused with file, line, problem."""
+
+import warnings
+
+import numpy as np
+import pytest
+
+from plants import recording
+from plants.errors import RecordingError
+from plants.recording import Recording, RecordingWriter
+
+GOOD = """# sample_rate_hz: 1000
+# counts_per_rev: 131072
+# structure: manus2
+# operator: someone
+t,q1,q2,tau1,tau2,qd1,qd2,force
+0.000,0.4743,2.4051,0.15,1.20,0.60,0.003,1
+0.001,0.4749,2.4051,0.16,1.21,0.61,0.004,2
+0.002,0.4755,2.4052,0.17,1.22,0.62,0.005,3
+"""
+
+
+def write(tmp_path, text, name="rec.csv", mode="w"):
+    p = tmp_path / name
+    p.write_bytes(text) if isinstance(text, bytes) else p.write_text(text)
+    return p
+
+
+def test_read_csv_keeps_metadata_and_extra_columns(tmp_path):
+    rec = recording.read(write(tmp_path, GOOD))
+    assert rec.n_joints == 2 and len(rec) == 3 and rec.has_truth
+    assert rec.sample_rate_hz == 1000 and rec.counts_per_rev == 131072 and rec.structure_name == "manus2"
+    assert rec.meta["operator"] == "someone"
+    np.testing.assert_array_equal(rec.extra["force"], [1, 2, 3])
+    np.testing.assert_array_equal(rec.tau[:, 1], [1.20, 1.21, 1.22])
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".npz"])
+def test_round_trip(tmp_path, suffix):
+    rng = np.random.default_rng(0)
+    t = np.arange(500) * 1e-3
+    step = 2 * np.pi / 131072
+    rec = Recording(t, np.round(rng.normal(size=(500, 2)) / step) * step, rng.normal(size=(500, 2)),
+                    rng.normal(size=(500, 2)), {"sample_rate_hz": "1000", "counts_per_rev": "131072"},
+                    {"qref1": rng.normal(size=500)})
+    back = recording.read(recording.write(rec, tmp_path / f"r{suffix}"))
+    for a, b in [(rec.t, back.t), (rec.q, back.q), (rec.tau, back.tau), (rec.qd, back.qd),
+                 (rec.extra["qref1"], back.extra["qref1"])]:
+        np.testing.assert_allclose(a, b, rtol=1e-11, atol=1e-15)
+    counts = back.q / step
+    np.testing.assert_allclose(counts, np.round(counts), atol=1e-6)  # still on the grid
+    assert back.meta["counts_per_rev"] == "131072"
+
+
+BAD = {
+    "missing column": ("t,q1,q2,tau1\n0,1,2,3\n0.001,1,2,3\n", r"rec.csv: missing column 'tau2'"),
+    "nan": ("t,q1,tau1\n0,1,2\n0.001,nan,2\n0.002,1,2\n", r"rec.csv:3: column 'q1' is nan"),
+    "time backwards": ("t,q1,tau1\n0,1,2\n0.002,1,2\n0.001,1,2\n", r"rec.csv:4: time does not increase"),
+    "ragged": ("t,q1,tau1\n0,1,2\n0.001,1\n0.002,1,2\n", r"rec.csv:3: ragged row: 2 fields where the header has 3"),
+    "empty": ("", r"rec.csv: empty file"),
+    "only header": ("t,q1,tau1\n", r"rec.csv:2: no data rows"),
+    "binary": (bytes(range(256)) * 10, r"rec.csv: binary file"),
+    "text not number": ("t,q1,tau1\n0,1,2\n0.001,1,abc\n", r"rec.csv:3: column 'tau1': 'abc' is not a number"),
+    "ms time": ("# sample_rate_hz: 1000\nt,q1,tau1\n0,1,2\n1,1,2\n2,1,2\n", r"is t in milliseconds"),
+    "bad structure": ("# structure: manus2\nt,q1,tau1\n0,1,2\n0.001,1,2\n", r"manus2 has 2 joints"),
+    "one sample": ("t,q1,tau1\n0,1,2\n", r"only 1 sample"),
+    "duplicate": ("t,q1,q1,tau1\n0,1,1,2\n0.001,1,1,2\n", r"column 'q1' appears twice"),
+    "partial truth": ("t,q1,q2,tau1,tau2,qd1\n0,1,1,2,2,0\n0.001,1,1,2,2,0\n", r"missing column 'qd2'"),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD))
+def test_bad_files_are_refused_with_file_line_and_problem(tmp_path, case):
+    text, message = BAD[case]
+    with pytest.raises(RecordingError, match=message):
+        recording.read(write(tmp_path, text))
+
+
+def test_binary_npz_and_mat_are_refused(tmp_path):
+    for name in ("rec.npz", "rec.mat"):
+        with pytest.raises(RecordingError, match=rf"{name}: not a readable"):
+            recording.read(write(tmp_path, b"\x00\x01garbage" * 50, name))
+    with pytest.raises(RecordingError, match="no such file"):
+        recording.read(tmp_path / "absent.csv")
+
+
+def test_npz_errors_name_the_sample(tmp_path):
+    p = tmp_path / "r.npz"
+    np.savez(p, t=np.arange(4) * 1e-3, q1=np.array([0, 1, np.nan, 3.0]), tau1=np.zeros(4))
+    with pytest.raises(RecordingError, match=r"r.npz sample 2: column 'q1' is nan"):
+        recording.read(p)
+
+
+def test_incomplete_last_line_is_dropped_with_a_warning(tmp_path):
+    p = write(tmp_path, GOOD + "0.003,0.4761,2.40")  # a run killed mid-write
+    with pytest.warns(UserWarning, match=r"rec.csv:9: incomplete last line dropped"):
+        rec = recording.read(p)
+    assert len(rec) == 3
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a complete last line without newline is fine
+        assert len(recording.read(write(tmp_path, GOOD + "0.003,0.4761,2.4052,0.18,1.23,0.63,0.006,4"))) == 4
+
+
+def test_streaming_writer_flushes_and_survives_a_cut(tmp_path):
+    p = tmp_path / "live.csv"
+    w = RecordingWriter(p, ["t", "q1", "tau1"], {"sample_rate_hz": 1000}, flush_seconds=0.0)
+    for k in range(10):
+        w.append([k * 1e-3, k * 0.1, -k])
+    # not closed (as if killed): everything appended is already in the file
+    assert len(recording.read(p)) == 10
+    w.close()
+
+
+def test_emps_files(emps_dir):
+    rec = recording.read(emps_dir / "DATA_EMPS.mat")
+    assert rec.n_joints == 1 and len(rec) == 24841 and rec.structure_name == "axis"
+    assert rec.sample_rate_hz == pytest.approx(1000, rel=1e-3)
+    assert float(rec.meta["gtau"]) == pytest.approx(35.15065188)
+    np.testing.assert_allclose(rec.tau[:, 0], 35.15065188248547 * rec.extra["vir"])
+    pulses = recording.read(emps_dir / "DATA_EMPS_PULSES.mat")
+    assert set(pulses.extra) >= {"qg", "vir", "pulses_N"}
