@@ -1,0 +1,43 @@
+"""`manus bench NAME`: a benchmark of one part, its figures beside a baseline run in the same
+process. Each benchmark is a module `runs/bench/<name>.py` with `HELP`, `add_arguments(parser)`
+(optional), `run(args) -> {"figures": {...}, ...}` and optionally `render(result) -> str`."""
+
+from __future__ import annotations
+
+import importlib
+import pkgutil
+
+NAME = "bench"
+HELP = "benchmarks (sim, estimators, diagnose, converge, stability, hardware), each beside its baseline"
+
+
+def benchmarks() -> dict:
+    import runs.bench as pkg
+
+    return {m.name: importlib.import_module(f"runs.bench.{m.name}") for m in pkgutil.iter_modules(pkg.__path__)}
+
+
+def add_arguments(p) -> None:
+    sub = p.add_subparsers(dest="bench", metavar="NAME", required=True)
+    for name, module in sorted(benchmarks().items()):
+        sp = sub.add_parser(name, help=module.HELP, description=module.HELP)
+        sp.add_argument("--json", action="store_true", help="print one JSON object on stdout and nothing else")
+        if hasattr(module, "add_arguments"):
+            module.add_arguments(sp)
+
+
+def run(args) -> dict:
+    result = benchmarks()[args.bench].run(args)
+    result.setdefault("benchmark", args.bench)
+    return result
+
+
+def render(result: dict) -> str:
+    module = benchmarks()[result["benchmark"]]
+    if hasattr(module, "render"):
+        return module.render(result)
+    lines = [f"benchmark {result['benchmark']}"]
+    lines += [f"  {k}: {v:.4g}" if isinstance(v, float) else f"  {k}: {v}" for k, v in result["figures"].items()]
+    if "speedup" in result:
+        lines.append(f"  speedup: {result['speedup']:.3g}x")
+    return "\n".join(lines)
