@@ -1,5 +1,12 @@
-"""Velocity (and acceleration) estimators: causal steppers and offline differentiators."""
+"""Velocity (and acceleration) estimators: causal steppers and offline differentiators.
+
+`NAMES` lists them in report order, `make(name, ...)` builds one, `KNOBS[name]` is the knob
+`manus estimators --tune` searches. Each is a stepper (`init(q0)`, `step(state, q, tau)`), run over
+a recorded array with `run`.
+"""
 
 from estimators.base import Estimate, Estimator, FilteredFirstDifference, FirstDifference, run
+from estimators.registry import KNOBS, NAMES, knob_range, make
 
-__all__ = ["Estimate", "Estimator", "FilteredFirstDifference", "FirstDifference", "run"]
+__all__ = ["Estimate", "Estimator", "FilteredFirstDifference", "FirstDifference", "run",
+           "KNOBS", "NAMES", "knob_range", "make"]
