@@ -1,0 +1,164 @@
+"""Every estimator over one recording: scored against the truth (or the offline reference), and
+optionally each one's knob tuned on the recording first. What `manus estimators` reports.
+
+Tuning searches the knob of `registry.KNOBS` (rescaled to the recording's encoder step) on a log
+grid, then twice on a finer grid around the best point; every grid is one vectorised scan of the
+estimator over the recording. The criterion is the RMS error against the true velocity when the
+recording has one; without it, the whiteness of the estimator's one-step prediction residual
+(`scoring.whiteness`), which needs no reference at all, rather than the offline estimate, which
+would reward whichever estimator imitates the offline filter's own smoothing.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from estimators import offline, scoring
+from estimators.base import Estimate, run
+from estimators.registry import NAMES, THESIS_STEP, knob_range, make
+from plants.errors import ManusError
+from plants.recording import Recording
+
+START_SECONDS = 0.1  # skipped when scoring: every estimator starts from rest
+GRID = (17, 9, 9)  # points of the coarse grid, then of the two refinements
+MODEL_BASED = ("kalman_model", "luenberger_model")
+
+
+def encoder_step(rec: Recording) -> tuple[float, str]:
+    """(Δ, where it came from): the metadata, else the grid the positions sit on, else an
+    equivalent step √12 σ from the measurement noise σ above 100 Hz (unquantized data)."""
+    if rec.position_step:
+        return rec.position_step, "metadata"
+    q = rec.q - rec.q[0]
+    d = np.abs(np.diff(q, axis=0))
+    d = d[d > 0]
+    if d.size:
+        step = float(d.min())
+        if np.all(np.abs(q / step - np.round(q / step)) < 1e-3):
+            return step, "grid"
+    noise = np.std(rec.q - offline.lowpass(rec.q, rec.dt, min(100.0, 0.4 / rec.dt)), axis=0).max()
+    if not noise > 0:
+        return THESIS_STEP, "default"
+    return float(math.sqrt(12) * noise), "noise"
+
+
+@dataclass
+class Setup:
+    """What every estimator on this recording shares."""
+
+    dt: float
+    step: float
+    n_joints: int
+    model_knobs: dict = field(default_factory=dict)  # model=, params=, structure= for the model-based
+
+    def make(self, name: str, **knobs):
+        extra = self.model_knobs if name in MODEL_BASED else {}
+        return make(name, dt=self.dt, n_joints=self.n_joints, step=self.step, **extra, **knobs)
+
+
+_run = eqx.filter_jit(run)
+_run_batch = eqx.filter_jit(eqx.filter_vmap(run, in_axes=(eqx.if_array(0), None, None)))
+
+
+def _stack(modules):
+    """Estimators differing only in array values -> one with a leading batch axis on them."""
+    static = eqx.partition(modules[0], eqx.is_array)[1]
+    stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *[eqx.filter(m, eqx.is_array) for m in modules])
+    return eqx.combine(stacked, static)
+
+
+def run_estimator(estimator, q: np.ndarray, tau: np.ndarray) -> Estimate:
+    out = _run(estimator, jnp.asarray(q), jnp.asarray(tau))
+    return Estimate(*(None if x is None else np.asarray(x) for x in out))
+
+
+def tune(setup: Setup, name: str, q: np.ndarray, tau: np.ndarray, reference: np.ndarray | None,
+         start: int, stop: int) -> dict | None:
+    """The best knob value of estimator `name` on (q, tau): against `reference` (the truth) when
+    given, else by whiteness. Returns {"knob", "value", "criterion", "objective"} or None."""
+    spec = knob_range(name, setup.step)
+    if spec is None:
+        return None
+    knob, low, high, log = spec
+    to, back = (np.log, np.exp) if log else ((lambda x: x), (lambda x: x))
+    lo, hi = to(low), to(high)
+    best = None
+    for points in GRID:
+        values = back(np.linspace(lo, hi, points))
+        out = _run_batch(_stack([setup.make(name, **{knob: float(v)}) for v in values]), jnp.asarray(q),
+                         jnp.asarray(tau))
+        if reference is not None:
+            objective = np.sqrt(np.mean((np.asarray(out.qd)[:, start:stop] - reference[start:stop]) ** 2, axis=(1, 2)))
+        else:
+            eps = scoring.prediction_residual(q[start:stop], np.asarray(out.q)[:, start:stop],
+                                              np.asarray(out.qd)[:, start:stop],
+                                              None if out.qdd is None else np.asarray(out.qdd)[:, start:stop], setup.dt)
+            objective = scoring.whiteness(eps)
+        objective = np.where(np.isfinite(objective), objective, np.inf)
+        i = int(np.argmin(objective))
+        best = (float(values[i]), float(objective[i]))
+        spacing = (hi - lo) / (points - 1)
+        lo, hi = max(to(low), to(values[i]) - spacing), min(to(high), to(values[i]) + spacing)
+    return {"knob": knob, "value": best[0], "criterion": "rms_error" if reference is not None else "whiteness",
+            "objective": best[1]}
+
+
+def reference_velocity(rec: Recording, cutoff_hz: float) -> tuple[np.ndarray, bool, int, int]:
+    """(reference velocity, is it the truth, first and last+1 sample to score)."""
+    start = int(round(START_SECONDS / rec.dt))
+    if rec.has_truth:
+        return rec.qd, True, start, len(rec)
+    edge = offline.edge(rec.dt, cutoff_hz)
+    return offline.differentiate(rec.q, rec.dt, cutoff_hz)[1], False, max(start, edge), len(rec) - edge
+
+
+def compare(rec: Recording, names=NAMES, tune_knobs: bool = False, cutoff_hz: float = 30.0,
+            model_knobs: dict | None = None, progress=None) -> tuple[dict, dict]:
+    """Run and score every estimator in `names` on the recording.
+
+    Returns (report, estimates): the report is JSON-ready (DESIGN.md §4), `estimates[name]` the
+    velocity estimate (T, n), with `estimates["reference"]` the reference.
+    """
+    unknown = [n for n in names if n not in NAMES]
+    if unknown:
+        raise ManusError(f"unknown estimator {unknown[0]!r}: the estimators are {', '.join(NAMES)}")
+    if len(rec) < 50:
+        raise ManusError(f"{rec.path}: {len(rec)} samples are too few to compare estimators")
+    step, step_source = encoder_step(rec)
+    setup = Setup(rec.dt, step, rec.n_joints, dict(model_knobs or {}))
+    reference, truth, start, stop = reference_velocity(rec, cutoff_hz)
+    if stop - start < 50:
+        raise ManusError(f"{rec.path}: too short to score after dropping the start-up and filter edges")
+    sl = slice(start, stop)
+    still = np.abs(reference) < scoring.still_threshold(reference[sl])
+    rows, estimates = [], {"reference": reference}
+    for name in names:
+        if progress:
+            progress(name)
+        tuned = tune(setup, name, rec.q, rec.tau, reference if truth else None, start, stop) if tune_knobs else None
+        estimator = setup.make(name, **({tuned["knob"]: tuned["value"]} if tuned else {}))
+        out = run_estimator(estimator, rec.q, rec.tau)
+        if not np.all(np.isfinite(out.qd)):
+            raise ManusError(f"estimator {name} diverged on {rec.path} (non-finite estimate)")
+        estimates[name] = out.qd
+        row = {"name": name, **scoring.score(out.qd[sl], reference[sl], rec.dt, still[sl])}
+        spec = knob_range(name, step)
+        if spec is not None:
+            value = tuned["value"] if tuned else float(np.asarray(getattr(estimator, spec[0])))  # knob = field
+            row["knob"] = {"name": spec[0], "value": value, "tuned": bool(tuned)}
+            if tuned:
+                row["knob"].update(criterion=tuned["criterion"], objective=tuned["objective"])
+        rows.append(row)
+    report = {"recording": rec.path, "samples": len(rec), "joints": rec.n_joints, "dt": rec.dt, "truth": truth,
+              "reference": "truth" if truth else f"offline zero-phase ({cutoff_hz:g} Hz)",
+              "scored_samples": [start, stop], "step": {"value": step, "source": step_source},
+              "still_threshold": scoring.still_threshold(reference[sl]).tolist(), "tuned": tune_knobs,
+              "estimators": rows, "best": min(rows, key=lambda r: r["rms_error"])["name"]}
+    return report, estimates
+
