@@ -1,0 +1,88 @@
+"""`manus estimators REC`: every velocity estimator on a recording, scored and (optionally) tuned."""
+
+from __future__ import annotations
+
+from runs.common import add_common, note, table
+
+NAME = "estimators"
+HELP = "compare every velocity estimator on a recording (against its true velocity, or the offline reference)"
+
+
+def add_arguments(p) -> None:
+    p.add_argument("recording", metavar="REC", help="a recording (.csv, .npz, or an EMPS .mat file)")
+    p.add_argument("--tune", action="store_true",
+                   help="tune each estimator's knob on the recording first (against the true velocity, "
+                        "else by the whiteness of its prediction residual)")
+    p.add_argument("--only", metavar="NAMES", help="a comma-separated subset of the estimators")
+    p.add_argument("--cutoff", type=float, default=30.0, metavar="HZ",
+                   help="corner of the offline zero-phase reference when there is no true velocity (default 30)")
+    p.add_argument("--model", metavar="EFFECTS",
+                   help="the model of the model-based estimators (default rigid,viscous,coulomb)")
+    p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                   help="a parameter of that model, e.g. --param M1=95.1 (repeatable; default the effects' own)")
+    p.add_argument("--no-figures", action="store_true", help="skip the figures")
+    add_common(p)
+
+
+def run(args) -> dict:
+    from estimators import NAMES
+    from estimators.compare import compare
+    from plants import Model, recording
+    from plants.errors import ManusError
+    from runs.plants_cli import parse_params
+
+    names = NAMES if not args.only else tuple(n.strip() for n in args.only.split(",") if n.strip())
+    unknown = [n for n in names if n not in NAMES]
+    if unknown:
+        raise ManusError(f"unknown estimator {unknown[0]!r}: the estimators are {', '.join(NAMES)}")
+    if args.cutoff <= 0:
+        raise ManusError("--cutoff must be positive")
+    rec = recording.read(args.recording)
+    model_knobs = {"structure": rec.structure_name}
+    if args.model:
+        model_knobs["model"] = Model(rec.structure, args.model)
+    if args.param:
+        model_knobs["params"] = parse_params(args.param)
+    note(f"{rec.path}: {len(rec)} samples of {rec.n_joints} joint(s) at {rec.sample_rate_hz:g} Hz, "
+         f"{'with' if rec.has_truth else 'without'} a true velocity" + (", tuning each knob" if args.tune else ""))
+    report, estimates = compare(rec, names, args.tune, args.cutoff, model_knobs,
+                                progress=lambda name: note(f"  {name} ..."))
+    if not args.no_figures:
+        report["figures"] = figures(rec, report, estimates, args.out)
+    return report
+
+
+def figures(rec, report: dict, estimates: dict, out) -> dict:
+    import numpy as np
+
+    from estimators.response import frequency_response
+    from runs.estimator_figures import estimates_figure, response_figure
+
+    paths = {"estimates": [estimates_figure(rec.t, estimates, report, out, j) for j in range(rec.n_joints)]}
+    freqs = np.geomspace(0.5, 0.45 / rec.dt, 40)
+    amplitude = float(np.max(np.std(rec.q, axis=0)))
+    responses = {}
+    for row in report["estimators"]:
+        knob = {row["knob"]["name"]: row["knob"]["value"]} if "knob" in row else {}
+        responses[row["name"]] = frequency_response(row["name"], freqs, rec.dt, amplitude,
+                                                    step=report["step"]["value"], **knob)
+    paths["frequency_response"] = response_figure(
+        freqs, responses, out, f"frequency response at amplitude {amplitude:.3g} (model-based: model exact)")
+    return paths
+
+
+def render(r: dict) -> str:
+    def f(x, spec=".3g"):
+        return "-" if x is None else format(x, spec)
+
+    rows = [[e["name"], f"{e['knob']['name']}={e['knob']['value']:.3g}" if "knob" in e else "",
+             f(e["rms_error"]), f(e["moving"]["rms_error"]), f(e["still"]["rms_error"]), f(e["max_error"]),
+             f(e["lag_ms"], ".2f"), f(e["noise_50hz"])] for e in r["estimators"]]
+    against = "the true velocity" if r["truth"] else f"the {r['reference']} reference"
+    lines = [f"{r['recording']}: {r['samples']} samples, {r['joints']} joint(s); errors against {against}",
+             table(rows, ["estimator", "knob" + (" (tuned)" if r["tuned"] else ""), "RMS", "RMS moving",
+                          "RMS still", "max", "lag [ms]", "noise >50 Hz"]),
+             f"best: {r['best']}"]
+    for name, path in (r.get("figures") or {}).items():
+        lines.append(f"figure ({name}): {', '.join(path) if isinstance(path, list) else path}")
+    return "\n".join(lines)
