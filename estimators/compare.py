@@ -2,8 +2,9 @@
 optionally each one's knob tuned on the recording first. What `manus estimators` reports.
 
 Tuning searches the knob of `registry.KNOBS` (rescaled to the recording's encoder step) on a log
-grid, then twice on a finer grid around the best point; every grid is one vectorised scan of the
-estimator over the recording. The criterion is the RMS error against the true velocity when the
+grid of 13 points, then twice more on 13 points between the neighbours of the best one (a
+resolution of ~1/50 of the range); every grid is one vectorised scan of the estimator over the
+recording, compiled once. The criterion is the RMS error against the true velocity when the
 recording has one; without it, the whiteness of the estimator's one-step prediction residual
 (`scoring.whiteness`), which needs no reference at all, rather than the offline estimate, which
 would reward whichever estimator imitates the offline filter's own smoothing.
@@ -26,7 +27,7 @@ from plants.errors import ManusError
 from plants.recording import Recording
 
 START_SECONDS = 0.1  # skipped when scoring: every estimator starts from rest
-GRID = (17, 9, 9)  # points of the coarse grid, then of the two refinements
+GRID_POINTS, GRID_ROUNDS = 13, 3
 MODEL_BASED = ("kalman_model", "luenberger_model")
 
 
@@ -89,8 +90,8 @@ def tune(setup: Setup, name: str, q: np.ndarray, tau: np.ndarray, reference: np.
     to, back = (np.log, np.exp) if log else ((lambda x: x), (lambda x: x))
     lo, hi = to(low), to(high)
     best = None
-    for points in GRID:
-        values = back(np.linspace(lo, hi, points))
+    for _ in range(GRID_ROUNDS):
+        values = back(np.linspace(lo, hi, GRID_POINTS))
         out = _run_batch(_stack([setup.make(name, **{knob: float(v)}) for v in values]), jnp.asarray(q),
                          jnp.asarray(tau))
         if reference is not None:
@@ -103,7 +104,7 @@ def tune(setup: Setup, name: str, q: np.ndarray, tau: np.ndarray, reference: np.
         objective = np.where(np.isfinite(objective), objective, np.inf)
         i = int(np.argmin(objective))
         best = (float(values[i]), float(objective[i]))
-        spacing = (hi - lo) / (points - 1)
+        spacing = (hi - lo) / (GRID_POINTS - 1)
         lo, hi = max(to(low), to(values[i]) - spacing), min(to(high), to(values[i]) + spacing)
     return {"knob": knob, "value": best[0], "criterion": "rms_error" if reference is not None else "whiteness",
             "objective": best[1]}

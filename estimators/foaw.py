@@ -50,11 +50,12 @@ class Foaw(Estimator):
         N = self.window
         i = jnp.arange(N + 1.0)
         n = i[1:]
-        s0 = jnp.cumsum(y, -1)[..., 1:]  # Σ_{i≤n} y_{k−i}
-        s1 = jnp.cumsum(i * y, -1)[..., 1:]  # Σ_{i≤n} i y_{k−i}
+        dy = y - y[..., :1]  # relative to y_k: the same slopes, exactly 0 at rest, no cancellation
+        s0 = jnp.cumsum(dy, -1)[..., 1:]  # Σ_{i≤n} (y_{k−i} − y_k)
+        s1 = jnp.cumsum(i * dy, -1)[..., 1:]  # Σ_{i≤n} i (y_{k−i} − y_k)
         b = (n * s0 - 2 * s1) / (self.dt * n * (n + 1) * (n + 2) / 6)  # (..., N): slope of window n
         j = i[1:N]  # the samples in between
-        miss = jnp.abs(y[..., None, 1:N] - (y[..., :1, None] - b[..., :, None] * j * self.dt))  # (..., n, j)
+        miss = jnp.abs(dy[..., None, 1:N] + b[..., :, None] * j * self.dt)  # |y_{k−j} − (y_k − b_n j T)|, (..., n, j)
         ok = jnp.all((miss <= self.d) | (j >= n[:, None]), axis=-1)  # (..., N)
         longest = jnp.sum(jnp.cumprod(ok, axis=-1), axis=-1)  # ≥ 1: n = 1 has nothing in between
         v = jnp.take_along_axis(b, (longest - 1)[..., None].astype(int), -1)[..., 0]
