@@ -82,7 +82,8 @@ def run_estimator(estimator, q: np.ndarray, tau: np.ndarray) -> Estimate:
 def tune(setup: Setup, name: str, q: np.ndarray, tau: np.ndarray, reference: np.ndarray | None,
          start: int, stop: int) -> dict | None:
     """The best knob value of estimator `name` on (q, tau): against `reference` (the truth) when
-    given, else by whiteness. Returns {"knob", "value", "criterion", "objective"} or None."""
+    given, else by whiteness. Returns {"knob", "value", "criterion", "objective", "at_limit"} (the
+    best value at an end of the searched range: the optimum may lie beyond it) or None."""
     spec = knob_range(name, setup.step)
     if spec is None:
         return None
@@ -106,8 +107,9 @@ def tune(setup: Setup, name: str, q: np.ndarray, tau: np.ndarray, reference: np.
         best = (float(values[i]), float(objective[i]))
         spacing = (hi - lo) / (GRID_POINTS - 1)
         lo, hi = max(to(low), to(values[i]) - spacing), min(to(high), to(values[i]) + spacing)
+    at_limit = bool(np.isclose(best[0], low, rtol=1e-9) or np.isclose(best[0], high, rtol=1e-9))
     return {"knob": knob, "value": best[0], "criterion": "rms_error" if reference is not None else "whiteness",
-            "objective": best[1]}
+            "objective": best[1], "at_limit": at_limit}
 
 
 def reference_velocity(rec: Recording, cutoff_hz: float) -> tuple[np.ndarray, bool, int, int]:
@@ -154,7 +156,7 @@ def compare(rec: Recording, names=NAMES, tune_knobs: bool = False, cutoff_hz: fl
             value = tuned["value"] if tuned else float(np.asarray(getattr(estimator, spec[0])))  # knob = field
             row["knob"] = {"name": spec[0], "value": value, "tuned": bool(tuned)}
             if tuned:
-                row["knob"].update(criterion=tuned["criterion"], objective=tuned["objective"])
+                row["knob"].update({k: tuned[k] for k in ("criterion", "objective", "at_limit")})
         rows.append(row)
     report = {"recording": rec.path, "samples": len(rec), "joints": rec.n_joints, "dt": rec.dt, "truth": truth,
               "reference": "truth" if truth else f"offline zero-phase ({cutoff_hz:g} Hz)",

@@ -75,7 +75,11 @@ def render(r: dict) -> str:
     def f(x, spec=".3g"):
         return "-" if x is None else format(x, spec)
 
-    rows = [[e["name"], f"{e['knob']['name']}={e['knob']['value']:.3g}" if "knob" in e else "",
+    def knob(e):
+        k = e.get("knob")
+        return "" if k is None else f"{k['name']}={k['value']:.3g}" + (" (range end)" if k.get("at_limit") else "")
+
+    rows = [[e["name"], knob(e),
              f(e["rms_error"]), f(e["moving"]["rms_error"]), f(e["still"]["rms_error"]), f(e["max_error"]),
              f(e["lag_ms"], ".2f"), f(e["noise_50hz"])] for e in r["estimators"]]
     against = "the true velocity" if r["truth"] else f"the {r['reference']} reference"

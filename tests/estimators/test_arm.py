@@ -73,3 +73,14 @@ def test_model_based_estimators_use_the_model_and_take_new_parameters(arm_record
     bad = right.at[0].set(0.7).at[2].set(0.5)
     assert error(right) < error(bad) / 2
     assert error(right) == pytest.approx(rms["kalman_model"], rel=0.1)
+
+
+def test_acceleration_estimates(arm_recording, arm_report):
+    """q̈ from the constant-acceleration filter and the model-based ones, against the derivative
+    of the true velocity while moving (the hold's stick-slip jumps excluded)."""
+    rec = arm_recording
+    truth = np.gradient(rec.qd, rec.dt, axis=0)[100:2400]
+    relative = lambda name: np.sqrt(np.mean((run_estimator(estimators.make(name), rec.q, rec.tau).qdd[100:2400]
+                                             - truth) ** 2) / np.mean(truth**2))
+    assert relative("kalman_ca") < 0.3
+    assert relative("kalman_model") < 0.05
