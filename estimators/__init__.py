@@ -6,7 +6,7 @@ a recorded array with `run`.
 """
 
 from estimators.base import Estimate, Estimator, FilteredFirstDifference, FirstDifference, run
-from estimators.registry import KNOBS, NAMES, knob_range, make
+from estimators.registry import KNOBS, MODEL_BASED, NAMES, SETTINGS, knob_range, make
 
 __all__ = ["Estimate", "Estimator", "FilteredFirstDifference", "FirstDifference", "run",
-           "KNOBS", "NAMES", "knob_range", "make"]
+           "KNOBS", "MODEL_BASED", "NAMES", "SETTINGS", "knob_range", "make"]

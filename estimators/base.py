@@ -78,8 +78,14 @@ class FilteredFirstDifference(Estimator):
         q0 = jnp.asarray(q0, float)
         return q0, jnp.zeros_like(q0)
 
+    @property
+    def coefficients(self):
+        """(α, β) of the recursion."""
+        lt = self.corner * self.dt
+        return (2 - lt) / (2 + lt), 2 * self.corner / (2 + lt)
+
     def step(self, state, q, tau=None):
         q_prev, v = state
-        lt = self.corner * self.dt
-        v = (2 - lt) / (2 + lt) * v + 2 * self.corner / (2 + lt) * (q - q_prev)
+        alpha, beta = self.coefficients
+        v = alpha * v + beta * (q - q_prev)
         return (q, v), Estimate(q, v)

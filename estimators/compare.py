@@ -22,13 +22,13 @@ import numpy as np
 
 from estimators import offline, scoring
 from estimators.base import Estimate, run
-from estimators.registry import NAMES, THESIS_STEP, knob_range, make
+from estimators.linear import THESIS_STEP
+from estimators.registry import MODEL_BASED, NAMES, knob_range, make
 from plants.errors import ManusError
 from plants.recording import Recording
 
 START_SECONDS = 0.1  # skipped when scoring: every estimator starts from rest
 GRID_POINTS, GRID_ROUNDS = 13, 3
-MODEL_BASED = ("kalman_model", "luenberger_model")
 
 
 def encoder_step(rec: Recording) -> tuple[float, str]:

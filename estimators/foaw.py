@@ -23,10 +23,10 @@ from __future__ import annotations
 
 import equinox as eqx
 import jax.numpy as jnp
-import numpy as np
 from jax import Array
 
 from estimators.base import Estimate, Estimator
+from estimators.linear import THESIS_STEP
 
 
 class Foaw(Estimator):
@@ -36,7 +36,7 @@ class Foaw(Estimator):
     window: int = eqx.field(static=True)
     d: Array
 
-    def __init__(self, dt: float = 1e-3, d: float = 2 * np.pi / 131072, window: int = 30):
+    def __init__(self, dt: float = 1e-3, d: float = THESIS_STEP, window: int = 30):
         if not d > 0 or window < 1:
             raise ValueError(f"FOAW needs a positive noise band d and a window ≥ 1, got d={d:g}, window={window}")
         self.dt, self.window, self.d = float(dt), int(window), jnp.asarray(float(d))

@@ -24,6 +24,7 @@ state: the cheapest filter, identical to the full one once P has converged).
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import NamedTuple
 
@@ -34,7 +35,7 @@ import scipy.linalg
 from jax import Array
 
 from estimators.base import Estimate, Estimator
-from estimators.linear import cached, equal_noise_bandwidth
+from estimators.linear import equal_noise_bandwidth, quantization_variance
 
 
 def transition(order: int, dt: float) -> np.ndarray:
@@ -56,7 +57,7 @@ def bandwidth_noise(order: int, dt: float, r: float, bandwidth: float) -> float:
     return bandwidth ** (2 * order) * r * dt
 
 
-@cached
+@functools.cache
 def default_bandwidth(order: int, dt: float) -> float:
     """ω [rad/s] at which the filter's velocity noise equals the thesis filter's."""
     def design(w):
@@ -92,7 +93,8 @@ class KinematicKalman(Estimator):
     """A Kalman filter per joint on a chain of integrators (see the module docstring).
 
     `order` = 2 (constant velocity) or 3 (constant acceleration, which also gives q̈);
-    `q` the process noise density (the tuning knob); `r` = Δ²/12 the measurement variance.
+    `q` the process noise density (the tuning knob); `r` = Δ²/12 the measurement variance
+    (default: the thesis's encoder, Δ = 2π/131072 rad).
     """
 
     dt: float = eqx.field(static=True)
@@ -105,7 +107,7 @@ class KinematicKalman(Estimator):
     P0: Array  # steady-state posterior covariance (d, d), the starting one
     K: Array  # steady-state gain (d,)
 
-    def __init__(self, dt: float = 1e-3, order: int = 3, q: float | None = None, r: float = 1.0,
+    def __init__(self, dt: float = 1e-3, order: int = 3, q: float | None = None, r: float = quantization_variance(),
                  steady: bool = False):
         if order not in (2, 3):
             raise ValueError(f"order must be 2 (constant velocity) or 3 (constant acceleration), not {order}")

@@ -11,25 +11,27 @@ The ratio does not depend on the units of position (the noise scales out), only 
 
 from __future__ import annotations
 
-import functools
 from typing import Callable
 
 import numpy as np
 import scipy.linalg
 import scipy.optimize
 
-THESIS_CORNER = 188.5  # λ [rad/s]: the thesis's 30 Hz corner (eq. 3.19)
+from estimators.base import FilteredFirstDifference
+from plants.simulator import Encoder
+
+THESIS_CORNER = FilteredFirstDifference().corner  # λ = 188.5 rad/s, the thesis's 30 Hz (eq. 3.19)
+THESIS_STEP = Encoder().step  # Δ = 2π/131072 rad, the thesis's encoder (§2.6)
 
 
-def tustin_coefficients(corner: float, dt: float) -> tuple[float, float]:
-    """(α, β) of v_k = α v_{k−1} + β (q_k − q_{k−1}): λs/(s + λ) by the bilinear transform."""
-    lt = corner * dt
-    return (2 - lt) / (2 + lt), 2 * corner / (2 + lt)
+def quantization_variance(step: float = THESIS_STEP) -> float:
+    """R = Δ²/12: the variance of rounding to a grid of step Δ (uniform error in ±Δ/2)."""
+    return step * step / 12
 
 
 def ffd_noise_gain(dt: float, corner: float = THESIS_CORNER) -> float:
     """√Σh² of the filtered first difference from position to velocity [1/s]: √(2β²/(1 + α))."""
-    a, b = tustin_coefficients(corner, dt)
+    a, b = FilteredFirstDifference(dt=dt, corner=corner).coefficients
     return float(np.sqrt(2 * b * b / (1 + a)))
 
 
@@ -48,6 +50,3 @@ def equal_noise_bandwidth(design: Callable[[float], tuple[np.ndarray, np.ndarray
     target = np.log(ffd_noise_gain(dt, corner))
     f = lambda lw: np.log(velocity_noise_gain(*design(np.exp(lw)), dt)) - target
     return float(np.exp(scipy.optimize.brentq(f, np.log(1.0), np.log(0.9 * np.pi / dt), xtol=1e-8)))
-
-
-cached = functools.lru_cache(maxsize=None)

@@ -24,6 +24,7 @@ quantization noise of the thesis's filtered first difference (`estimators.linear
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import equinox as eqx
@@ -33,7 +34,7 @@ from jax import Array
 
 from estimators.base import Estimate
 from estimators.dynamics import ModelBased, ModelDynamics
-from estimators.linear import cached, equal_noise_bandwidth
+from estimators.linear import equal_noise_bandwidth
 
 
 def gains(bandwidth: float, dt: float) -> np.ndarray:
@@ -42,7 +43,7 @@ def gains(bandwidth: float, dt: float) -> np.ndarray:
     return np.array([1 - z * z, (1 - z) ** 2 / dt])
 
 
-@cached
+@functools.cache
 def default_bandwidth(dt: float) -> float:
     """ω [rad/s] at which the observer's velocity noise equals the thesis filter's."""
     def design(w):

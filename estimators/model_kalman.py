@@ -33,6 +33,7 @@ from jax import Array
 from estimators.base import Estimate
 from estimators.dynamics import ModelBased, ModelDynamics
 from estimators.kalman import bandwidth_noise, default_bandwidth, steady_state, white_noise_covariance
+from estimators.linear import quantization_variance
 
 
 def _inverse(S: Array) -> Array:
@@ -66,7 +67,7 @@ class ModelKalman(ModelBased):
     P0: Array  # (2n, 2n)
     theta0: Array
 
-    def __init__(self, dynamics: ModelDynamics, dt: float = 1e-3, q: float | None = None, r: float = 1.0,
+    def __init__(self, dynamics: ModelDynamics, dt: float = 1e-3, q: float | None = None, r: float = quantization_variance(),
                  theta0=None):
         self.dt = float(dt)
         q = bandwidth_noise(2, self.dt, r, default_bandwidth(2, self.dt)) if q is None else float(q)

@@ -16,28 +16,39 @@ state.
 
 from __future__ import annotations
 
-from typing import Callable
-
 import jax.numpy as jnp
 
 from estimators.base import Estimator, FilteredFirstDifference, FirstDifference
 from estimators.dynamics import ModelDynamics
 from estimators.foaw import Foaw
 from estimators.kalman import KinematicKalman
-from estimators.linear import THESIS_CORNER
+from estimators.linear import THESIS_STEP, quantization_variance
 from estimators.luenberger import Luenberger
 from estimators.model_kalman import ModelKalman
 from estimators.sliding import Levant
 from plants.effects import Model
 from plants.errors import ManusError
-from plants.simulator import Encoder
 from plants.structures import structure_named
 
-THESIS_STEP = Encoder().step  # Δ = 2π/131072 rad (thesis §2.6)
 NOMINAL_MODEL = "rigid,viscous,coulomb"  # the thesis's nominal model (§3.5)
 
 NAMES = ("first_difference", "filtered_first_difference", "kalman_cv", "kalman_ca", "kalman_model",
          "luenberger", "luenberger_model", "levant", "foaw")
+MODEL_BASED = ("kalman_model", "luenberger_model")
+
+# The settings `make` takes for each (every one has a default).
+_MODEL_SETTINGS = ("model", "params", "structure", "boundary")
+SETTINGS: dict[str, tuple[str, ...]] = {
+    "first_difference": (),
+    "filtered_first_difference": ("corner",),
+    "kalman_cv": ("q", "steady"),
+    "kalman_ca": ("q", "steady"),
+    "kalman_model": ("q",) + _MODEL_SETTINGS,
+    "luenberger": ("bandwidth",),
+    "luenberger_model": ("bandwidth",) + _MODEL_SETTINGS,
+    "levant": ("lipschitz",),
+    "foaw": ("d", "window"),
+}
 
 # The knob `--tune` searches, as (knob, low, high, log scale). Ranges are for radians read by the
 # thesis's encoder; `knob_range` rescales the ones that scale with the step Δ (Kalman q ∝ Δ²,
@@ -70,30 +81,29 @@ def nominal_model(n_joints: int, structure: str | None = None) -> Model:
     return Model(structure_named(name, n_joints), NOMINAL_MODEL)
 
 
-def _dynamics(dt, n_joints, model, structure, boundary):
-    model = nominal_model(n_joints, structure) if model is None else model
-    if model.n_joints != n_joints:
-        raise ManusError(f"the model {model.spec!r} has {model.n_joints} joint(s), the recording {n_joints}")
-    return ModelDynamics(model, dt, boundary)
-
-
-def _builders(dt: float, n_joints: int, step: float) -> dict[str, Callable[..., Estimator]]:
-    r = step * step / 12
-    return {
-        "first_difference": lambda: FirstDifference(dt=dt),
-        # the corner as an array: a new value then reuses the compiled step (a float would be static)
-        "filtered_first_difference": lambda corner=THESIS_CORNER: FilteredFirstDifference(
-            dt=dt, corner=jnp.asarray(float(corner))),
-        "kalman_cv": lambda q=None, steady=False: KinematicKalman(dt, 2, q, r, steady),
-        "kalman_ca": lambda q=None, steady=False: KinematicKalman(dt, 3, q, r, steady),
-        "kalman_model": lambda q=None, model=None, params=None, structure=None, boundary=0.01: ModelKalman(
-            _dynamics(dt, n_joints, model, structure, boundary), dt, q, r, params),
-        "luenberger": lambda bandwidth=None: Luenberger(dt, bandwidth),
-        "luenberger_model": lambda bandwidth=None, model=None, params=None, structure=None, boundary=0.01: Luenberger(
-            dt, bandwidth, _dynamics(dt, n_joints, model, structure, boundary), params),
-        "levant": lambda lipschitz=50.0: Levant(dt, lipschitz),
-        "foaw": lambda d=None, window=30: Foaw(dt, step if d is None else d, window),
-    }
+def _build(name: str, dt: float, n_joints: int, step: float, k: dict) -> Estimator:
+    r = quantization_variance(step)
+    if name in MODEL_BASED:
+        structure = k.pop("structure", None)
+        model = k.pop("model", None) or nominal_model(n_joints, structure)
+        if model.n_joints != n_joints:
+            raise ManusError(f"the model {model.spec!r} has {model.n_joints} joint(s), the recording {n_joints}")
+        dynamics = ModelDynamics(model, dt, **{x: k.pop(x) for x in ("boundary",) if x in k})
+        params = k.pop("params", None)
+        if name == "kalman_model":
+            return ModelKalman(dynamics, dt, r=r, theta0=params, **k)
+        return Luenberger(dt, dynamics=dynamics, theta0=params, **k)
+    if name == "first_difference":
+        return FirstDifference(dt=dt)
+    if name == "filtered_first_difference":  # λ as an array: a new value reuses the compiled step
+        return FilteredFirstDifference(dt=dt, **{x: jnp.asarray(float(v)) for x, v in k.items()})
+    if name in ("kalman_cv", "kalman_ca"):
+        return KinematicKalman(dt, 2 if name == "kalman_cv" else 3, r=r, **k)
+    if name == "luenberger":
+        return Luenberger(dt, **k)
+    if name == "levant":
+        return Levant(dt, **k)
+    return Foaw(dt, **{"d": step, **k})  # the noise band of this encoder: one step
 
 
 def make(name: str, dt: float = 1e-3, n_joints: int = 2, step: float | None = None, **knobs) -> Estimator:
@@ -108,13 +118,12 @@ def make(name: str, dt: float = 1e-3, n_joints: int = 2, step: float | None = No
     step = THESIS_STEP if step is None else float(step)
     if not step > 0:
         raise ManusError(f"encoder step must be positive, got {step}")
-    build = _builders(float(dt), int(n_joints), step)[name]
-    accepted = build.__code__.co_varnames[:build.__code__.co_argcount]
-    unknown = sorted(set(knobs) - set(accepted))
+    unknown = sorted(set(knobs) - set(SETTINGS[name]))
     if unknown:
+        accepted = SETTINGS[name]
         raise ManusError(f"estimator {name} has no setting {', '.join(unknown)}"
                          + (f" (it takes {', '.join(accepted)})" if accepted else " (it takes none)"))
     try:
-        return build(**knobs)
+        return _build(name, float(dt), int(n_joints), step, {k: v for k, v in knobs.items() if v is not None})
     except ValueError as e:
         raise ManusError(f"estimator {name}: {e}") from None

@@ -21,8 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from estimators.base import run
-from estimators.compare import MODEL_BASED
-from estimators.registry import make, nominal_model
+from estimators.registry import MODEL_BASED, make, nominal_model
 
 
 def sinusoids(freqs_hz: np.ndarray, dt: float, seconds: float, amplitude: float) -> tuple[np.ndarray, np.ndarray]:

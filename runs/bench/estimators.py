@@ -28,7 +28,7 @@ def add_arguments(p) -> None:
 
 
 def _motion(samples: int, joints: int):
-    from estimators.registry import THESIS_STEP
+    from estimators.linear import THESIS_STEP
 
     t = np.arange(samples) * 1e-3
     q = 0.1 * np.sin(2 * np.pi * np.outer(t, 0.7 + 0.9 * np.arange(joints)))
@@ -92,7 +92,7 @@ def run(args) -> dict:
     import jax.numpy as jnp
 
     from estimators import NAMES, make, run as scan_run
-    from estimators.registry import THESIS_STEP
+    from estimators.linear import quantization_variance
     from plants.errors import ManusError
     from runs.common import note
 
@@ -106,7 +106,7 @@ def run(args) -> dict:
     f = _percentiles(lambda x, _: np.asarray(floor(x)), inputs)
     figures.update({"jax_dispatch_p50_us": f["p50_us"], "jax_dispatch_p99_us": f["p99_us"]})
     note("filterpy KalmanFilter (constant acceleration, one per joint) ...")
-    f = _percentiles(_filterpy_ca(q[0], THESIS_STEP**2 / 12), inputs)
+    f = _percentiles(_filterpy_ca(q[0], quantization_variance()), inputs)
     figures.update({"filterpy_kalman_ca_p50_us": f["p50_us"], "filterpy_kalman_ca_p99_us": f["p99_us"],
                     "filterpy_kalman_ca_per_s": 1e6 / f["p50_us"]})
 

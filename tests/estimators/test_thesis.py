@@ -7,7 +7,7 @@ import pytest
 import scipy.signal
 
 import estimators
-from estimators.linear import THESIS_CORNER, ffd_noise_gain, tustin_coefficients
+from estimators.linear import THESIS_CORNER, ffd_noise_gain
 from estimators.response import frequency_response
 
 DT = 1e-3
@@ -25,7 +25,7 @@ def test_filtered_first_difference_lags_as_the_thesis_says():
 
 def test_measured_response_is_scipys_transfer_function():
     freqs = np.array([0.7, 3.0, 20.0, 90.0, 300.0])
-    a, b = tustin_coefficients(THESIS_CORNER, DT)
+    a, b = estimators.make("filtered_first_difference", dt=DT).coefficients
     _, h = scipy.signal.freqz([b, -b], [1, -a], worN=freqs, fs=1 / DT)  # q -> v̂
     np.testing.assert_allclose(frequency_response("filtered_first_difference", freqs, DT), h / (2j * np.pi * freqs),
                                atol=1e-9)  # relative to q̇ = jω q
