@@ -42,6 +42,18 @@ class Hold(PositionReference):
         return self.q + 0 * t
 
 
+class Step(PositionReference):
+    """`start` until `at` seconds, then `end`: a set-point step (thesis §4.1: 5 mm at 2 s).
+    Its velocity and acceleration are zero everywhere (the jump itself has no derivative)."""
+
+    start: Array = eqx.field(converter=lambda x: jnp.asarray(x, float))
+    end: Array = eqx.field(converter=lambda x: jnp.asarray(x, float))
+    at: float = 2.0
+
+    def position(self, t):
+        return jnp.where(t >= self.at, self.end, self.start) + 0 * t
+
+
 class Benign(PositionReference):
     """Thesis eqs. C.11–C.12: both joints 0.1 rad at 0.5 Hz, in antiphase."""
 
