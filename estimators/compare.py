@@ -147,10 +147,12 @@ def compare(rec: Recording, names=NAMES, tune_knobs: bool = False, cutoff_hz: fl
         tuned = tune(setup, name, rec.q, rec.tau, reference if truth else None, start, stop) if tune_knobs else None
         estimator = setup.make(name, **({tuned["knob"]: tuned["value"]} if tuned else {}))
         out = run_estimator(estimator, rec.q, rec.tau)
-        if not np.all(np.isfinite(out.qd)):
-            raise ManusError(f"estimator {name} diverged on {rec.path} (non-finite estimate)")
         estimates[name] = out.qd
-        row = {"name": name, **scoring.score(out.qd[sl], reference[sl], rec.dt, still[sl])}
+        if np.all(np.isfinite(out.qd)):
+            row = {"name": name, **scoring.score(out.qd[sl], reference[sl], rec.dt, still[sl])}
+        else:  # reported, not raised: the other estimators' results stand
+            row = {"name": name, "error": "diverged (non-finite estimate)", "rms_error": None, "max_error": None,
+                   "moving": None, "still": None, "lag_ms": None, "noise_50hz": None}
         spec = knob_range(name, step)
         if spec is not None:
             value = tuned["value"] if tuned else float(np.asarray(getattr(estimator, spec[0])))  # knob = field
@@ -162,6 +164,8 @@ def compare(rec: Recording, names=NAMES, tune_knobs: bool = False, cutoff_hz: fl
               "reference": "truth" if truth else f"offline zero-phase ({cutoff_hz:g} Hz)",
               "scored_samples": [start, stop], "step": {"value": step, "source": step_source},
               "still_threshold": scoring.still_threshold(reference[sl]).tolist(), "tuned": tune_knobs,
-              "estimators": rows, "best": min(rows, key=lambda r: r["rms_error"])["name"]}
+              "estimators": rows,
+              "best": min((r for r in rows if r["rms_error"] is not None), key=lambda r: r["rms_error"],
+                          default={"name": None})["name"]}
     return report, estimates
 

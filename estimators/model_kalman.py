@@ -67,8 +67,8 @@ class ModelKalman(ModelBased):
     P0: Array  # (2n, 2n)
     theta0: Array
 
-    def __init__(self, dynamics: ModelDynamics, dt: float = 1e-3, q: float | None = None, r: float = quantization_variance(),
-                 theta0=None):
+    def __init__(self, dynamics: ModelDynamics, dt: float = 1e-3, q: float | None = None,
+                 r: float = quantization_variance(), theta0=None):
         self.dt = float(dt)
         q = bandwidth_noise(2, self.dt, r, default_bandwidth(2, self.dt)) if q is None else float(q)
         if not (q > 0 and r > 0):

@@ -79,9 +79,9 @@ def render(r: dict) -> str:
         k = e.get("knob")
         return "" if k is None else f"{k['name']}={k['value']:.3g}" + (" (range end)" if k.get("at_limit") else "")
 
-    rows = [[e["name"], knob(e),
-             f(e["rms_error"]), f(e["moving"]["rms_error"]), f(e["still"]["rms_error"]), f(e["max_error"]),
-             f(e["lag_ms"], ".2f"), f(e["noise_50hz"])] for e in r["estimators"]]
+    rows = [[e["name"], knob(e), f(e["rms_error"]), f((e["moving"] or {}).get("rms_error")),
+             f((e["still"] or {}).get("rms_error")), f(e["max_error"]), f(e["lag_ms"], ".2f"), f(e["noise_50hz"])]
+            for e in r["estimators"]]
     against = "the true velocity" if r["truth"] else f"the {r['reference']} reference"
     lines = [f"{r['recording']}: {r['samples']} samples, {r['joints']} joint(s); errors against {against}",
              table(rows, ["estimator", "knob" + (" (tuned)" if r["tuned"] else ""), "RMS", "RMS moving",

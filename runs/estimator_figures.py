@@ -12,6 +12,10 @@ from runs.common import pyplot, save
 ZOOM_SECONDS = 0.2
 
 
+def _number(x, spec: str) -> str:
+    return "-" if x is None else format(x, spec)
+
+
 def zoom_window(reference: np.ndarray, dt: float, start: int, stop: int) -> slice:
     """ZOOM_SECONDS around the sharpest turn of the reference (largest |q̈|): where lag and
     quantization both show."""
@@ -39,7 +43,8 @@ def estimates_figure(t: np.ndarray, estimates: dict, report: dict, out: Path, jo
             a.plot(t[sl], ref[sl, joint], lw=0.9, color="k", ls="--", label=label)
         knob = row.get("knob")
         text = f"{row['name']}" + (f"  {knob['name']}={knob['value']:.3g}" if knob else "")
-        ax[0].set_title(f"{text}   RMS {row['rms_error']:.3g}, lag {row['lag_ms']:.2f} ms", fontsize=8, loc="left")
+        ax[0].set_title(f"{text}   RMS {_number(row['rms_error'], '.3g')}, lag {_number(row['lag_ms'], '.2f')} ms",
+                        fontsize=8, loc="left")
         ax[0].set_ylabel("q̇")
         ax[0].axvspan(t[zoom][0], t[zoom][-1], color="0.9", zorder=-1)  # where the zoom is
     axes[0, 0].legend(loc="upper right", fontsize=7)

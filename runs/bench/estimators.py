@@ -114,7 +114,7 @@ def run(args) -> dict:
     qs, taus = jnp.asarray(q[:args.samples]), jnp.asarray(tau[:args.samples])
     for name in NAMES:
         note(f"{name} ...")
-        est = make(name, n_joints=args.joints, **({"structure": "axis"} if "model" in name and args.joints != 2 else {}))
+        est = make(name, n_joints=args.joints)
         row = _percentiles(_jax_step(est, jnp.asarray(q[0])), inputs)
         scan(est, qs, taus).qd.block_until_ready()  # compile
         best = np.inf
