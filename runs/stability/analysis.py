@@ -1,0 +1,88 @@
+"""The analyses of chapter 4 and Appendix D, each returning plain JSON-ready numbers.
+
+- `eq41_poles`: the closed-loop poles of eq. 4.1 at the clinical gains (k = 100, b_c = 2).
+- `type1_curves`: the Type 1 threshold k_max(b_c) of the linear model — the thesis's analysis
+  (continuous, 1 ms delay, Padé) uncoupled and against the springs of table 4.2 (eq. 4.2), and
+  the exactly sampled loop at 1 kHz (with and without the shaft mode).
+- `negative_damping`: the most negative b_c that stays stable (thesis: −1.5 N·s/m, "as much
+  negative damping as there is real physical damping"), simulated and linear.
+- `appendix_d`: the stability maps at 100 Hz sampling, uncoupled and against 1050 and 3826 N/m.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from runs.stability.linear import SPRINGS, LinearAxis, curve
+from runs.stability.search import boundary, edge, slope, stability_map
+from runs.stability.steptest import TYPE1, TYPE2, StepTest
+
+THESIS_POLES = [-186.5, complex(-1.7, 9.9), complex(-1.7, -9.9)]  # §3.7, k = 100, b_c = 2
+THESIS_NEGATIVE_DAMPING = -1.5  # N·s/m, §4.5
+APPENDIX_D_SPRINGS = (0.0, 1050.0, 3826.0)  # N/m
+
+
+def _finite(x) -> list:
+    """Floats for JSON: nan and inf become None."""
+    return [float(v) if np.isfinite(v) else None for v in np.asarray(x, float)]
+
+
+def eq41_poles(k: float = 100.0, b_c: float = 2.0) -> dict:
+    import control
+
+    p = np.sort_complex(control.poles(LinearAxis(delay=0.0).closed_loop(k, b_c)))
+    wn = float(np.abs(p[np.argmax(np.abs(p.imag))]))
+    return {"k": k, "b_c": b_c, "poles": [[float(z.real), float(z.imag)] for z in p],
+            "thesis": [[float(np.real(z)), float(np.imag(z))] for z in THESIS_POLES],
+            "natural_hz": wn / (2 * np.pi), "damping_ratio": float(-p[np.argmax(np.abs(p.imag))].real / wn)}
+
+
+def type1_curves(b_cs, base: LinearAxis = LinearAxis(), springs=(0.0, *SPRINGS), rate_hz: float = 1000.0) -> dict:
+    """k_max per b_c: continuous (the thesis's analysis) for each spring; sampled at `rate_hz`
+    uncoupled, rigid and with the shaft mode (the linear face of Type 2)."""
+    from plants.effects import Compliance
+
+    b_cs = np.asarray(b_cs, float)
+    return {"b_c": b_cs.tolist(),
+            "continuous": {f"{s:g}": _finite(curve(base.with_(spring=s), b_cs)) for s in springs},
+            "sampled": _finite(curve(base, b_cs, rate_hz)),
+            "sampled_shaft": _finite(curve(base.with_(shaft=Compliance()), b_cs, rate_hz)),
+            "rate_hz": rate_hz}
+
+
+def negative_damping(test: StepTest, ks=(10.0, 30.0, 100.0, 300.0), cluster=None) -> dict:
+    """The most negative stable b_c at each k: step tests (edge along b_c from 0 down to −3),
+    the sampled linear model and the continuous one."""
+    ks = np.asarray(ks, float)
+    e = edge(test, ks, 0.0, -3.0, along="b_c", points=(16, 24), cluster=cluster)
+    lin = test.linear()
+    sampled = np.array([lin.b_c_min(k, test.rate_hz) for k in ks])
+    best = int(np.nanargmin(e.limit)) if np.isfinite(e.limit).any() else 0
+    return {"k": ks.tolist(), "simulated": _finite(e.limit), "resolution": float(np.max(np.abs(e.step))),
+            "linear_sampled": _finite(sampled), "linear_continuous": _finite([lin.b_c_min(k) for k in ks]),
+            "limit": _finite([e.limit[best]])[0], "at_k": float(ks[best]), "physical_damping": test.damping,
+            "thesis": THESIS_NEGATIVE_DAMPING}
+
+
+def map_summary(smap, lin: LinearAxis, rate_hz: float) -> dict:
+    """The thresholds a map shows, with the linear curves at its b_c values."""
+    t1, t2 = boundary(smap, TYPE1), boundary(smap, TYPE2)
+    ok = np.isfinite(smap.limit)
+    peak = int(np.nanargmax(np.where(ok, smap.limit, -np.inf))) if ok.any() else 0
+    return {"b_c": smap.b_cs.tolist(), "k": smap.ks.tolist(), "points": int(smap.kinds.size),
+            "limit": _finite(smap.limit), "limit_kind": smap.limit_kind.tolist(),
+            "type1_boundary": t1, "type2_boundary": t2, "type1_slope": slope(t1), "type2_slope": slope(t2),
+            "peak": {"b_c": float(smap.b_cs[peak]), "k": float(smap.limit[peak])} if ok.any() else None,
+            "stable_fraction": float(np.mean(smap.kinds == 0)),
+            "linear_sampled": _finite(curve(lin, smap.b_cs, rate_hz))}
+
+
+def appendix_d(b_cs, ks, springs=APPENDIX_D_SPRINGS, base: StepTest = StepTest(rate_hz=100.0, step=0.002),
+               cluster=None, progress: bool = True) -> tuple[dict, dict]:
+    """Maps at 100 Hz (Appendix D: test 3's 2 mm step) for each spring -> (summary, maps)."""
+    maps, out = {}, {"rate_hz": base.rate_hz, "step": base.step, "springs": {}}
+    for s in springs:
+        test = base.with_(spring=float(s))
+        maps[s] = stability_map(test, b_cs, ks, cluster, progress)
+        out["springs"][f"{s:g}"] = map_summary(maps[s], test.linear(), base.rate_hz)
+    return out, maps
