@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import estimators
+from plants import Manus2, Model
 from estimators.compare import Setup, reference_velocity, run_estimator, tune
 
 
@@ -54,6 +55,12 @@ def test_model_based_estimators_use_the_model_and_take_new_parameters(arm_record
     rms = {r["name"]: r["rms_error"] for r in arm_report[0]["estimators"]}
     assert rms["kalman_model"] < rms["kalman_ca"] / 1.5  # the model predicts the acceleration
     assert rms["luenberger_model"] < rms["luenberger"] / 5  # same gains, with and without the model
+
+    # the model's delay effect: the torque of one sample earlier, exactly
+    delayed = estimators.make("luenberger_model", model=Model(Manus2(), "rigid,viscous,coulomb,delay:1ms"))
+    shifted = np.vstack([np.zeros((1, 2)), rec.tau[:-1]])
+    np.testing.assert_array_equal(run_estimator(delayed, rec.q, rec.tau).qd,
+                                  run_estimator(estimators.make("luenberger_model"), rec.q, shifted).qd)
 
     est = estimators.make("kalman_model", n_joints=2)
     wrong = est.with_params(est.init(jnp.asarray(rec.q[0])), {"a1": 0.7, "a3": 0.5})
