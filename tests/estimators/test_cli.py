@@ -14,17 +14,19 @@ KEYS = {"name", "rms_error", "max_error", "moving", "still", "lag_ms", "noise_50
 
 
 def test_manus_estimators_json_tune_and_figures(arm_recording, tmp_path, capsys):
-    code = main(["estimators", arm_recording.path, "--json", "--tune", "--only", "filtered_first_difference,kalman_ca",
+    code = main(["estimators", arm_recording.path, "--json", "--tune", "--only", "first_difference,filtered_first_difference",
                  "--out", str(tmp_path)])
     out = json.loads(capsys.readouterr().out)  # nothing else on stdout
     assert code == 0 and out["truth"] is True and out["reference"] == "truth"
     rows = out["estimators"]
-    assert [r["name"] for r in rows] == ["filtered_first_difference", "kalman_ca"]
+    assert [r["name"] for r in rows] == ["first_difference", "filtered_first_difference"]
     for r in rows:
         assert KEYS <= set(r) and {"rms_error", "max_error", "fraction"} <= set(r["moving"])
-        assert r["knob"]["tuned"] and r["knob"]["criterion"] == "rms_error"
-    assert rows[0]["knob"]["name"] == "corner" and rows[0]["knob"]["value"] > 188.5  # λ: less lag pays here
-    assert out["best"] == "kalman_ca"
+    assert "knob" not in rows[0]  # nothing to tune
+    knob = rows[1]["knob"]
+    assert knob["tuned"] and knob["criterion"] == "rms_error" and not knob["at_limit"]
+    assert knob["name"] == "corner" and knob["value"] > 188.5  # less lag pays on this recording
+    assert out["best"] == "filtered_first_difference"
     for path in out["figures"]["estimates"] + [out["figures"]["frequency_response"]]:
         assert (tmp_path / path.split("/")[-1]).stat().st_size > 10000
 
