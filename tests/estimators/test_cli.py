@@ -14,8 +14,8 @@ KEYS = {"name", "rms_error", "max_error", "moving", "still", "lag_ms", "noise_50
 
 
 def test_manus_estimators_json_tune_and_figures(arm_recording, tmp_path, capsys):
-    code = main(["estimators", arm_recording.path, "--json", "--tune", "--only", "first_difference,filtered_first_difference",
-                 "--out", str(tmp_path)])
+    code = main(["estimators", arm_recording.path, "--json", "--tune", "--out", str(tmp_path),
+                 "--only", "first_difference,filtered_first_difference"])
     out = json.loads(capsys.readouterr().out)  # nothing else on stdout
     assert code == 0 and out["truth"] is True and out["reference"] == "truth"
     rows = out["estimators"]
