@@ -21,7 +21,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from estimators.base import run
-from estimators.registry import MODEL_BASED, make, nominal_model
+from estimators.registry import MODEL_BASED, make
+
+_run_each = eqx.filter_jit(eqx.filter_vmap(run, in_axes=(None, 0, 0)))  # one joint, many signals
 
 
 def sinusoids(freqs_hz: np.ndarray, dt: float, seconds: float, amplitude: float) -> tuple[np.ndarray, np.ndarray]:
@@ -49,25 +51,20 @@ def frequency_response(name: str, freqs_hz, dt: float = 1e-3, amplitude: float =
     freqs_hz = np.asarray(freqs_hz, float)
     seconds = max(4.0 / freqs_hz.min(), 1.0) if seconds is None else seconds
     t, q = sinusoids(freqs_hz, dt, seconds, amplitude)
+    estimator = make(name, dt=dt, n_joints=1, **({"structure": "axis", **knobs} if name in MODEL_BASED else knobs))
     tau = np.zeros_like(q)
-    if name in MODEL_BASED:
-        knobs = {"structure": "axis", **knobs}
-        knobs["model"] = knobs.get("model") or nominal_model(1, knobs["structure"])
-        # the command of sample k acts over [t_k, t_k + T]: the model's torque at the middle
-        tau = _inverse_dynamics(knobs["model"], knobs.get("params"), knobs.get("boundary", 0.01), t + 0.5 * dt,
-                                freqs_hz, amplitude)
-    out = _run_each(make(name, dt=dt, n_joints=1, **knobs), jnp.asarray(q.T[..., None]), jnp.asarray(tau.T[..., None]))
+    if name in MODEL_BASED:  # the command of sample k acts over [t_k, t_k + T]: its torque at the middle
+        tau = _inverse_dynamics(estimator, t + 0.5 * dt, freqs_hz, amplitude)
+    out = _run_each(estimator, jnp.asarray(q.T[..., None]), jnp.asarray(tau.T[..., None]))
     qd = np.asarray(out.qd)[..., 0].T
     half = len(t) // 2
     return phasor(qd[half:], t[half:], freqs_hz) / (2 * np.pi * freqs_hz * amplitude)  # q̇ = Aω cos ωt
 
 
-_run_each = eqx.filter_jit(eqx.filter_vmap(run, in_axes=(None, 0, 0)))  # one joint, many signals
-
-
-def _inverse_dynamics(model, params, boundary, t, freqs_hz, amplitude):
-    """τ (T, F) = the one-joint model's torque for q = A sin(ωt) at each frequency."""
-    p = {**model.defaults(), **(params or {})}
+def _inverse_dynamics(estimator, t, freqs_hz, amplitude):
+    """τ (T, F): the torque the estimator's own one-joint model needs for q = A sin(ωt)."""
+    dynamics = estimator.dynamics
+    model, p, boundary = dynamics.model, dynamics.model.unvector(estimator.theta0), dynamics.boundary
     w = 2 * np.pi * freqs_hz
     s, c = np.sin(np.outer(t, w)), np.cos(np.outer(t, w))
     x = [jnp.asarray(a.reshape(-1, 1)) for a in (amplitude * s, amplitude * w * c, -amplitude * w * w * s)]
