@@ -51,7 +51,8 @@ def estimates_figure(t: np.ndarray, estimates: dict, report: dict, out: Path, jo
     axes[-1, 0].set_xlabel("t [s]")
     axes[-1, 1].set_xlabel("t [s] (zoom)")
     fig.suptitle(f"{Path(report['recording']).name}: velocity estimates of joint {joint + 1}, "
-                 f"{1 / report['dt']:g} Hz, encoder step {report['step']['value']:.3g}", fontsize=9)
+                 f"{1 / report['dt']:g} Hz, encoder step {report['step']['value']:.3g} ({report['step']['source']})",
+                 fontsize=9)
     fig.tight_layout()
     return save(fig, out, f"estimates_joint{joint + 1}.png")
 
