@@ -85,7 +85,7 @@ def run(args) -> dict:
         out["negative_damping"] = analysis.negative_damping(test, cluster=cluster)
         if not args.no_appendix_d:
             note("Appendix D: 100 Hz maps ...")
-            summary, maps = analysis.appendix_d(np.arange(-2.0, 20.01, 1.0), np.arange(25.0, 3000.1, 25.0),
+            summary, maps = analysis.appendix_d(np.arange(-2.0, 20.01, 1.0), np.arange(50.0, 3000.1, 25.0),
                                                 cluster=cluster)
             out["appendix_d"] = summary
             out["figures"]["appendix_d"] = figures.appendix_d(maps, summary, args.out)

@@ -60,14 +60,14 @@ def _chunk(test: StepTest, k: np.ndarray, b_c: np.ndarray) -> Metrics:
     return local(test, k, b_c, bucketed=False)  # chunks are of equal size already
 
 
-def client_for(cluster):
+def client_for(cluster, timeout: str = "10s"):
     """A `distributed.Client` for an address, or the client given."""
     from distributed import Client
 
     if isinstance(cluster, Client):
         return cluster
     try:
-        return Client(cluster, timeout="10s")
+        return Client(cluster, timeout=timeout)
     except (OSError, TimeoutError, ValueError) as e:
         raise ManusError(f"--cluster {cluster}: cannot reach the Dask scheduler ({e})") from None
 

@@ -22,9 +22,12 @@ THESIS_NEGATIVE_DAMPING = -1.5  # N·s/m, §4.5
 APPENDIX_D_SPRINGS = (0.0, 1050.0, 3826.0)  # N/m
 
 
-def _finite(x) -> list:
-    """Floats for JSON: nan and inf become None."""
-    return [float(v) if np.isfinite(v) else None for v in np.asarray(x, float)]
+def finite(x):
+    """Numbers for JSON: a float, or a list of them, with nan and inf as None."""
+    if np.ndim(x) == 0:
+        v = float(x)
+        return v if np.isfinite(v) else None
+    return [finite(v) for v in np.asarray(x, float)]
 
 
 def eq41_poles(k: float = 100.0, b_c: float = 2.0) -> dict:
@@ -44,9 +47,9 @@ def type1_curves(b_cs, base: LinearAxis = LinearAxis(), springs=(0.0, *SPRINGS),
 
     b_cs = np.asarray(b_cs, float)
     return {"b_c": b_cs.tolist(),
-            "continuous": {f"{s:g}": _finite(curve(base.with_(spring=s), b_cs)) for s in springs},
-            "sampled": _finite(curve(base, b_cs, rate_hz)),
-            "sampled_shaft": _finite(curve(base.with_(shaft=Compliance()), b_cs, rate_hz)),
+            "continuous": {f"{s:g}": finite(curve(base.with_(spring=s), b_cs)) for s in springs},
+            "sampled": finite(curve(base, b_cs, rate_hz)),
+            "sampled_shaft": finite(curve(base.with_(shaft=Compliance()), b_cs, rate_hz)),
             "rate_hz": rate_hz}
 
 
@@ -58,9 +61,9 @@ def negative_damping(test: StepTest, ks=(10.0, 30.0, 100.0, 300.0), cluster=None
     lin = test.linear()
     sampled = np.array([lin.b_c_min(k, test.rate_hz) for k in ks])
     best = int(np.nanargmin(e.limit)) if np.isfinite(e.limit).any() else 0
-    return {"k": ks.tolist(), "simulated": _finite(e.limit), "resolution": float(np.max(np.abs(e.step))),
-            "linear_sampled": _finite(sampled), "linear_continuous": _finite([lin.b_c_min(k) for k in ks]),
-            "limit": _finite([e.limit[best]])[0], "at_k": float(ks[best]), "physical_damping": test.damping,
+    return {"k": ks.tolist(), "simulated": finite(e.limit), "resolution": float(np.max(np.abs(e.step))),
+            "linear_sampled": finite(sampled), "linear_continuous": finite([lin.b_c_min(k) for k in ks]),
+            "limit": finite(e.limit[best]), "at_k": float(ks[best]), "physical_damping": test.damping,
             "thesis": THESIS_NEGATIVE_DAMPING}
 
 
@@ -70,11 +73,11 @@ def map_summary(smap, lin: LinearAxis, rate_hz: float) -> dict:
     ok = np.isfinite(smap.limit)
     peak = int(np.nanargmax(np.where(ok, smap.limit, -np.inf))) if ok.any() else 0
     return {"b_c": smap.b_cs.tolist(), "k": smap.ks.tolist(), "points": int(smap.kinds.size),
-            "limit": _finite(smap.limit), "limit_kind": smap.limit_kind.tolist(),
-            "type1_boundary": t1, "type2_boundary": t2, "type1_slope": slope(t1), "type2_slope": slope(t2),
+            "limit": finite(smap.limit), "limit_kind": smap.limit_kind.tolist(),
+            "type1_boundary": t1, "type2_boundary": t2, "type1_slope": finite(slope(t1)), "type2_slope": finite(slope(t2)),
             "peak": {"b_c": float(smap.b_cs[peak]), "k": float(smap.limit[peak])} if ok.any() else None,
             "stable_fraction": float(np.mean(smap.kinds == 0)),
-            "linear_sampled": _finite(curve(lin, smap.b_cs, rate_hz))}
+            "linear_sampled": finite(curve(lin, smap.b_cs, rate_hz))}
 
 
 def appendix_d(b_cs, ks, springs=APPENDIX_D_SPRINGS, base: StepTest = StepTest(rate_hz=100.0, step=0.002),

@@ -109,7 +109,7 @@ def sensitivity(sens: dict, out, name: str = "sensitivity.png") -> str:
                 ax.plot(v, k, "o", color=line.get_color(), mfc=line.get_color() if kd == "type1" else "none")
         ax.set(xlabel=table["parameter"], ylabel="largest stable k [N/m]")
         ax.set_title(table["label"], fontsize=8)
-    axes[0][0].legend(fontsize=6)
+    axes[0][0].legend(fontsize=6, title="filled: Type 1, open: Type 2", title_fontsize=6)
     fig.tight_layout()
     return save(fig, out, name)
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from runs.stability.analysis import finite
 from runs.stability.search import edge
 from runs.stability.steptest import KINDS, TYPE1, TYPE2, StepTest
 
@@ -35,9 +36,9 @@ def limits(test: StepTest, cluster=None, native: bool = False) -> list[dict]:
     """The probes' limits for one setting: [{"probe", "b_c" or "k", "limit", "step", "kind"}]."""
     k_edge = edge(test, PROBE_B_C, 30.0, 3e4, cluster=cluster, native=native)
     b_edge = edge(test, [PROBE_K], 0.0, 60.0, along="b_c", cluster=cluster, native=native)
-    rows = [{"probe": f"k at b_c={b:g}", "limit": float(x), "step": float(s), "kind": KINDS[int(c)]}
+    rows = [{"probe": f"k at b_c={b:g}", "limit": finite(x), "step": float(s), "kind": KINDS[int(c)]}
             for b, x, s, c in zip(PROBE_B_C, *k_edge)]
-    rows.append({"probe": f"b_c at k={PROBE_K:g}", "limit": float(b_edge.limit[0]), "step": float(b_edge.step[0]),
+    rows.append({"probe": f"b_c at k={PROBE_K:g}", "limit": finite(b_edge.limit[0]), "step": float(b_edge.step[0]),
                  "kind": KINDS[int(b_edge.kind[0])]})
     return rows
 
@@ -87,7 +88,7 @@ def check(rows: list[dict], claim: str, kind: int, change: str, move: str) -> di
 def _direction(a: dict, b: dict, kind: str) -> int | None:
     """+1 / −1 / 0 when the threshold of `kind` rises / falls / stays from probe a to probe b
     (beyond the searches' resolution); None when the bounds do not decide."""
-    if not (np.isfinite(a["limit"]) and np.isfinite(b["limit"])):
+    if a["limit"] is None or b["limit"] is None:  # unstable from the start: no edge
         return None
     res = max(abs(a["step"]), abs(b["step"]))
     d = b["limit"] - a["limit"]
