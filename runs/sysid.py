@@ -34,7 +34,6 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
@@ -49,10 +48,11 @@ SPRING = 10.0  # N·m/rad, eq. 3.5
 
 
 class LockedSpring(Controller):
-    """The virtual spring K (q_d,j − q_j) on joint `joint`, and a stiff servo holding the
-    locked coordinate c·q at c·q_d."""
+    """The virtual spring K (q_d,j − q_j) on the joint j that `spring_on` (one-hot) picks, and
+    a stiff servo holding the locked coordinate c·q at c·q_d. (Arrays, not indices: the three
+    tests share one compilation.)"""
 
-    joint: int = eqx.field(static=True)
+    spring_on: jnp.ndarray  # e_j (2,)
     lock: jnp.ndarray  # c (2,)
     stiffness: float = SPRING
     lock_stiffness: float = 1000.0
@@ -64,7 +64,7 @@ class LockedSpring(Controller):
 
     def step(self, state, q, ref: RefSample):
         state, est = self.estimator.step(state, q)
-        spring = jnp.zeros_like(q).at[self.joint].set(self.stiffness * (ref.q[self.joint] - q[self.joint]))
+        spring = self.stiffness * self.spring_on * (ref.q - q)
         phi = jnp.dot(self.lock, q - ref.q)
         return state, spring - (self.lock_stiffness * phi + self.lock_damping * jnp.dot(self.lock, est.qd)) * self.lock
 
@@ -124,7 +124,7 @@ def simulate_test(test: LockTest, params: dict | None = None, displacement: floa
     plant = Simulator(Model(Manus2(), "rigid,viscous,coulomb"), params)
     eq = np.asarray(test.equilibrium)
     start = eq + displacement * np.asarray(test.direction)
-    ctrl = LockedSpring(test.joint, jnp.asarray(test.lock), estimator=FilteredFirstDifference(dt=plant.dt))
+    ctrl = LockedSpring(jnp.eye(2)[test.joint], jnp.asarray(test.lock), estimator=FilteredFirstDifference(dt=plant.dt))
     return simulate(plant, ctrl, Step(start, eq, release), seconds), plant
 
 
