@@ -51,3 +51,12 @@ def test_claim_check_reads_exact_values_and_bounds():
     assert check([_row(2, 2000.0, "type2"), _row(3, 1500.0, "type1")], "", TYPE2, "up", "up")["verdict"] == "not comparable"
     mixed = [_row(0, 6000.0, "type2"), _row(1, 2500.0, "type2"), _row(2, 2800.0, "type2")]
     assert check(mixed, "less x raises", TYPE2, "down", "up")["verdict"] == "partly"
+
+
+def test_bench_stability_reports_both_ways_and_the_speedup(capsys):
+    assert cli.main(["bench", "stability", "--json", "--points", "128", "--loop-points", "2", "--repeats", "1"]) == 0
+    r = json.loads(capsys.readouterr().out)
+    f = r["figures"]
+    assert f["vmapped_points_per_s"] > 0 and f["loop_points_per_s"] > 0
+    assert r["speedup"] == pytest.approx(f["vmapped_points_per_s"] / f["loop_points_per_s"])
+    assert r["ticks_per_point"] == 5000 and r["substeps_per_tick"] == 10
