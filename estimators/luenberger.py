@@ -34,6 +34,7 @@ from jax import Array
 
 from estimators.base import Estimate
 from estimators.dynamics import ModelBased, ModelDynamics
+from estimators.kalman import transition
 from estimators.linear import equal_noise_bandwidth
 
 
@@ -48,7 +49,7 @@ def default_bandwidth(dt: float) -> float:
     """ω [rad/s] at which the observer's velocity noise equals the thesis filter's."""
     def design(w):
         L = gains(w, dt)
-        return (np.eye(2) - np.outer(L, [1.0, 0.0])) @ np.array([[1.0, dt], [0.0, 1.0]]), L
+        return (np.eye(2) - np.outer(L, [1.0, 0.0])) @ transition(2, dt), L
 
     return equal_noise_bandwidth(design, dt)
 
