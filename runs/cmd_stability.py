@@ -67,7 +67,7 @@ def run(args) -> dict:
         smap = stability_map(test, b_cs, ks, cluster)
         seconds = time.perf_counter() - t0
         note("Type 1 curves of the linear model ...")
-        curves = analysis.type1_curves(np.unique(np.round(b_cs)))  # every 1 N·s/m: smooth enough
+        curves = analysis.type1_curves(np.unique(np.round(b_cs)) + 0.0)  # every 1 N·s/m: smooth enough
         out["type1"] = curves
         out["map"] = analysis.map_summary(smap, test.linear(), test.rate_hz) | {
             "seconds": seconds, "points_per_s": smap.kinds.size / seconds}
@@ -114,30 +114,37 @@ def _type2_example(smap) -> tuple[float, float] | None:
 
 def render(r: dict) -> str:
     p = r["eq41_poles"]
-    poles = ", ".join(f"{a:.1f}{b:+.1f}i" if b else f"{a:.1f}" for a, b in p["poles"])
+    poles = ", ".join(f"{a:.2f}{b:+.2f}i" if b else f"{a:.2f}" for a, b in p["poles"])
     m = r["map"]
     lines = [f"eq. 4.1 poles at k = {p['k']:g}, b_c = {p['b_c']:g}: {poles} (thesis: -186.5, -1.7±9.9i; "
              f"{p['natural_hz']:.2f} Hz, ζ = {p['damping_ratio']:.3f})",
              f"stability map: {m['points']} step tests in {m['seconds']:.1f} s ({m['points_per_s']:.0f} points/s); "
              f"stable {100 * m['stable_fraction']:.0f} %",
-             f"  Type 1 edge slope {m['type1_slope']:+.0f} N/m per N·s/m, Type 2 edge slope {m['type2_slope']:+.0f}"
+             f"  Type 1 edge slope {m['type1_slope'] or float('nan'):+.0f} N/m per N·s/m, Type 2 edge slope "
+             f"{m['type2_slope'] or float('nan'):+.0f}"
              + (f"; widest at b_c = {m['peak']['b_c']:g}, k = {m['peak']['k']:g}" if m["peak"] else "")]
     t1, t2 = m["type1_boundary"], m["type2_boundary"]
     pick = lambda pts: pts[:: max(1, len(pts) // 6)]
     lines.append(table([[f"{q['b_c']:g}", f"{q['k']:g}", "Type 1"] for q in pick(t1)]
                        + [[f"{q['b_c']:g}", f"{q['k']:g}", "Type 2"] for q in pick(t2)], ["b_c", "k limit", "edge"]))
     c = r["type1"]
-    lines.append("linear Type 1 k_max (continuous, 1 ms delay): " + ", ".join(
-        f"b_c={b:g}: {k:.0f}" for b, k in list(zip(c["b_c"], c["continuous"]["0"]))[::max(1, len(c["b_c"]) // 6)]
-        if k is not None))
+    lines.append("linear Type 1 k_max (eq. 4.1, 1 ms delay): " + ", ".join(
+        f"b_c={b:g}: {k:.0f}" for b, k in zip(c["b_c"], c["continuous"]["0"]) if k is not None and b in (0, 5, 10, 20, 40)))
     nd = r["negative_damping"]
     lines.append(f"largest stable negative damping: {nd['limit']:.3f} N·s/m at k = {nd['at_k']:g} "
                  f"(linear sampled {nd['linear_sampled'][nd['k'].index(nd['at_k'])]:.3f}; thesis {nd['thesis']:g})")
     if "appendix_d" in r:
-        for s, v in r["appendix_d"]["springs"].items():
-            lines.append(f"100 Hz, k_env = {s} N/m: Type 1 edge slope {v['type1_slope']:+.0f}, "
-                         f"widest at {v['peak']}")
+        for spring, v in r["appendix_d"]["springs"].items():
+            row = {q["b_c"]: q["k"] for q in v["type1_boundary"]}
+            at = [b for b in (5.0, 10.0, 15.0) if b in row]
+            lines.append(f"{r['appendix_d']['rate_hz']:g} Hz, k_env = {spring} N/m: Type 1 limit " + ", ".join(
+                f"b_c={b:g}: {row[b]:g} (linear {v['linear_sampled'][v['b_c'].index(b)]:.0f})" for b in at))
     if "sensitivity" in r:
+        for t in r["sensitivity"]["tables"]:
+            for row in t["rows"]:
+                lines.append(f"  {t['label']} = {row['value']:g}: " + "  ".join(
+                    f"{q['probe']}: {'-' if q['limit'] is None else format(q['limit'], '.4g')} ({q['kind']})"
+                    for q in row["probes"]))
         lines += [f"  [{c['verdict']}] {c['claim']} ({c['reading']})" for c in r["sensitivity"]["claims"]]
     lines += [f"figure: {f}" for f in r["figures"].values()]
     return "\n".join(lines)

@@ -8,9 +8,10 @@ estimate).
 For each setting the step test's limits are found by `edge`: the largest stable k at a few b_c
 (0 and 5 N·s/m lie on the Type 1 side of the map, 20–30 on the Type 2 side) and the largest
 stable b_c at k = 300 N/m (where the Type 2 edge meets low stiffness). A claim is checked on the
-probes whose instability is of its type at every value of the parameter: *reproduced* when each
-of them moves the claimed way by more than the search's resolution, *contradicted* when each
-moves the other way, *partly* or *unchanged* otherwise.
+probes where the threshold of its type can be compared between neighbouring values of the
+parameter: *reproduced* when each moves the claimed way by more than the search's resolution,
+*partly* when some do, *contradicted* when each moves the other way, *unchanged* when none
+moves, *not reproduced* otherwise.
 """
 
 from __future__ import annotations
@@ -81,7 +82,8 @@ def check(rows: list[dict], claim: str, kind: int, change: str, move: str) -> di
                                        "unchanged" if all(s == 0 for s in signs) else "mixed")
     votes = set(outcome.values())
     verdict = ("not comparable" if not votes else "reproduced" if votes == {"as claimed"}
-               else "contradicted" if votes == {"opposite"} else "unchanged" if votes == {"unchanged"} else "partly")
+               else "partly" if "as claimed" in votes else "contradicted" if votes == {"opposite"}
+               else "unchanged" if votes == {"unchanged"} else "not reproduced")
     return {"claim": claim, "verdict": verdict, "probes": outcome, "values": [r["value"] for r in rows]}
 
 

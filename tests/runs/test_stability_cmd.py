@@ -50,7 +50,9 @@ def test_claim_check_reads_exact_values_and_bounds():
     # ... but a bound below the other value decides nothing
     assert check([_row(2, 2000.0, "type2"), _row(3, 1500.0, "type1")], "", TYPE2, "up", "up")["verdict"] == "not comparable"
     mixed = [_row(0, 6000.0, "type2"), _row(1, 2500.0, "type2"), _row(2, 2800.0, "type2")]
-    assert check(mixed, "less x raises", TYPE2, "down", "up")["verdict"] == "partly"
+    assert check(mixed, "less x raises", TYPE2, "down", "up")["verdict"] == "not reproduced"
+    two = [{"value": r["value"], "probes": r["probes"] + u["probes"]} for r, u in zip(mixed, up)]
+    assert check(two, "", TYPE2, "up", "up")["verdict"] == "partly"  # one probe rises, one is mixed
 
 
 def test_bench_stability_reports_both_ways_and_the_speedup(capsys):
