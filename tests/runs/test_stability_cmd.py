@@ -51,7 +51,8 @@ def test_claim_check_reads_exact_values_and_bounds():
     assert check([_row(2, 2000.0, "type2"), _row(3, 1500.0, "type1")], "", TYPE2, "up", "up")["verdict"] == "not comparable"
     mixed = [_row(0, 6000.0, "type2"), _row(1, 2500.0, "type2"), _row(2, 2800.0, "type2")]
     assert check(mixed, "less x raises", TYPE2, "down", "up")["verdict"] == "not reproduced"
-    two = [{"value": r["value"], "probes": r["probes"] + u["probes"]} for r, u in zip(mixed, up)]
+    two = [{"value": r["value"], "probes": r["probes"] + [u["probes"][0] | {"probe": "k at b_c=30"}]}
+           for r, u in zip(mixed, up)]
     assert check(two, "", TYPE2, "up", "up")["verdict"] == "partly"  # one probe rises, one is mixed
 
 
