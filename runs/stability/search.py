@@ -17,7 +17,7 @@ from typing import NamedTuple
 import numpy as np
 
 from runs import sweep
-from runs.stability.steptest import KINDS, STABLE, Metrics, StepTest, verdict
+from runs.stability.steptest import STABLE, Metrics, StepTest, verdict
 
 
 class Edge(NamedTuple):
@@ -96,7 +96,3 @@ def slope(points: list[dict]) -> float:
         return float("nan")
     b, k = np.array([p["b_c"] for p in points]), np.array([p["k"] for p in points])
     return float(np.polyfit(b, k, 1)[0])
-
-
-def kind_name(kind) -> str:
-    return KINDS[int(kind)]

@@ -16,8 +16,6 @@ moves, *not reproduced* otherwise.
 
 from __future__ import annotations
 
-import numpy as np
-
 from runs.stability.analysis import finite
 from runs.stability.search import edge
 from runs.stability.steptest import KINDS, TYPE1, TYPE2, StepTest

@@ -27,8 +27,14 @@ floor (Δ²/12 = 4.8×10⁻¹¹ m² per bin), and of the size the thesis describ
 or felt"). The alternatives are implausible or close: a one-sided density in m²/Hz puts the
 threshold at A = 1.4 mm (a violent 200 Hz shake, 230 g); MATLAB's Welch `psd` (Hann, 256
 points) at A = 0.15 mm. At other rates N changes, so P is scaled to read N A²/4 with N = 1000
-(the same vibration gives the same number): `psd_native` returns the rate-dependent |X|²/N
-instead, for the sampling-rate claim.
+(the same vibration gives the same number); `verdict(..., native=True)` compares the
+rate-dependent |X|²/N instead, for the sampling-rate claim. The Type 2 boundary barely depends
+on the choice (the 200 Hz line grows by decades within a few hundred N/m): the three
+conventions put it within about 1 N·s/m of each other (`manus stability` reports each).
+
+The signal judged is the measured (encoder) position, as on the rig; `signal="true"` judges the
+motor's true position instead (the thesis's Simulink may have logged the plant's output before
+its quantizer).
 """
 
 from __future__ import annotations
