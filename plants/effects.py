@@ -46,6 +46,7 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
+from plants import fastmath
 from plants.errors import ModelError
 from plants.structures import Manus2, Structure
 
@@ -54,7 +55,7 @@ def sign(v: Array, boundary: float = 0.0) -> Array:
     """sgn(v); with a boundary layer φ > 0, the saturated ramp clip(v/φ, −1, 1)."""
     if boundary > 0:
         return jnp.clip(v / boundary, -1.0, 1.0)
-    return jnp.sign(v)
+    return fastmath.sign(v)
 
 
 def per_joint(prefix: str, s: Structure) -> tuple[str, ...]:
@@ -235,7 +236,7 @@ class Gravity(Effect):
     def torque(self, s, q, qd, qdd, p, boundary=0.0):
         n = s.n_joints
         th = stack(p, self.names(s))
-        return th[:n] * jnp.cos(q) + th[n:] * jnp.sin(q)
+        return th[:n] * fastmath.cos(q) + th[n:] * fastmath.sin(q)
 
 
 class Cogging(Effect):
@@ -258,7 +259,7 @@ class Cogging(Effect):
     def torque(self, s, q, qd, qdd, p, boundary=0.0):
         n = s.n_joints
         th = stack(p, self.names(s))
-        return th[:n] * jnp.sin(self.order * q) + th[n:] * jnp.cos(self.order * q)
+        return th[:n] * fastmath.sin(self.order * q) + th[n:] * fastmath.cos(self.order * q)
 
     @property
     def spec(self):

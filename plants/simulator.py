@@ -28,12 +28,13 @@ from typing import NamedTuple
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import Array
 
 from plants.effects import Compliance, Delay, Model
 from plants.errors import ModelError
 from plants.stepper import Plant
-from plants.structures import Manus2
+from plants.structures import Diagonal, Joints, Manus2, greater, joints
 
 TINY_SPEED = 1e-12  # evaluates friction levels "at rest" on the right side of the sign
 
@@ -167,73 +168,127 @@ class Simulator(Plant):
     def step(self, state: SimState, command: Array):
         u = command if self.actuator is None else self.actuator(command)
         commands = jnp.concatenate([u[None], state.commands[:-1]])
-        taus = commands[jnp.array(self._lags())]  # (substeps, n), zero-order hold + delay
-        key, sub = jax.random.split(state.key)
+        key = state.key
+        held = commands  # zero-order hold + delay: sub-step j applies held[lag_j]
         if self.torque_noise:
-            taus = taus + self.torque_noise * jax.random.normal(sub, u.shape)
+            key, sub = jax.random.split(key)
+            held = held + self.torque_noise * jax.random.normal(sub, u.shape)
         h = self.dt / self.substeps
+        n, s = self.model.n_joints, self.model.structure
+        # The sub-steps run on per-joint scalars (see plants.structures), stacked once per period;
+        # sin and cos of the configuration once per period, then turned by each sub-step's move.
+        # The lags take at most two neighbouring values: a flag per sub-step picks the older one.
+        lags = self._lags()
+        newer, older = joints(held[min(lags)], n), joints(held[max(lags)], n)
+        late = np.array([lag > min(lags) for lag in lags])
+
+        def tau_of(is_late):
+            return newer if is_late is None else tuple(jnp.where(is_late, a, b) for a, b in zip(older, newer))
+
+        xs = late if late.any() else None
+        q, qd = joints(state.q, n), joints(state.qd, n)
         if self.compliance is None:
-            def body(carry, tau):
-                return self._substep_rigid(*carry, tau, h), None
-            (q, qd), _ = jax.lax.scan(body, (state.q, state.qd), taus)
-            new = SimState(q, qd, None, None, commands, key)
+            def body(carry, is_late):
+                return self._substep_rigid(*carry, tau_of(is_late), h), None
+            carry = (q, qd, s.pose(q), self._half_shift(qd, h), self._bounds_ahead(q, qd, h))
+            (q, qd, *_), _ = jax.lax.scan(body, carry, xs, length=self.substeps)
+            new = SimState(jnp.stack(q), jnp.stack(qd), None, None, commands, key)
         else:
-            def body(carry, tau):
-                return self._substep_compliant(*carry, tau, h), None
-            (q, qd, lq, lqd), _ = jax.lax.scan(body, (state.q, state.qd, state.link_q, state.link_qd), taus)
-            new = SimState(q, qd, lq, lqd, commands, key)
+            lq, lqd = joints(state.link_q, n), joints(state.link_qd, n)
+            def body(carry, is_late):
+                return self._substep_compliant(*carry, tau_of(is_late), h), None
+            carry = (q, qd, lq, lqd, s.pose(lq), self._half_shift(lqd, h), self._bounds_ahead(q, qd, h, "motor"))
+            (q, qd, lq, lqd, *_), _ = jax.lax.scan(body, carry, xs, length=self.substeps)
+            new = SimState(jnp.stack(q), jnp.stack(qd), jnp.stack(lq), jnp.stack(lqd), commands, key)
         return new, self.measure(new)
 
-    # -- dynamics ---------------------------------------------------------------------------
-    def _friction_bounds(self, q, qd, side=None):
+    # -- dynamics, on per-joint scalars -----------------------------------------------------
+    def _torque(self, q: Joints, qd: Joints, kinds, side=None) -> Joints:
+        """The model's torques of `kinds` (`Model.torque` at q̈ = 0), per joint."""
+        qd = jnp.stack(qd)
+        tau = self.model.torque(jnp.stack(q), qd, jnp.zeros_like(qd), self.params, kinds=kinds, side=side)
+        return joints(tau, self.model.n_joints)
+
+    def _friction_bounds(self, q: Joints, qd: Joints, side=None) -> tuple[Joints, Joints]:
         """Friction levels (lo, hi) ≥ 0: f ∈ [−lo, hi], f = hi when sliding forward."""
-        spd = jnp.maximum(jnp.abs(qd), TINY_SPEED)
-        z = jnp.zeros_like(qd)
-        hi = self.model.torque(q, spd, z, self.params, kinds=("friction",), side=side)
-        lo = -self.model.torque(q, -spd, z, self.params, kinds=("friction",), side=side)
-        return jnp.maximum(lo, 0.0), jnp.maximum(hi, 0.0)
+        spd = tuple(greater(jnp.abs(v), TINY_SPEED) for v in qd)
+        hi = self._torque(q, spd, ("friction",), side)
+        lo = self._torque(q, tuple(-v for v in spd), ("friction",), side)
+        return tuple(greater(-x, 0.0) for x in lo), tuple(greater(x, 0.0) for x in hi)
+
+    def _bounds_ahead(self, q: Joints, qd: Joints, h, side=None):
+        """The friction bounds of the sub-step that starts at (q, q̇): at its midpoint q + h/2·q̇
+        and speed |q̇|; () without friction."""
+        if not any(e.kind == "friction" and (side is None or e.side == side) for e in self.model.effects):
+            return ()
+        return self._friction_bounds(tuple(x + 0.5 * h * v for x, v in zip(q, qd)), qd, side)
+
+    def _implicit_friction(self, H, vstar: Joints, bounds, h) -> Joints:
+        """The velocity after the implicit friction step with inertia H, v* − h H⁻¹ f, and
+        exactly zero on a joint whose friction f is strictly inside its bounds (stuck)."""
+        if not bounds:
+            return vstar
+        lo, hi = bounds
+        f = H.friction(vstar, lo, hi, h)
+        slide = H.solve(f)
+        return tuple(jnp.where((fi > -l) & (fi < u), 0.0, v - h * a) for fi, l, u, v, a in zip(f, lo, hi, vstar, slide))
+
+    def _half_shift(self, qd: Joints, h):
+        """The structure's shift for a move by h/2·q̇."""
+        return self.model.structure.shift(tuple(0.5 * h * v for v in qd))
 
     # Each sub-step is Störmer–Verlet (positions at the midpoint) with the velocity-dependent
     # torques taken at a predicted midpoint velocity: second order, and for springs exactly
     # conservative (stable for ωh < 2, right for a lightly damped shaft mode). Friction is the
     # implicit Moreau step at the midpoint; the position update uses the mean of the old and
     # new velocities, so a joint at rest before and after the step does not move at all.
-    def _accel_rigid(self, q, qd, tau):
+    # `pose` (sin/cos of the configuration) moves by h/2·q̇ to the midpoint and by h/2·v from
+    # there; `shift` carries the second half-move, which is also the next sub-step's first.
+    # The friction bounds depend only on where a sub-step starts, so the previous one computes
+    # them: as a loop output XLA evaluates them once, not again inside each of their consumers.
+    def _accel_rigid(self, q, qd, pose, tau):
         s, p = self.model.structure, self.params
-        r = tau - s.coriolis(q, qd, p) @ qd - self.model.torque(q, qd, jnp.zeros_like(qd), p, kinds=("load",))
-        return s.solve(s.inertia(q, p), r)
+        r = [t - b - l for t, b, l in zip(tau, s.bias(pose, qd, p), self._torque(q, qd, ("load",)))]
+        return s.mass(pose, p).solve(r)
 
-    def _substep_rigid(self, q, qd, tau, h):
-        s, p = self.model.structure, self.params
-        qm = q + 0.5 * h * qd
-        vm = qd + 0.5 * h * self._accel_rigid(q, qd, tau)
-        vstar = qd + h * self._accel_rigid(qm, vm, tau)
-        H = s.inertia(qm, p)
-        lo, hi = self._friction_bounds(qm, qd)
-        f = s.friction_solve(H, vstar, lo, hi, h)
-        # a joint whose friction is strictly inside its bounds is stuck: exactly at rest
-        v = jnp.where((f > -lo) & (f < hi), 0.0, vstar - h * s.solve(H, f))
-        return q + 0.5 * h * (qd + v), v
+    def _substep_rigid(self, q, qd, pose, shift, bounds, tau, h):
+        s = self.model.structure
+        qm = tuple(x + 0.5 * h * v for x, v in zip(q, qd))
+        pm = s.moved(pose, shift)
+        vm = tuple(v + 0.5 * h * a for v, a in zip(qd, self._accel_rigid(q, qd, pose, tau)))
+        vstar = tuple(v + h * a for v, a in zip(qd, self._accel_rigid(qm, vm, pm, tau)))
+        v = self._implicit_friction(s.mass(pm, self.params), vstar, bounds, h)
+        q = tuple(x + 0.5 * h * (a + b) for x, a, b in zip(q, qd, v))
+        shift = self._half_shift(v, h)
+        return q, v, s.moved(pm, shift), shift, self._bounds_ahead(q, v, h)
 
-    def _accel_compliant(self, th, thd, q, qd, tau):
+    def _accel_compliant(self, th, thd, q, qd, pose, tau):
         s, p, c = self.model.structure, self.params, self.compliance
-        H = s.inertia(q, p)
-        jm = c.motor_fraction * jnp.diagonal(H)  # motor rotor inertia; the link has the rest
-        k, b = c.shaft(jnp.diagonal(H))
-        shaft = k * (th - q) + b * (thd - qd)
-        z = jnp.zeros_like(qd)
-        am = (tau - shaft - self.model.torque(th, thd, z, p, kinds=("load",), side="motor")) / jm
-        rl = shaft - s.coriolis(q, qd, p) @ qd - self.model.torque(q, qd, z, p, kinds=("load",), side="link")
-        return am, s.solve(H - jnp.diag(jm), rl), jm
+        H = s.mass(pose, p)
+        jm = tuple(c.motor_fraction * x for x in H.diagonal())  # motor rotor inertia; the link has the rest
+        shaft = []
+        for x, a, b, ad, bd in zip(H.diagonal(), th, q, thd, qd):
+            k, d = c.shaft(x)
+            shaft.append(k * (a - b) + d * (ad - bd))
+        motor = self._torque(th, thd, ("load",), "motor")
+        link = self._torque(q, qd, ("load",), "link")
+        am = tuple((t - x - m) / j for t, x, m, j in zip(tau, shaft, motor, jm))
+        rl = [x - b - l for x, b, l in zip(shaft, s.bias(pose, qd, p), link)]
+        return am, H.minus_diagonal(jm).solve(rl), jm
 
-    def _substep_compliant(self, th, thd, q, qd, tau, h):
-        am, al, _ = self._accel_compliant(th, thd, q, qd, tau)
-        thm, qm = th + 0.5 * h * thd, q + 0.5 * h * qd
-        am, al, jm = self._accel_compliant(thm, thd + 0.5 * h * am, qm, qd + 0.5 * h * al, tau)
-        vstar = thd + h * am
+    def _substep_compliant(self, th, thd, q, qd, pose, shift, bounds, tau, h):
+        s = self.model.structure
+        am, al, _ = self._accel_compliant(th, thd, q, qd, pose, tau)
+        thm = tuple(x + 0.5 * h * v for x, v in zip(th, thd))
+        qm = tuple(x + 0.5 * h * v for x, v in zip(q, qd))
+        pm = s.moved(pose, shift)
+        am, al, jm = self._accel_compliant(thm, tuple(v + 0.5 * h * a for v, a in zip(thd, am)), qm,
+                                           tuple(v + 0.5 * h * a for v, a in zip(qd, al)), pm, tau)
+        vstar = tuple(v + h * a for v, a in zip(thd, am))
         # the motor's inertia is diagonal: the implicit friction step is a clip per joint
-        lo, hi = self._friction_bounds(thm, thd, side="motor")
-        f = jnp.clip(jm * vstar / h, -lo, hi)
-        v = jnp.where((f > -lo) & (f < hi), 0.0, vstar - h * f / jm)
-        w = qd + h * al
-        return th + 0.5 * h * (thd + v), v, q + 0.5 * h * (qd + w), w
+        v = self._implicit_friction(Diagonal(jm), vstar, bounds, h)
+        th = tuple(x + 0.5 * h * (a + b) for x, a, b in zip(th, thd, v))
+        w = tuple(v + h * a for v, a in zip(qd, al))
+        shift = self._half_shift(w, h)
+        return (th, v, tuple(x + 0.5 * h * (a + b) for x, a, b in zip(q, qd, w)), w, s.moved(pm, shift), shift,
+                self._bounds_ahead(th, v, h, "motor"))
