@@ -2,11 +2,11 @@
 
 `NAMES` lists them in report order, `make(name, ...)` builds one, `KNOBS[name]` is the knob
 `manus estimators --tune` searches. Each is a stepper (`init(q0)`, `step(state, q, tau)`), run over
-a recorded array with `run`.
+a recorded array with `run`, or tick by tick with `compiled_step(estimator)`.
 """
 
-from estimators.base import Estimate, Estimator, FilteredFirstDifference, FirstDifference, run
+from estimators.base import Estimate, Estimator, FilteredFirstDifference, FirstDifference, compiled_step, run
 from estimators.registry import KNOBS, MODEL_BASED, NAMES, SETTINGS, knob_range, make
 
-__all__ = ["Estimate", "Estimator", "FilteredFirstDifference", "FirstDifference", "run",
+__all__ = ["Estimate", "Estimator", "FilteredFirstDifference", "FirstDifference", "compiled_step", "run",
            "KNOBS", "MODEL_BASED", "NAMES", "SETTINGS", "knob_range", "make"]

@@ -48,6 +48,18 @@ def run(estimator: Estimator, q: Array, tau: Array | None = None) -> Estimate:
     return out
 
 
+def compiled_step(estimator: Estimator):
+    """`step(state, q, tau) -> (state, Estimate)` jitted once, for a real-time loop (pass tau =
+    zeros when there is no torque).
+
+    The configuration is closed over (its arrays become constants of the compiled step), so a
+    call passes only the state and the inputs: `eqx.filter_jit(estimator.step)` flattens and
+    hashes the whole module on every call, which `manus bench estimators` measures at several
+    times the cost of the step itself. What changes at run time belongs in the state (model
+    parameters: `with_params`)."""
+    return jax.jit(lambda state, q, tau: estimator.step(state, q, tau))
+
+
 class FirstDifference(Estimator):
     """v_k = (q_k − q_{k−1}) / T: the thesis's starting point (§3.7, Fig. 3-24)."""
 

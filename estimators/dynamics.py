@@ -66,15 +66,16 @@ class ModelDynamics(eqx.Module):
                              f"{len(names)} parameters ({', '.join(names)})")
         return theta
 
-    def commands(self, n: int) -> Array:
-        """The initial command history (delay, n): nothing commanded yet."""
-        return jnp.zeros((self.delay, n))
+    def commands(self, n: int) -> Array | None:
+        """The initial history of commands not yet acting (delay, n): none commanded yet (None
+        without a delay)."""
+        return jnp.zeros((self.delay, n)) if self.delay else None
 
-    def acting(self, history: Array, tau: Array | None) -> tuple[Array, Array]:
-        """(torque acting over the last period, new history) given the latest command."""
-        tau = jnp.zeros(history.shape[1:]) if tau is None else jnp.asarray(tau, float)
-        if self.delay == 0:
-            return tau, history
+    def acting(self, history: Array | None, tau: Array | None, n: int) -> tuple[Array, Array | None]:
+        """(torque acting over the last period (n,), new history) given the latest command."""
+        tau = jnp.zeros(n) if tau is None else jnp.asarray(tau, float)
+        if history is None:
+            return tau, None
         full = jnp.concatenate([tau[None], history])
         return full[self.delay], full[:-1]
 

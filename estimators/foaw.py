@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 from jax import Array
 
 from estimators.base import Estimate, Estimator
@@ -45,18 +46,19 @@ class Foaw(Estimator):
         q0 = jnp.asarray(q0, float)
         return jnp.broadcast_to(q0[..., None], q0.shape + (self.window + 1,))
 
+    def slopes(self) -> np.ndarray:
+        """W (N+1, N) with b_n = Σᵢ W[i, n−1] y_{k−i}: the least-squares slopes as one product."""
+        i, n = np.arange(self.window + 1.0)[:, None], np.arange(1.0, self.window + 1)
+        return np.where(i <= n, (n - 2 * i) / (self.dt * n * (n + 1) * (n + 2) / 6), 0.0)
+
     def step(self, state, q, tau=None):
         y = jnp.concatenate([q[..., None], state[..., :-1]], axis=-1)  # y[..., i] = y_{k−i}
         N = self.window
-        i = jnp.arange(N + 1.0)
-        n = i[1:]
         dy = y - y[..., :1]  # relative to y_k: the same slopes, exactly 0 at rest, no cancellation
-        s0 = jnp.cumsum(dy, -1)[..., 1:]  # Σ_{i≤n} (y_{k−i} − y_k)
-        s1 = jnp.cumsum(i * dy, -1)[..., 1:]  # Σ_{i≤n} i (y_{k−i} − y_k)
-        b = (n * s0 - 2 * s1) / (self.dt * n * (n + 1) * (n + 2) / 6)  # (..., N): slope of window n
-        j = i[1:N]  # the samples in between
-        miss = jnp.abs(dy[..., None, 1:N] + b[..., :, None] * j * self.dt)  # |y_{k−j} − (y_k − b_n j T)|, (..., n, j)
-        ok = jnp.all((miss <= self.d) | (j >= n[:, None]), axis=-1)  # (..., N)
-        longest = jnp.sum(jnp.cumprod(ok, axis=-1), axis=-1)  # ≥ 1: n = 1 has nothing in between
-        v = jnp.take_along_axis(b, (longest - 1)[..., None].astype(int), -1)[..., 0]
+        b = dy @ self.slopes()  # (..., N): the slope of window n
+        n, j = np.arange(1, N + 1), np.arange(1, N)  # windows, and the samples in between
+        miss = jnp.abs(dy[..., None, 1:N] + b[..., :, None] * j * self.dt)  # |y_{k−j} − (y_k − b_n j T)|
+        ok = jnp.all((miss <= self.d) | (j >= n[:, None]), axis=-1)  # (..., N); n = 1 always
+        longest = jnp.where(jnp.all(ok, -1), N, jnp.argmin(ok, -1))  # windows before the first failure
+        v = jnp.take_along_axis(b, (longest - 1)[..., None], -1)[..., 0]
         return y, Estimate(q, v)

@@ -58,7 +58,7 @@ class LuenbergerState(NamedTuple):
     q: Array  # position estimate (n,)
     qd: Array  # velocity estimate (n,)
     theta: Array | None  # model parameters (P,) (model-based only)
-    commands: Array | None  # commands not yet acting (delay, n) (model-based only)
+    commands: Array | None  # commands not yet acting (delay, n) (model-based with a delay only)
 
 
 class Luenberger(ModelBased):
@@ -95,7 +95,7 @@ class Luenberger(ModelBased):
         if self.dynamics is None:
             q_bar, v_bar, a, commands = state.q + self.dt * state.qd, state.qd, None, None
         else:
-            acting, commands = self.dynamics.acting(state.commands, tau)
+            acting, commands = self.dynamics.acting(state.commands, tau, q.shape[-1])
             q_bar, v_bar, a = self.dynamics.predict(state.q, state.qd, acting, state.theta, self.dt)
         l1, l2 = self.gains
         e = q - q_bar

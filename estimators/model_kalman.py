@@ -51,7 +51,7 @@ class ModelKalmanState(NamedTuple):
     x: Array  # (q, q̇) estimates (2n,)
     P: Array  # posterior covariance (2n, 2n)
     theta: Array  # model parameters (P,)
-    commands: Array  # commands not yet acting (delay, n)
+    commands: Array | None  # commands not yet acting (delay, n); None without a delay
 
 
 class ModelKalman(ModelBased):
@@ -90,7 +90,7 @@ class ModelKalman(ModelBased):
 
     def step(self, state, q, tau=None):
         n = q.shape[-1]
-        acting, commands = self.dynamics.acting(state.commands, tau)
+        acting, commands = self.dynamics.acting(state.commands, tau, n)
 
         def f(x):
             q_bar, v_bar, a = self.dynamics.predict(x[:n], x[n:], acting, state.theta, self.dt)

@@ -25,7 +25,7 @@ scan = eqx.filter_jit(estimators.run)
 def scan_and_loop(est, q, tau):
     """(scan, loop) velocity estimates (T, n); the loop feeds the torque of the previous sample."""
     scanned = np.asarray(scan(est, jnp.asarray(q), jnp.asarray(tau)).qd)
-    step = eqx.filter_jit(est.step)
+    step = estimators.compiled_step(est)
     state, looped, prev = est.init(jnp.asarray(q[0])), [], np.zeros(q.shape[1])
     for k in range(len(q)):
         state, out = step(state, jnp.asarray(q[k]), jnp.asarray(prev))
