@@ -99,7 +99,10 @@ class ModelBased(Estimator):
     dynamics: eqx.AbstractVar[ModelDynamics | None]
 
     def with_params(self, state, params: dict | Array):
-        """The state with the model's parameters replaced: pure, jit-able, once per tick if need be."""
+        """The state with the model's parameters replaced: pure, jit-able, once per tick if need be.
+
+        `params`: θ (P,) in the order of `dynamics.model.names` (an adaptive controller's â when
+        it adapts the same `Model`), or a dict naming some of them (the rest are kept)."""
         if self.dynamics is None:
             raise ManusError(f"{type(self).__name__} has no model: nothing to set parameters of")
         return state._replace(theta=self.dynamics.theta(params, state.theta))
