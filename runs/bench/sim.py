@@ -18,6 +18,7 @@ excluded):
 from __future__ import annotations
 
 import math
+import os
 import time
 
 import numpy as np
@@ -35,13 +36,15 @@ def add_arguments(p) -> None:
     p.add_argument("--repeats", type=int, default=3, help="best of this many timed runs")
 
 
-def _best(fn, repeats: int) -> float:
+def _best(fn, repeats: int) -> tuple[float, float]:
+    """Best wall time of `repeats` calls after a warm-up one, and the process CPU time (all
+    threads) of that call [s]."""
     fn()  # compile and warm up
-    best = math.inf
+    best = (math.inf, math.inf)
     for _ in range(repeats):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         fn()
-        best = min(best, time.perf_counter() - t0)
+        best = min(best, (time.perf_counter() - t0, time.process_time() - c0))
     return best
 
 
@@ -117,6 +120,7 @@ def run(args) -> dict:
     from plants.references import Complex
     from runs.common import note
 
+    load = os.getloadavg()[0]
     if args.trials < 1 or args.seconds <= 0 or args.numpy_seconds <= 0 or args.every < 1 or args.repeats < 1:
         raise ManusError("--trials, --seconds, --numpy-seconds, --every and --repeats must be positive")
     steps = int(round(args.seconds * 1000))
@@ -125,7 +129,7 @@ def run(args) -> dict:
         plant = Simulator(Model(Manus2(), PLANT))
         reference = Complex()
         note(f"one trial of {args.seconds:g} s ...")
-        single = _best(lambda: simulate(plant, Impedance(), reference, args.seconds), args.repeats)
+        single, _ = _best(lambda: simulate(plant, Impedance(), reference, args.seconds), args.repeats)
         controllers = eqx.filter_vmap(lambda k: Impedance(k, 1.0))(jnp.linspace(10.0, 60.0, args.trials))
         keys = jax.random.split(jax.random.PRNGKey(0), args.trials)
 
@@ -133,9 +137,9 @@ def run(args) -> dict:
             return simulate_batch(plant, controllers, reference, args.seconds, keys, batched=("controller",), every=every)
 
         note(f"{args.trials} trials of {args.seconds:g} s on {devices} device(s), recording every {args.every} ticks ...")
-        light = _best(lambda: batch(args.every), args.repeats)
+        light, light_cpu = _best(lambda: batch(args.every), args.repeats)
         note("... and recording every tick ...")
-        full = _best(lambda: batch(1), args.repeats)
+        full, _ = _best(lambda: batch(1), args.repeats)
         check = simulate(plant, Impedance(), reference, args.numpy_seconds).q
         dtype = str(check.dtype)
 
@@ -149,6 +153,8 @@ def run(args) -> dict:
                         "batch_full_record_trial_steps_per_s": args.trials * steps / full,
                         "numpy_steps_per_s": numpy_steps},
             "speedup": batch_steps / numpy_steps,
+            # on a shared machine the wall figures suffer; CPU time (all threads) much less
+            "batch_cpu_ns_per_trial_step": light_cpu / (args.trials * steps) * 1e9, "load_average": load,
             "agreement_counts": float(np.abs(check - baseline).max() / (2 * np.pi / 131072)),
             "plant": PLANT, "controller": "impedance K=30 B=1 (batch: K from 10 to 60)", "reference": "complex",
             "trials": args.trials, "seconds": args.seconds, "numpy_seconds": args.numpy_seconds,
@@ -167,4 +173,6 @@ def render(r: dict) -> str:
         f"  numpy loop ({r['numpy_seconds']:g} s, float64):     {f['numpy_steps_per_s']:.3g} steps/s",
         f"  speedup of the batch over numpy: {r['speedup']:.3g}x; numpy and JAX positions agree "
         f"within {r['agreement_counts']:.3g} encoder counts",
+        f"  batch CPU time {r['batch_cpu_ns_per_trial_step']:.3g} ns per trial-step (all threads); "
+        f"load average {r['load_average']:.2f} at the start",
     ])
