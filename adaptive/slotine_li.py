@@ -99,6 +99,9 @@ def default_gains(model: Model) -> np.ndarray:
     return gamma
 
 
+_run = eqx.filter_jit(run)  # compiled once per kind of estimator
+
+
 def _model_based(estimator: Estimator) -> bool:
     """Whether `estimator` predicts with a plant model whose parameters it takes (`with_params`)."""
     return hasattr(estimator, "with_params") and getattr(estimator, "dynamics", None) is not None
@@ -112,7 +115,7 @@ def measure_lag(estimator: Estimator, n_joints: int, seconds: float = 2.0) -> fl
     wrong; `SlotineLi` takes their lag as 0.)"""
     t = np.arange(int(round(seconds / estimator.dt))) * estimator.dt
     q = np.repeat(0.5 * t[:, None] ** 2, n_joints, axis=1)
-    lag = t[-1] - float(run(estimator, q).qd[-1, 0])
+    lag = t[-1] - float(_run(estimator, q).qd[-1, 0])
     return lag if np.isfinite(lag) and 0 <= lag < 0.1 else 0.0
 
 
@@ -141,6 +144,12 @@ def _positive(what: str, x: np.ndarray, names: tuple[str, ...]) -> np.ndarray:
         raise ManusError(f"gain {what} must be positive definite (every diagonal entry finite and > 0): "
                          f"{', '.join(bad)}")
     return x
+
+
+def _delay(what: str, value) -> float:
+    if not (np.isfinite(value) and 0 <= value < 0.1):
+        raise ManusError(f"{what} must be a time in [0, 0.1) s, got {value}")
+    return float(value)
 
 
 class SlotineLi(Controller):
@@ -174,13 +183,6 @@ class SlotineLi(Controller):
         if not np.isclose(self.estimator.dt, dt):
             raise ManusError(f"the velocity estimator runs at dt = {self.estimator.dt:g} s but the controller "
                              f"at {dt:g} s")
-        self.lead = 0.5 * dt if lead is None else float(lead)
-        if velocity_lag is None:  # a model-based estimator has no lag while its model holds
-            velocity_lag = 0.0 if _model_based(self.estimator) else measure_lag(self.estimator, model.n_joints)
-        self.velocity_lag = float(velocity_lag)
-        for what, value in (("lead", self.lead), ("velocity_lag", self.velocity_lag)):
-            if not (np.isfinite(value) and 0 <= value < 0.1):
-                raise ManusError(f"{what} must be a time in [0, 0.1) s, got {value}")
         self.gamma = jnp.asarray(_positive("gamma", _per("gamma", gamma, names, default_gains(model)), names))
         self.lam = jnp.asarray(_positive("lam", _per("lam", lam, joints, [LAMBDA] * len(joints)), joints))
         self.kd = jnp.asarray(_positive("kd", _per("kd", kd, joints, [KD] * len(joints)), joints))
@@ -189,6 +191,10 @@ class SlotineLi(Controller):
         if not np.all(np.isfinite(theta)):
             raise ManusError("theta0: initial estimates must be finite")
         self.theta0 = jnp.asarray(theta)
+        self.lead = _delay("lead", 0.5 * dt if lead is None else lead)
+        if velocity_lag is None:  # a model-based estimator has no lag while its model holds
+            velocity_lag = 0.0 if _model_based(self.estimator) else measure_lag(self.estimator, model.n_joints)
+        self.velocity_lag = _delay("velocity_lag", velocity_lag)
         self.projection = Projection(model, min_inertia) if project else None
         self.composite = composite
         if not limit > 0:
@@ -299,6 +305,19 @@ def rollout(plant: Plant, controller: SlotineLi, reference: Reference, steps: in
     ks = jnp.arange(steps).reshape(steps // every, every)
     _, (log, grams) = jax.lax.scan(chunk, (pstate, cstate, q, jnp.zeros((P, P))), ks)
     return jax.tree.map(lambda x: x.reshape((steps,) + x.shape[2:]), log), grams
+
+
+@eqx.filter_jit
+def rollout_batch(plant: Plant, controller: SlotineLi, reference: Reference, per_trial: tuple, keys: Array,
+                  steps: int, every: int = 50) -> tuple[Log, Array]:
+    """Many `rollout`s at once (vmapped, jitted once per kind of plant, controller, reference and
+    length): trial i runs `controller` with per_trial = (â(0), Γ, Λ, K_D), each with a leading
+    trial axis, and the plant's noise key keys[i] -> (Log, G) with a leading trial axis."""
+    def one(arrays, key):
+        c = eqx.tree_at(lambda c: (c.theta0, c.gamma, c.lam, c.kd), controller, arrays)
+        return rollout(plant, c, reference, steps, key, every)
+
+    return jax.vmap(one)(per_trial, keys)
 
 
 def replay(controller: Controller, q: Array, refs: RefSample) -> tuple[Any, Array]:

@@ -1,0 +1,106 @@
+"""`manus bench converge`: parameter-convergence trials per second, the batch of N trials (4 s of
+the complex trajectory each, one vmapped `lax.scan`) beside the same trials one by one in a
+Python loop, measured in the same run.
+
+Two one-by-one baselines, each timed on a few trials and extrapolated to N (said so in the
+result): a Python loop over trials, each one `lax.scan` jitted once (`rollout`); and a Python
+loop over ticks, the plant and controller steps jitted once and called per tick (how the
+hardware loop runs a controller). Compilation is timed apart and left out of every rate.
+"""
+
+from __future__ import annotations
+
+import time
+
+HELP = "convergence trials per second: the vmapped batch beside one-by-one Python loops"
+
+
+def add_arguments(p) -> None:
+    p.add_argument("--trials", type=int, default=200)
+    p.add_argument("--seconds", type=float, default=4.0)
+    p.add_argument("--model", default="rigid,viscous,coulomb", metavar="EFFECTS")
+    p.add_argument("--law", choices=("gradient", "composite"), default="gradient")
+    p.add_argument("--sample", type=int, default=3, help="one-by-one trials timed (then extrapolated)")
+    p.add_argument("--tick-sample", type=float, default=0.5, help="seconds of one trial timed tick by tick")
+
+
+def _timed(f, *args):
+    import jax
+
+    start = time.perf_counter()
+    out = jax.block_until_ready(f(*args))
+    return time.perf_counter() - start, out
+
+
+def run(args) -> dict:
+    import equinox as eqx
+    import jax
+    import jax.numpy as jnp
+
+    from adaptive.slotine_li import rollout
+    from plants import Model, Simulator
+    from plants.errors import ManusError
+    from plants.references import Complex
+    from plants.structures import Manus2
+    from runs.cmd_converge import EVERY, controller_for, run_trials
+    from runs.common import note
+
+    if args.trials < 1 or args.sample < 1 or args.seconds <= 0 or args.tick_sample <= 0:
+        raise ManusError("need --trials, --sample >= 1 and positive --seconds, --tick-sample")
+    plant = Simulator(Model(Manus2(), "rigid,viscous,coulomb"), torque_noise=0.005)
+    model = Model(Manus2(), args.model)
+    controller = controller_for(plant, model, args.law, "kalman_cv")
+    reference = Complex()
+    steps = EVERY * max(1, int(round(args.seconds / plant.dt / EVERY)))
+    seconds = steps * plant.dt
+
+    note(f"batch of {args.trials} trials ({seconds:g} s each): compiling and running twice ...")
+    first, _ = _timed(lambda: run_trials(plant, controller, reference, args.trials, seconds))
+    batch, _ = _timed(lambda: run_trials(plant, controller, reference, args.trials, seconds, seed=1))
+
+    note(f"one by one, a scan per trial: {args.sample} trial(s) ...")
+    one = eqx.filter_jit(lambda c, k: rollout(plant, c, reference, steps, k, EVERY))
+    keys = jax.random.split(jax.random.PRNGKey(0), args.sample + 1)
+    compile_one, _ = _timed(one, controller, keys[0])
+    scan_s = min(_timed(one, controller, k)[0] for k in keys[1:])
+
+    ticks = max(1, int(round(args.tick_sample / plant.dt)))
+    note(f"one by one, tick by tick: {ticks} ticks ...")
+    plant_step, ctrl_step = eqx.filter_jit(plant.step), eqx.filter_jit(controller.step)
+    pstate, q = plant.reset(keys[0], q0=reference(0.0).q)
+    cstate = controller.init(q)
+    refs = [reference(k * plant.dt) for k in range(ticks + 1)]
+    cstate, u = ctrl_step(cstate, q, refs[0])  # compile both steps
+    pstate, q = plant_step(pstate, u)
+    start = time.perf_counter()
+    for k in range(1, ticks + 1):
+        cstate, u = ctrl_step(cstate, q, refs[k])
+        pstate, q = plant_step(pstate, u)
+    jax.block_until_ready(q)
+    tick_s = (time.perf_counter() - start) / ticks * steps  # one trial, extrapolated
+
+    figures = {
+        "batch_trials_per_s": args.trials / batch,
+        "batch_trial_steps_per_s": args.trials * steps / batch,
+        "scan_loop_trials_per_s": 1 / scan_s,
+        "tick_loop_trials_per_s": 1 / tick_s,
+        "tick_loop_us_per_tick": tick_s / steps * 1e6,
+        "batch_compile_s": first - batch,
+        "scan_compile_s": compile_one - scan_s,
+    }
+    return {"figures": figures, "speedup": scan_s * args.trials / batch, "speedup_vs_tick_loop": tick_s * args.trials / batch,
+            "trials": args.trials, "seconds": seconds, "model": model.spec, "law": args.law, "devices": len(jax.devices()),
+            "note": (f"one-by-one rates timed on {args.sample} scanned trial(s) and {ticks} ticks of one trial, "
+                     f"extrapolated to {args.trials} trials of {seconds:g} s; compilation excluded")}
+
+
+def render(r: dict) -> str:
+    f = r["figures"]
+    return "\n".join([
+        f"benchmark converge: {r['trials']} trials of {r['seconds']:g} s, model {r['model']}, {r['law']} law",
+        f"  batch (vmapped scan):        {f['batch_trials_per_s']:8.2f} trials/s  "
+        f"({f['batch_trial_steps_per_s']:.3g} trial-steps/s; compile {f['batch_compile_s']:.1f} s)",
+        f"  one by one, scan per trial:  {f['scan_loop_trials_per_s']:8.2f} trials/s  (compile {f['scan_compile_s']:.1f} s)",
+        f"  one by one, tick by tick:    {f['tick_loop_trials_per_s']:8.3f} trials/s  ({f['tick_loop_us_per_tick']:.0f} µs per tick)",
+        f"  speedup of the batch: {r['speedup']:.3g}x over the scan loop, {r['speedup_vs_tick_loop']:.3g}x over the tick loop",
+        f"  ({r['note']})"])

@@ -1,0 +1,227 @@
+"""`manus converge`: parameter-convergence trials of the Slotine–Li adaptive controller (thesis
+App. C), a batch of trials at once.
+
+Each trial starts at rest at the centre of the workspace and follows the trajectory for
+`--seconds` (the thesis's trial: 1 s to reach the centre, then 4 s of trajectory; here the arm
+starts there). The trials differ in their initial estimates (each parameter uniform within
+±`--init-spread` of its nominal value), their gains (Γ, Λ and K_D each scaled by a log-uniform
+factor within ×/÷ (1 + `--gain-spread`)) and their noise seed (the plant's torque noise). All run
+in one vmapped `lax.scan`.
+
+Reported per parameter: the truth, the final estimate (mean over trials) and its spread, the
+relative error of that mean, and t_within_5pct: the median over trials of the time after which
+the estimate stays within 5 % of the truth (null when fewer than half the trials get there).
+Beside them, the excitation the adaptation saw: the smallest eigenvalue of ∫YᵀY dt.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import NamedTuple
+
+import numpy as np
+
+from runs.common import add_common, note
+from runs.plants_cli import add_plant_options, build_plant
+
+NAME = "converge"
+HELP = "parameter-convergence trials of the Slotine-Li adaptive controller (thesis App. C), vmapped"
+TRAJECTORIES = ("complex", "benign", "multisine")
+EVERY = 50  # ticks between checkpoints of the excitation ∫YᵀY
+
+
+def add_arguments(p) -> None:
+    p.add_argument("--trajectory", choices=TRAJECTORIES, default="complex",
+                   help="thesis eqs. C.13-C.14 (complex), C.11-C.12 (benign), or a multi-sine")
+    p.add_argument("--model", default="rigid", metavar="EFFECTS",
+                   help="effects in the controller's regressor, e.g. rigid,viscous,coulomb (default rigid)")
+    p.add_argument("--law", choices=("gradient", "composite"), default="gradient",
+                   help="the adaptation law: Slotine-Li's gradient law or composite adaptation")
+    p.add_argument("--form", choices=("slotine-li", "thesis"), default="slotine-li",
+                   help="regressor: C(q, qd) qd_r (slotine-li) or the thesis's qd_r² terms")
+    p.add_argument("--estimator", default="kalman_cv", metavar="NAME",
+                   help="velocity estimator (estimators.NAMES; default kalman_cv; the thesis used first_difference)")
+    p.add_argument("--trials", type=int, default=200)
+    p.add_argument("--seconds", type=float, default=4.0)
+    p.add_argument("--init-spread", type=float, default=0.5, help="initial estimates within ±this fraction")
+    p.add_argument("--gain-spread", type=float, default=0.25, help="gains scaled within ×/÷ (1 + this)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--uncompensated", action="store_true",
+                   help="no timing compensation (lead = velocity lag = 0): the thesis's controller")
+    p.add_argument("--gain", action="append", default=[], metavar="KNOB=VALUE",
+                   help="a controller setting: lam, kd, boundary, min_inertia, lead, velocity_lag, and for the "
+                        "composite law bandwidth, weight, forgetting (repeatable)")
+    p.add_argument("--gamma", action="append", default=[], metavar="PARAM=VALUE",
+                   help="the adaptation gain of one parameter, e.g. --gamma b1=30 (repeatable)")
+    add_common(p)
+    add_plant_options(p, truth_default="rigid,viscous,coulomb")
+    p.set_defaults(torque_noise=0.005)
+
+
+class Trials(NamedTuple):
+    """A batch of trials, numpy arrays with a leading trial axis B."""
+
+    t: np.ndarray  # (T,)
+    q_err: np.ndarray  # q − q_d (B, T, n)
+    tau: np.ndarray  # commands (B, T, n)
+    theta: np.ndarray  # estimates (B, T, P)
+    t_gram: np.ndarray  # checkpoint times (C,)
+    lam_min: np.ndarray  # smallest eigenvalue of ∫₀ᵗ YᵀY at the checkpoints (B, C)
+    stopped: np.ndarray  # a trial's controller stopped itself (B,)
+    names: tuple
+    truth: np.ndarray  # (P,)
+
+
+def reference_named(name: str, model):
+    from plants.errors import ManusError
+    from plants.references import Benign, Complex, MultiSine
+    from plants.simulator import workspace_centre
+    from plants.structures import Manus2
+
+    if name in ("benign", "complex") and not isinstance(model.structure, Manus2):
+        raise ManusError(f"the {name} trajectory is the thesis's for the manus2 arm")
+    return {"benign": Benign, "complex": Complex,
+            "multisine": lambda: MultiSine(np.asarray(workspace_centre(model)))}[name]()
+
+
+def controller_for(plant, model, law: str, estimator, form: str = "slotine-li", uncompensated=False,
+                   **gains):
+    """The Slotine–Li controller of a trial; timing compensated for the plant's known delay
+    unless told otherwise; `gains` as for `adaptive.make_controller`."""
+    from adaptive.controllers import make_controller, make_estimator
+
+    if isinstance(estimator, str) and plant.encoder is not None:  # the Kalman filters want the encoder step
+        estimator = make_estimator(estimator, plant.dt, model, step=plant.encoder.step)
+    knobs = {"lead": 0.0, "velocity_lag": 0.0} if uncompensated else {"lead": 0.5 * plant.dt + plant.delay}
+    if plant.actuator is not None:
+        knobs["limit"] = plant.actuator.limit
+    name = "slotine-li-composite" if law == "composite" else "slotine-li"
+    return make_controller(name, model, plant.dt, estimator, form=form, **{**knobs, **gains})
+
+
+def run_trials(plant, controller, reference, trials: int, seconds: float, init_spread=0.5, gain_spread=0.25,
+               seed=0) -> Trials:
+    """`trials` closed-loop runs of `controller` on `plant`, vmapped (see the module docstring)."""
+    import jax
+    import jax.numpy as jnp
+
+    from adaptive.slotine_li import rollout_batch
+    from plants.errors import ManusError
+
+    mine, theirs = controller.regressor.model.structure, plant.model.structure
+    if controller.n_joints != plant.model.n_joints or mine.name != theirs.name:
+        raise ManusError(f"the controller's model ({mine.name}, {controller.n_joints} joints) does not match "
+                         f"the plant ({theirs.name}, {plant.model.n_joints} joints)")
+    if trials < 1 or seconds <= 0 or not 0 <= init_spread < 1 or gain_spread < 0:
+        raise ManusError("need trials >= 1, seconds > 0, 0 <= init-spread < 1 and gain-spread >= 0")
+    steps = EVERY * max(1, int(round(seconds / plant.dt / EVERY)))
+    rng = np.random.default_rng(seed)
+    g = np.log1p(gain_spread)
+    theta0 = np.asarray(controller.theta0) * rng.uniform(1 - init_spread, 1 + init_spread, (trials, len(controller.names)))
+    arrays = (jnp.asarray(theta0), *(jnp.asarray(np.asarray(x) * np.exp(rng.uniform(-g, g, (trials,) + x.shape)))
+                                     for x in (controller.gamma, controller.lam, controller.kd)))
+    keys = jax.random.split(jax.random.PRNGKey(seed), trials)
+    log, grams = rollout_batch(plant, controller, reference, arrays, keys, steps, EVERY)
+    lam_min = np.linalg.eigvalsh(np.asarray(grams))[..., 0]
+    truth = np.array([float(plant.params.get(k, 0.0)) for k in controller.names])
+    t = np.asarray(log.t[0])
+    return Trials(t, np.asarray(log.q - log.q_ref), np.asarray(log.tau), np.asarray(log.theta), t[EVERY - 1::EVERY] + plant.dt,
+                  np.asarray(lam_min), np.asarray(log.stopped[:, -1]), tuple(controller.names), truth)
+
+
+def settle_times(t: np.ndarray, theta: np.ndarray, truth: float, tol: float = 0.05) -> np.ndarray:
+    """Per trial, the time after which |θ − truth| ≤ tol |truth| for good (NaN: never)."""
+    outside = np.abs(theta - truth) > tol * abs(truth)  # (B, T)
+    last = np.where(outside.any(1), outside.shape[1] - 1 - np.argmax(outside[:, ::-1], 1), -1)
+    times = np.where(last + 1 < len(t), t[np.minimum(last + 1, len(t) - 1)], np.nan)
+    return np.where(outside[:, -1], np.nan, times)
+
+
+def summarize(tr: Trials) -> dict:
+    """Per-parameter figures (DESIGN.md §4) and the excitation."""
+    ok = ~tr.stopped
+    params = {}
+    for i, name in enumerate(tr.names):
+        final = tr.theta[ok, -1, i]
+        truth = float(tr.truth[i])
+        entry = {"truth": truth, "final": float(final.mean()), "final_std": float(final.std())}
+        if truth != 0:
+            settle = settle_times(tr.t, tr.theta[ok, :, i], truth)
+            entry["error"] = (entry["final"] - truth) / abs(truth)
+            entry["settled"] = float(np.mean(np.isfinite(settle)))
+            entry["t_within_5pct"] = float(np.nanmedian(settle)) if entry["settled"] >= 0.5 else None
+        else:  # not in the plant: only an absolute figure means something
+            entry.update(error=None, settled=None, t_within_5pct=None)
+        params[name] = entry
+    lam = tr.lam_min[ok]
+    return {"params": params, "trials": int(len(tr.stopped)), "stopped_trials": int(tr.stopped.sum()),
+            "excitation": {"lambda_min": float(np.mean(lam[:, -1])), "lambda_min_at_1s":
+                           float(np.mean(lam[:, np.searchsorted(tr.t_gram, 1.0 - 1e-9)])) if tr.t_gram[-1] >= 1 else None},
+            "tracking_rms": np.sqrt(np.mean(tr.q_err[ok] ** 2, axis=(0, 1))).tolist(),
+            "tau_max": np.abs(tr.tau[ok]).max(axis=(0, 1)).tolist()}
+
+
+def _pairs(items: list[str], flag: str) -> dict[str, float]:
+    from plants.errors import ManusError
+
+    out = {}
+    for item in items:
+        name, _, value = item.partition("=")
+        try:
+            out[name.strip()] = float(value)
+        except ValueError:
+            raise ManusError(f"{flag} {item!r}: expected NAME=VALUE with a number") from None
+    return out
+
+
+def run(args) -> dict:
+    from plants.effects import Model
+    from plants.errors import ManusError
+    from runs.converge_figures import plot_estimates, plot_tracking
+
+    plant = build_plant(args)
+    model = Model(plant.model.structure, args.model)
+    reference = reference_named(args.trajectory, model)
+    gains = _pairs(args.gain, "--gain")
+    if args.gamma:
+        gains["gamma"] = _pairs(args.gamma, "--gamma")
+    controller = controller_for(plant, model, args.law, args.estimator, args.form, args.uncompensated, **gains)
+    note(f"{args.trials} trials of {args.seconds:g} s on the {args.trajectory} trajectory: truth {plant.model.spec}, "
+         f"model {model.spec}, {args.law} law, {args.estimator} ...")
+    start = time.perf_counter()
+    tr = run_trials(plant, controller, reference, args.trials, args.seconds, args.init_spread, args.gain_spread,
+                    args.seed)
+    elapsed = time.perf_counter() - start
+    if tr.stopped.all():
+        raise ManusError("every trial stopped itself on a non-finite value: nothing to report")
+    result = summarize(tr)
+    title = f"{args.trajectory}: truth {plant.model.spec}, model {model.spec}, {args.law}, {args.estimator}"
+    result["figures"] = {"tracking": plot_tracking(tr, args.out / f"converge_{args.trajectory}_tracking.png", title),
+                         "estimates": plot_estimates(tr, args.out / f"converge_{args.trajectory}_estimates.png", title)}
+    result.update(trajectory=args.trajectory, truth=plant.model.spec, model=model.effect_names, law=args.law,
+                  form=args.form, estimator=args.estimator, seconds=float(tr.t[-1] + plant.dt),
+                  lead_s=float(controller.lead), velocity_lag_s=float(controller.velocity_lag),
+                  elapsed_s=elapsed, trials_per_s=args.trials / elapsed)
+    return result
+
+
+def render(r: dict) -> str:
+    from runs.common import table
+
+    rows = []
+    for name, p in r["params"].items():
+        err = "" if p["error"] is None else f"{100 * p['error']:+.2f} %"
+        t5 = "never" if p["t_within_5pct"] is None else f"{p['t_within_5pct']:.2f} s"
+        rows.append([name, f"{p['truth']:.4g}", f"{p['final']:.4g} ± {p['final_std']:.2g}", err, t5])
+    ex = r["excitation"]
+    lines = [f"{r['trials']} trials, {r['seconds']:g} s of the {r['trajectory']} trajectory "
+             f"(truth {r['truth']}; model {','.join(r['model'])}; {r['law']} law; {r['estimator']}) "
+             f"in {r['elapsed_s']:.1f} s",
+             table(rows, ["param", "truth", "final (mean ± std)", "error", "t within 5 %"]),
+             f"excitation: smallest eigenvalue of ∫YᵀY dt = {ex['lambda_min']:.3g} at the end"
+             + (f", {ex['lambda_min_at_1s']:.3g} after 1 s" if ex["lambda_min_at_1s"] is not None else ""),
+             "tracking error RMS per joint: " + ", ".join(f"{x:.4f} rad" for x in r["tracking_rms"])]
+    if r["stopped_trials"]:
+        lines.append(f"{r['stopped_trials']} trial(s) stopped on a non-finite value (left out above)")
+    lines += [f"figures: {r['figures']['tracking']}", f"         {r['figures']['estimates']}"]
+    return "\n".join(lines)
