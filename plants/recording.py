@@ -404,7 +404,7 @@ def from_trajectory(traj, rate_hz: float, structure: str, counts_per_rev: float 
                     meta: dict | None = None) -> Recording:
     """A recording of a simulated closed-loop run (with its true velocities and reference)."""
     n = traj.q.shape[1]
-    m = {"sample_rate_hz": f"{rate_hz:g}", "structure": structure}
+    m = {"sample_rate_hz": f"{rate_hz:g}", "structure": structure, "command_hold": "zoh"}
     if counts_per_rev:
         m["counts_per_rev"] = f"{counts_per_rev:g}"
     m.update(meta or {})

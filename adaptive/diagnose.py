@@ -1,0 +1,224 @@
+"""Where does a model fail, and which physical effect is missing? (`manus diagnose`)
+
+Every effect of the vocabulary not yet in the model is a candidate. For each, the model plus the
+candidate is fitted (its non-linear parameter searched) and judged three ways:
+
+- `error_reduction`: the fraction of the current error (rel_error) that adding it removes;
+- held-out blocks: the recording is cut into `blocks` contiguous pieces; each is predicted by a
+  fit on the others (leaving out a guard of one filter length at the seams). The 1 kHz residual
+  is strongly autocorrelated, so a naive F-test over 20 000 samples calls everything
+  significant; the blocks are long enough to be nearly independent, and a one-sided t-test on
+  the per-block improvements is honest;
+- relevance: an effect must remove at least `min_reduction` of the current error to be proposed
+  (a real but negligible improvement is reported, not proposed).
+
+The verdict is the significant candidate with the lowest held-out error, except that a simpler
+candidate (fewer parameters) within one standard error of it is preferred (the one-standard-error
+rule): an offset and a gravity term on a small swing fit alike, and the offset is the simpler
+story. Candidates that explain the same thing as the verdict are marked `overlaps` (with the
+verdict added, they remove little more), with a note saying which fits better and by how much.
+
+`compliance` is judged in the frequency band where it lives (see `adaptive.modes`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import stats
+
+from adaptive import fit as fitting
+from adaptive import modes
+from plants.effects import ORDER, VOCABULARY, Model
+from plants.errors import ModelError
+from plants.recording import Recording
+
+BLOCKS = 10
+ALPHA = 0.01
+MIN_REDUCTION = 0.05
+
+
+@dataclass
+class Candidate:
+    effect: str
+    spec: str
+    error_reduction: float
+    cv_error_reduction: float
+    p_value: float
+    significant: bool
+    joint: int  # 1-based: the joint where it removes most
+    detail: dict
+    n_params: int
+    cv_sse: np.ndarray  # (blocks,) held-out squared error with the candidate
+    fit: fitting.Fit | None = None
+    mode: modes.Mode | None = None
+    overlaps: str | None = None
+    note: str = ""
+
+    def report(self) -> dict:
+        out = {"effect": self.effect, "joint": self.joint, "error_reduction": round(self.error_reduction, 4),
+               "significant": self.significant, "detail": self.detail,
+               "cv_error_reduction": round(self.cv_error_reduction, 4), "p_value": float(f"{self.p_value:.3g}")}
+        if self.overlaps:
+            out["overlaps"] = self.overlaps
+        if self.note:
+            out["note"] = self.note
+        return out
+
+
+@dataclass
+class Diagnosis:
+    base: fitting.Fit
+    candidates: list[Candidate]
+    verdict: Candidate | None
+    base_cv_sse: np.ndarray
+    notes: list[str] = field(default_factory=list)
+
+    def report(self) -> dict:
+        return {"model": self.base.model.effect_names, "spec": self.base.model.spec,
+                "rel_error": self.base.rel_error, "cutoff_hz": self.base.data.cutoff_hz,
+                "candidates": [c.report() for c in self.candidates],
+                "verdict": self.verdict.effect if self.verdict else None,
+                "verdict_spec": self.verdict.spec if self.verdict else None, "notes": self.notes}
+
+
+def _blocks(data: fitting.Data, k: int):
+    """Held-out folds over the used rows: (train mask, test mask) per block."""
+    t = data.rows
+    edges = np.linspace(t[0], t[-1] + 1, k + 1)
+    guard = int(np.ceil(1.0 / (data.cutoff_hz * data.dt)))
+    folds = []
+    for a, b in zip(edges[:-1], edges[1:]):
+        test = (t >= a) & (t < b)
+        train = (t < a - guard) | (t >= b + guard)
+        folds.append((train, test))
+    return folds
+
+
+def held_out_sse(Y: np.ndarray, tau: np.ndarray, folds) -> np.ndarray:
+    """Per block, the squared error of a least-squares fit on the other blocks."""
+    rows, n, P = Y.shape
+    out = np.zeros(len(folds))
+    for k, (train, test) in enumerate(folds):
+        X = Y[train].reshape(-1, P)
+        scale = np.sqrt(np.mean(X**2, axis=0)) + 1e-300
+        coef = np.linalg.lstsq(X / scale, tau[train].reshape(-1), rcond=None)[0] / scale
+        out[k] = np.sum((tau[test] - Y[test] @ coef) ** 2)
+    return out
+
+
+def _one_sided_p(gain: np.ndarray) -> float:
+    """p of 'the mean per-block improvement is positive' (t-test over blocks)."""
+    if np.allclose(gain, 0):
+        return 1.0
+    sd = gain.std(ddof=1)
+    if sd == 0:
+        return 0.0 if gain.mean() > 0 else 1.0
+    return float(stats.t.sf(gain.mean() / (sd / np.sqrt(gain.size)), gain.size - 1))
+
+
+def _n_params(model_effect, structure) -> int:
+    return len(model_effect.names(structure)) + len(model_effect.describe())
+
+
+def diagnose(rec: Recording | fitting.Data, model: Model | str, cutoff_hz: float | None = None,
+             blocks: int = BLOCKS, alpha: float = ALPHA, min_reduction: float = MIN_REDUCTION) -> Diagnosis:
+    data = rec if isinstance(rec, fitting.Data) else fitting.prepare(rec, cutoff_hz)
+    cols = fitting.Columns(data)
+    base = fitting.fit(data, model, columns=cols)
+    present = set(base.model.effect_names)
+    missing = [name for name in ORDER if name not in present]
+    if not missing:
+        raise ModelError(f"the model {base.model.spec} already holds every effect of the vocabulary: "
+                         "nothing is left to propose")
+    folds = _blocks(data, blocks)
+    s = base.model.structure
+    base_sse = held_out_sse(cols.model(base.model), data.tau(base.delay), folds)
+    base_joint = np.sum(base.residual**2, axis=0)
+    cands: list[Candidate] = []
+    notes: list[str] = []
+    for name in missing:
+        if name == "compliance":
+            c = _compliance(data, base, blocks, alpha, min_reduction)
+            if c is None:
+                notes.append("compliance: the recording cannot show a structural mode (sampled too slowly or too short)")
+            else:
+                cands.append(c)
+            continue
+        effect = VOCABULARY[name]()
+        f = fitting.fit(data, base.model.with_effect(effect), columns=cols, fixed=present)
+        sse = held_out_sse(cols.model(f.model), data.tau(f.delay), folds)
+        reduction = 1 - f.rel_error / base.rel_error if base.rel_error > 0 else 0.0
+        cv_red = 1 - float(np.sqrt(sse.sum() / base_sse.sum()))
+        p = _one_sided_p(base_sse - sse)
+        joint = int(np.argmax(base_joint - np.sum(f.residual**2, axis=0))) + 1
+        e = f.model.get(name)
+        detail = {k: round(v, 6) for k, v in f.params.items() if k in e.names(s)}
+        detail.update(e.describe())
+        detail["per_joint_error_reduction"] = [
+            round(1 - float(np.sqrt(np.sum(f.residual[:, i] ** 2) / base_joint[i])), 4) if base_joint[i] > 0 else 0.0
+            for i in range(data.n_joints)]
+        cands.append(Candidate(name, e.spec, reduction, cv_red, p, bool(p < alpha and reduction >= min_reduction),
+                               joint, detail, _n_params(e, s), sse, fit=f))
+    cands.sort(key=lambda c: -c.cv_error_reduction)
+    verdict = _choose(cands, base_sse)
+    if verdict is not None:
+        _mark_overlaps(data, cols, base, verdict, cands, folds, min_reduction)
+        cands.sort(key=lambda c: (c is not verdict, c.overlaps is not None, -c.cv_error_reduction))
+    return Diagnosis(base, cands, verdict, base_sse, notes)
+
+
+def _compliance(data, base, blocks, alpha, min_reduction) -> Candidate | None:
+    q = data.rec.q
+    tau = fitting.align(data.rec.tau, base.delay / data.dt + (0.5 if data.rec.meta.get("command_hold") == "zoh" else 0))
+    mode = modes.detect(q, tau, data.dt, blocks)
+    if mode is None:
+        return None
+    p = _one_sided_p(mode.err_rigid - mode.err_mode)
+    significant = bool(mode.resonant and p < alpha and mode.reduction >= min_reduction)
+    detail = {"f_hz": round(mode.f_hz, 1), "zeta": mode.zeta, "motor_fraction": round(mode.motor_fraction, 3),
+              "measured_in": f"frequency response {modes.BAND[0]:g}-{min(modes.BAND[1], 0.45 / data.dt):g} Hz",
+              "resonance_peak": mode.resonant}
+    note = "" if mode.resonant else "no resonance peak in the measured response: no evidence of a mode"
+    return Candidate("compliance", mode.effect().spec, mode.reduction, mode.reduction, p, significant,
+                     mode.joint + 1, detail, 2, mode.err_mode, mode=mode, note=note)
+
+
+def _choose(cands: list[Candidate], base_sse) -> Candidate | None:
+    """Best held-out error among the significant; a simpler one within one standard error wins.
+    (Compliance is measured in its own band, so it only wins when nothing else is significant.)"""
+    sig = [c for c in cands if c.significant and c.effect != "compliance"]
+    if not sig:
+        comp = [c for c in cands if c.significant]
+        return comp[0] if comp else None
+    best = min(sig, key=lambda c: c.cv_sse.sum())
+    for c in sorted(sig, key=lambda c: (c.n_params, c.cv_sse.sum())):
+        diff = c.cv_sse - best.cv_sse
+        se = np.sqrt(diff.size) * diff.std(ddof=1) if diff.size > 1 else 0.0
+        if c.n_params < best.n_params and diff.sum() <= se:
+            return c
+    return best
+
+
+def _mark_overlaps(data, cols, base, verdict, cands, folds, min_reduction) -> None:
+    """Other significant candidates that the verdict already accounts for."""
+    if verdict.fit is None:
+        return
+    with_v = verdict.fit
+    for c in cands:
+        if c is verdict or not c.significant or c.fit is None:
+            continue
+        both = fitting.fit(data, with_v.model.with_effect(c.fit.model.get(c.effect)), columns=cols,
+                           fixed=set(with_v.model.effect_names) | {c.effect})
+        extra = 1 - both.rel_error / with_v.rel_error if with_v.rel_error > 0 else 0.0
+        if extra < min_reduction:
+            c.overlaps = verdict.effect
+            gap = 100 * abs(1 - np.sqrt(verdict.cv_sse.sum() / c.cv_sse.sum()))
+            head = (f"explains the same as {verdict.effect}: with {verdict.effect} in the model it removes only "
+                    f"{100 * max(extra, 0):.1f}% more of the error; ")
+            if verdict.cv_sse.sum() <= c.cv_sse.sum():
+                c.note = head + f"{verdict.effect} fits better (held-out error {gap:.1f}% lower)"
+            else:
+                c.note = head + (f"{c.effect} fits {gap:.1f}% better held out, within one standard error, so the "
+                                 f"simpler {verdict.effect} ({verdict.n_params} parameters against {c.n_params}) is proposed")

@@ -1,0 +1,418 @@
+"""Inverse-dynamics identification of a model from a recording (`manus fit`).
+
+The recorded commands and positions are prepared once (`prepare`):
+
+- the command u_k arrives `d` seconds late (the `delay` effect), so the torque acting at t_k is
+  u read at fractional index k − d/T (linear interpolation). When the recording says its command
+  was held over each period (metadata `command_hold: zoh`, as manus's simulator and hardware loop
+  write), u_k acts on [t_k, t_k + T): half a period more. A file that does not say is read as
+  the EMPS reference reads its data, u_k acting at t_k;
+- parallel filtering (Gautier's procedure, as in the EMPS reference): the regressor columns are
+  evaluated on kinematics from the zero-phase differentiator at a wider band (`KINEMATIC_BAND`
+  times the cut-off), then each column and the torque are low-passed alike at the cut-off. For a
+  linear term this is the usual filtering; for a non-linear one such as sgn(q̇) the step at a
+  velocity reversal is smeared exactly as the friction step in the filtered torque is, instead
+  of being compared sharp against a smooth torque;
+- the filter's start-up transient is cut at both ends and the rows are decimated to about four
+  samples per cut-off period (neighbouring rows of a low-passed signal carry no new information,
+  and the standard deviations are computed from the decimated rows).
+
+The model's regressor is the stack of its effects' columns (`plants.effects`, ∂torque/∂θ), so
+candidate models share the columns computed once (`Columns`). The least-squares solution names
+redundant parameters (a column that the earlier ones already explain) instead of failing, and
+reports each parameter's standard deviation from a heteroscedasticity- and
+autocorrelation-consistent (Newey–West) covariance. Non-linear parameters (the cogging order, the
+Stribeck velocity, the delay) are found by search when the model does not fix them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from estimators.offline import differentiate, edge, lowpass
+from plants.effects import Cogging, Delay, Effect, Model, Stribeck
+from plants.errors import ModelError
+from plants.recording import Recording
+
+MIN_CUTOFF_HZ = 10.0
+STANDSTILL_S = 0.005  # longer under two counts per band period than a zero crossing takes: at rest
+KINEMATIC_BAND = 4.0  # kinematics for the columns are filtered at this multiple of the cut-off
+
+
+@dataclass
+class Data:
+    """A recording made ready for inverse-dynamics identification."""
+
+    rec: Recording
+    cutoff_hz: float
+    q: np.ndarray  # (T, n) positions, velocities, accelerations at the kinematic band, full rate
+    qd: np.ndarray
+    qdd: np.ndarray
+    rows: np.ndarray  # indices of the samples used (edges cut, standstill left out, decimated)
+    step: float  # the encoder grid (estimated when the file does not say)
+    standstill: float  # fraction of the samples left out around standstill
+    _tau: dict = field(default_factory=dict)
+
+    @property
+    def dt(self) -> float:
+        return self.rec.dt
+
+    @property
+    def n_joints(self) -> int:
+        return self.rec.n_joints
+
+    @property
+    def kinematic_hz(self) -> float:
+        return min(KINEMATIC_BAND * self.cutoff_hz, 0.45 / self.dt)
+
+    def filtered(self, x: np.ndarray) -> np.ndarray:
+        """What identification compares: x through the kinematic band and the cut-off (the
+        positions went through the same two filters before differentiation)."""
+        return lowpass(lowpass(x, self.dt, self.kinematic_hz), self.dt, self.cutoff_hz)
+
+    def tau(self, delay: float = 0.0, full: bool = False) -> np.ndarray:
+        """The torque acting on the joints, aligned with the positions, filtered like the columns.
+        (Filtering and the fractional shift are both linear and time-invariant: they commute, so
+        the torque is filtered once and shifted per delay.)"""
+        if "filtered" not in self._tau:
+            self._tau["filtered"] = self.filtered(self.rec.tau)
+        hold = 0.5 if self.rec.meta.get("command_hold") == "zoh" else 0.0
+        out = align(self._tau["filtered"], delay / self.dt + hold)
+        return out if full else out[self.rows]
+
+    def moving(self) -> np.ndarray:
+        """Per joint: the fraction of used samples where the joint moves (more than a few
+        encoder counts per filter time constant)."""
+        v_min = 5 * self.step * self.cutoff_hz
+        return np.mean(np.abs(self.qd[self.rows]) > v_min, axis=0)
+
+
+def align(u: np.ndarray, lag: float) -> np.ndarray:
+    """u read `lag` samples late (fractional, linear interpolation; held at the start)."""
+    k = np.arange(u.shape[0]) - lag
+    k0 = np.clip(np.floor(k).astype(int), 0, u.shape[0] - 1)
+    k1 = np.clip(k0 + 1, 0, u.shape[0] - 1)
+    w = np.clip(k - np.floor(k), 0, 1)[:, None]
+    return (1 - w) * u[k0] + w * u[k1]
+
+
+def encoder_step(rec: Recording) -> float:
+    """The position grid: from the metadata, else the smallest non-zero position change."""
+    if rec.position_step:
+        return rec.position_step
+    d = np.abs(np.diff(rec.q, axis=0))
+    d = d[d > 0]
+    return float(d.min()) if d.size else 0.0
+
+
+def _long_runs(mask: np.ndarray, longer_than: int) -> np.ndarray:
+    """The samples of `mask` that lie in runs of more than `longer_than` samples."""
+    edges = np.diff(np.r_[0, mask.astype(np.int8), 0])
+    starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    out = np.zeros_like(mask)
+    for a, b in zip(starts, stops):
+        if b - a > longer_than:
+            out[a:b] = True
+    return out
+
+
+def auto_cutoff(rec: Recording) -> float:
+    """The identification bandwidth the data call for: three times the frequency below which
+    99.5 % of the torque's power lies, at least `MIN_CUTOFF_HZ`, below Nyquist. Encoder
+    quantization puts noise into q̈ that grows as the 2.5th power of the cut-off, so the cut-off
+    should not reach far past where the excitation lives (the arm under a 3 Hz multi-sine: ~13 Hz;
+    the EMPS axis: ~80 Hz)."""
+    from scipy import signal
+
+    tau = rec.tau - rec.tau.mean(axis=0)
+    f, p = signal.welch(tau, fs=rec.sample_rate_hz, nperseg=min(2048, len(rec)), axis=0)
+    power = np.cumsum(p.sum(axis=1))
+    f995 = f[min(np.searchsorted(power, 0.995 * power[-1]), len(f) - 1)]
+    return float(np.clip(3 * f995, MIN_CUTOFF_HZ, 0.45 * rec.sample_rate_hz))
+
+
+def prepare(rec: Recording, cutoff_hz: float | None = None, decimate: int | None = None,
+            exclude_standstill: bool = True) -> Data:
+    """Filter, differentiate and choose the rows. With `exclude_standstill`, the rows within
+    half a cut-off period of a sample where a joint is at rest are left out: a joint at rest
+    holds whatever friction the other torques ask of it (stiction), which no function of the
+    velocity predicts, and the low-pass spreads that sample's torque over its neighbours. A joint
+    is at rest when its speed stays under two encoder counts per kinematic-band period for more
+    than `STANDSTILL_S` (a mere zero crossing is shorter: the EMPS axis never rests, the arm under
+    impedance control sticks for tens of milliseconds at each reversal)."""
+    dt = rec.dt
+    cutoff_hz = auto_cutoff(rec) if cutoff_hz is None else cutoff_hz
+    if cutoff_hz <= 0:
+        raise ModelError(f"cut-off frequency must be positive (got {cutoff_hz})")
+    cutoff_hz = min(cutoff_hz, 0.45 / dt)
+    band = min(KINEMATIC_BAND * cutoff_hz, 0.45 / dt)
+    q, qd, qdd = differentiate(rec.q, dt, band)
+    step = encoder_step(rec)
+    cut = edge(dt, cutoff_hz)
+    keep = np.zeros(len(rec), bool)
+    keep[cut:len(rec) - cut] = True
+    usable = keep.sum()
+    if exclude_standstill and step > 0:
+        slow = np.abs(qd) < 2 * step * band
+        still = np.any([_long_runs(slow[:, j], int(round(STANDSTILL_S / dt))) for j in range(rec.n_joints)], axis=0)
+        w = int(np.ceil(0.5 / (cutoff_hz * dt)))
+        near = np.convolve(still.astype(float), np.ones(2 * w + 1), mode="same") > 0
+        keep &= ~near
+    if decimate is None:
+        decimate = max(1, int(0.25 / (cutoff_hz * dt)))
+    rows = np.flatnonzero(keep)[::decimate]
+    if rows.size < 20:
+        raise ModelError(f"{rec.path}: recording too short or without motion: {len(rec)} samples leave "
+                         f"{rows.size} usable rows (filter transients and standstill left out)")
+    return Data(rec, cutoff_hz, q, qd, qdd, rows, step, float(1 - keep.sum() / max(usable, 1)))
+
+
+# -- regressor columns, computed once per effect ------------------------------------------
+
+@eqx.filter_jit
+def _effect_columns(effect: Effect, structure, q, qd, qdd):
+    model = Model(structure, (effect,))
+    return jax.vmap(model.regressor)(q, qd, qdd)
+
+
+class Columns:
+    """Regressor columns of effects on prepared data, cached by effect spec."""
+
+    def __init__(self, data: Data):
+        self.data = data
+        self._cache: dict[str, np.ndarray] = {}
+        self._args = tuple(jnp.asarray(x) for x in (data.q, data.qd, data.qdd))
+
+    def effect(self, e: Effect) -> np.ndarray:
+        """(rows, n, p) columns of one linear effect, low-passed like the torque."""
+        if e.spec not in self._cache:
+            d = self.data
+            full = np.asarray(_effect_columns(e, d.rec.structure, *self._args))
+            self._cache[e.spec] = lowpass(full, d.dt, d.cutoff_hz)[d.rows]
+        return self._cache[e.spec]
+
+    def model(self, model: Model) -> np.ndarray:
+        """(rows, n, P): the model's regressor, its effects' columns side by side."""
+        blocks = [self.effect(e) for e in model.effects if e.linear]
+        n = self.data.n_joints
+        return np.concatenate(blocks, axis=2) if blocks else np.zeros((self.data.rows.size, n, 0))
+
+
+# -- least squares --------------------------------------------------------------------------
+
+@dataclass
+class Solution:
+    theta: np.ndarray  # (P,)
+    std: np.ndarray  # (P,)
+    redundant: list[int]  # columns the others already explain (their θ is 0)
+    residual: np.ndarray  # (rows, n)
+    rel_error: float
+
+
+def solve(Y: np.ndarray, tau: np.ndarray, rtol: float = 1e-7, hac_lags: int = 5) -> Solution:
+    """Least squares τ ≈ Y θ over all rows and joints. Y (rows, n, P), tau (rows, n)."""
+    rows, n, P = Y.shape
+    X = Y.reshape(rows * n, P)
+    y = tau.reshape(rows * n)
+    scale = np.sqrt(np.mean(X**2, axis=0))
+    redundant = [j for j in range(P) if scale[j] == 0]
+    keep = [j for j in range(P) if scale[j] > 0]
+    if keep:
+        Xs = X[:, keep] / scale[keep]
+        # Gram–Schmidt order: a column is redundant when the earlier ones explain it
+        r = np.abs(np.diag(np.linalg.qr(Xs, mode="r")))
+        dependent = r < rtol * max(r.max(), 1e-300) * np.sqrt(rows * n)
+        redundant += [keep[j] for j in np.flatnonzero(dependent)]
+        keep = [j for j in keep if j not in redundant]
+    theta = np.zeros(P)
+    std = np.full(P, np.nan)
+    if keep:
+        Xk = X[:, keep] / scale[keep]
+        coef, *_ = np.linalg.lstsq(Xk, y, rcond=None)
+        theta[keep] = coef / scale[keep]
+        e = y - Xk @ coef
+        cov = _newey_west(Xk, e, n, hac_lags)
+        std[keep] = np.sqrt(np.maximum(np.diag(cov), 0)) / scale[keep]
+    resid = (y - X @ theta).reshape(rows, n)
+    denom = np.linalg.norm(y)
+    return Solution(theta, std, sorted(redundant), resid, float(np.linalg.norm(resid) / denom) if denom else np.inf)
+
+
+def _newey_west(X: np.ndarray, e: np.ndarray, n: int, lags: int) -> np.ndarray:
+    """Covariance of the LS estimate robust to unequal noise per joint and to residual
+    autocorrelation over `lags` rows (Bartlett weights). Rows are interleaved by joint."""
+    XtX_inv = np.linalg.pinv(X.T @ X)
+    g = X * e[:, None]  # score per row
+    meat = g.T @ g
+    for lag in range(1, lags + 1):
+        w = 1 - lag / (lags + 1)
+        a, b = g[lag * n:], g[:-lag * n]  # the same joint, `lag` rows apart
+        meat += w * (a.T @ b + b.T @ a)
+    return XtX_inv @ meat @ XtX_inv
+
+
+# -- fitting a model -------------------------------------------------------------------------
+
+@dataclass
+class Fit:
+    model: Model  # with its non-linear parameters as found
+    names: list[str]
+    theta: np.ndarray
+    std: np.ndarray
+    redundant: list[str]
+    rel_error: float
+    residual: np.ndarray  # (rows, n)
+    data: Data
+    delay: float
+    search: dict = field(default_factory=dict)  # the search curves: name -> (grid, rel_errors)
+
+    @property
+    def params(self) -> dict[str, float]:
+        return dict(zip(self.names, self.theta.tolist()))
+
+    def predicted(self) -> np.ndarray:
+        return self.data.tau(self.delay) - self.residual
+
+    def report(self) -> dict:
+        """The JSON contract of `manus fit` (DESIGN.md §4)."""
+        params = {k: {"value": float(v), "std": None if not np.isfinite(s) else float(s)}
+                  for k, v, s in zip(self.names, self.theta, self.std)}
+        nonlinear = {k: v for e in self.model.effects for k, v in e.describe().items()}
+        out = {"model": self.model.effect_names, "spec": self.model.spec, "params": params,
+               "rel_error": self.rel_error, "samples": int(self.data.rows.size),
+               "cutoff_hz": self.data.cutoff_hz, "standstill_excluded": self.data.standstill}
+        if nonlinear:
+            out["nonlinear"] = nonlinear
+        if self.redundant:
+            out["redundant"] = self.redundant
+        return out
+
+
+SEARCHABLE = ("cogging", "stribeck", "delay")
+
+
+def _model_from(model: Model | str, structure) -> tuple[Model, set[str]]:
+    """A Model from text; effects given with an argument (cogging:39) are fixed, not searched."""
+    if isinstance(model, Model):
+        return model, set()
+    fixed = {t.split(":")[0].strip() for t in model.split(",") if ":" in t}
+    return Model(structure, model), fixed
+
+
+def fit(rec: Recording | Data, model: Model | str, cutoff_hz: float | None = None,
+        fixed: set[str] | None = None, columns: Columns | None = None) -> Fit:
+    """Identify `model`'s parameters from `rec`. Non-linear parameters of effects not in
+    `fixed` are searched (a model given as text fixes those written with an argument)."""
+    data = rec if isinstance(rec, Data) else prepare(rec, cutoff_hz)
+    model, fixed_text = _model_from(model, data.rec.structure)
+    fixed = fixed_text | (fixed or set())
+    if model.n_joints != data.n_joints:
+        raise ModelError(f"the model has {model.n_joints} joints, the recording {data.n_joints}")
+    if model.has("compliance"):
+        raise ModelError("compliance is a structural mode above the identification bandwidth: "
+                         "`manus diagnose` detects it from the spectrum; it has no inverse-dynamics columns")
+    cols = columns or Columns(data)
+    _check_motion(data, model)
+    search: dict = {}
+    for name in SEARCHABLE:
+        e = model.get(name)
+        if e is not None and name not in fixed:
+            model, curve = _search(data, cols, model, e)
+            search[name] = curve
+    delay = model.get("delay").seconds if model.has("delay") else 0.0
+    sol = solve(cols.model(model), data.tau(delay))
+    names = list(model.names)
+    return Fit(model, names, sol.theta, sol.std, [names[j] for j in sol.redundant], sol.rel_error,
+               sol.residual, data, delay, search)
+
+
+def _check_motion(data: Data, model: Model) -> None:
+    """A joint that does not move identifies none of its velocity- or inertia-driven terms."""
+    still = [i for i, f in enumerate(data.moving()) if f < 0.02]
+    if not still:
+        return
+    lost = [k for e in model.effects if e.name not in ("offset", "gravity", "cogging")
+            for k in e.names(model.structure)
+            if any(k.endswith(str(i + 1)) for i in still) or (e.name == "rigid" and model.n_joints == 2)]
+    joints = ", ".join(f"joint {i + 1}" for i in still)
+    raise ModelError(f"{data.rec.path}: no motion on {joints}: parameters {', '.join(lost)} are not "
+                     "identifiable (record the joints moving, e.g. with a multi-sine reference)")
+
+
+class _Projection:
+    """Least squares with a fixed set of columns done once (QR), so that adding a few columns
+    or changing the target costs little: what a grid search needs."""
+
+    def __init__(self, Y: np.ndarray):
+        rows, n, P = Y.shape
+        X = Y.reshape(rows * n, P)
+        self.shape = (rows, n)
+        self.Q = np.linalg.qr(X / (np.sqrt(np.mean(X**2, axis=0)) + 1e-300))[0] if P else np.zeros((rows * n, 0))
+
+    def _perp(self, x):
+        return x - self.Q @ (self.Q.T @ x)
+
+    def rel_error(self, tau: np.ndarray, extra: np.ndarray | None = None) -> float:
+        y = tau.reshape(-1)
+        r = self._perp(y)
+        if extra is not None and extra.size:
+            E = self._perp(extra.reshape(y.size, -1))
+            r = r - E @ np.linalg.lstsq(E, r, rcond=None)[0]
+        return float(np.linalg.norm(r) / np.linalg.norm(y))
+
+
+def _search(data: Data, cols: Columns, model: Model, e: Effect):
+    """Grid search (then local refinement) of one effect's non-linear parameter, the others
+    held: each grid point is a least-squares fit of the model with that value."""
+    rest = model.without(e.name)
+    delay = rest.get("delay").seconds if rest.has("delay") else 0.0
+    if isinstance(e, Delay):
+        proj = _Projection(cols.model(rest))
+        grid = np.arange(0.0, 5.01e-3, 0.1e-3)
+        errs = np.array([proj.rel_error(data.tau(x)) for x in grid])
+        best = grid[int(np.argmin(errs))]
+        i = int(np.argmin(errs))
+        if 0 < i < len(grid) - 1:  # sub-grid: a parabola through the best three
+            a, b, c = errs[i - 1:i + 2]
+            if a - 2 * b + c > 0:
+                best = grid[i] + 0.5 * (a - c) / (a - 2 * b + c) * (grid[1] - grid[0])
+        return model.with_effect(Delay(seconds=round(float(best) * 1e5) / 1e5)), (grid, errs)
+    proj = _Projection(cols.model(rest))
+    tau = data.tau(delay)
+    if isinstance(e, Cogging):
+        grid = _cogging_grid(data)
+        # screen on unfiltered columns (sin(Nq) lies far below the cut-off at these speeds),
+        # then evaluate the best few exactly
+        q = data.q[data.rows]
+        screen = np.array([proj.rel_error(tau, np.concatenate([np.sin(N * q)[..., None] * np.eye(q.shape[1]),
+                                                                 np.cos(N * q)[..., None] * np.eye(q.shape[1])], 2))
+                           for N in grid])
+        errs = screen.copy()
+        for i in np.argsort(screen)[:3]:
+            errs[i] = proj.rel_error(tau, cols.effect(Cogging(order=float(grid[i]))))
+        return model.with_effect(Cogging(order=float(grid[int(np.argmin(errs))]))), (grid, errs)
+    if isinstance(e, Stribeck):
+        vmax = float(np.percentile(np.abs(data.qd[data.rows]), 95))
+        grid = np.geomspace(max(vmax * 1e-3, 1e-9), vmax, 25)
+        errs = np.array([proj.rel_error(tau, cols.effect(Stribeck(vs=float(x)))) for x in grid])
+        return model.with_effect(Stribeck(vs=float(grid[int(np.argmin(errs))]))), (grid, errs)
+    raise ModelError(f"no search for effect {e.name!r}")
+
+
+def _cogging_grid(data: Data) -> np.ndarray:
+    """Orders N (sin(N q)) worth trying: integer cycles per revolution for rotary joints, from 2
+    (N = 1 is the gravity term's shape) up to where one period spans about 40 encoder counts; for
+    prismatic axes a log grid over periods from the position range down to 40 counts."""
+    if data.rec.structure_name == "manus2" or data.rec.counts_per_rev:
+        top = 200 if not data.step else min(200, int(2 * np.pi / (40 * data.step)))
+        return np.arange(2, max(top, 3) + 1, dtype=float)
+    span = float(np.ptp(data.q[data.rows], axis=0).max())
+    fine = 40 * max(data.step, span * 1e-5)
+    return np.geomspace(2 * np.pi / span, 2 * np.pi / fine, 200)
+
+
