@@ -1,0 +1,141 @@
+"""The discovery loop (`manus discover`): diagnose, add the verdict, refit, repeat.
+
+Starting from a model, each step diagnoses the current fit (`adaptive.diagnose`), adds the
+verdict's effect with its non-linear parameter as found (its spec, e.g. `cogging:39` or
+`delay:1ms`, so later fits hold it fixed instead of searching again) and refits. The loop stops
+when the verdict is null (nothing significant is missing), after `max_steps` additions, or when
+the verdict is `compliance`: a structural mode lives above the identification band and has no
+inverse-dynamics columns, so it is recorded as a step (with the frequency response's f and ζ) but
+cannot be refitted, and the loop ends there.
+
+The recording is prepared once (`adaptive.fit.prepare`): every step sees the same rows, so the
+errors of successive steps are comparable.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+from adaptive import fit as fitting
+from adaptive.diagnose import Candidate, Diagnosis, diagnose
+from plants.errors import ModelError
+from plants.recording import Recording
+
+MAX_STEPS = 6
+
+
+@dataclass
+class Step:
+    """One addition: the effect, its fitted parameters, the error after, and the diagnosis that
+    proposed it (whose `base` is the fit before the addition)."""
+
+    index: int  # 1-based
+    effect: str
+    spec: str
+    params: dict  # the added effect's linear parameters (value, std) and non-linear ones
+    rel_error_before: float
+    rel_error: float  # after the refit (unchanged for compliance, which is not refitted)
+    model: str  # the model's spec after the addition
+    diagnosis: Diagnosis
+    fit: fitting.Fit | None  # the refit (None for compliance)
+    note: str = ""
+
+    @property
+    def verdict(self) -> Candidate:
+        return self.diagnosis.verdict
+
+    def report(self) -> dict:
+        out = {"step": self.index, "effect": self.effect, "spec": self.spec, "params": self.params,
+               "rel_error_before": self.rel_error_before, "rel_error": self.rel_error, "model": self.model,
+               "error_reduction": self.verdict.error_reduction, "p_value": self.verdict.p_value,
+               "candidates": [c.report() for c in self.diagnosis.candidates]}
+        if self.note:
+            out["note"] = self.note
+        return out
+
+
+@dataclass
+class Discovery:
+    start: fitting.Fit  # the starting model, fitted
+    steps: list[Step]
+    final: Diagnosis | None  # the last diagnosis (its verdict null unless the loop was capped)
+    stopped: str  # "nothing significant missing" | "step cap" | "compliance (not refitted)"
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def model(self) -> str:
+        return self.steps[-1].model if self.steps else self.start.model.spec
+
+    @property
+    def rel_error(self) -> float:
+        return self.steps[-1].rel_error if self.steps else self.start.rel_error
+
+    @property
+    def final_fit(self) -> fitting.Fit:
+        fits = [s.fit for s in self.steps if s.fit is not None]
+        return fits[-1] if fits else self.start
+
+    def report(self) -> dict:
+        return {"start": {"model": self.start.model.spec, "rel_error": self.start.rel_error},
+                "steps": [s.report() for s in self.steps], "model": self.model, "rel_error": self.rel_error,
+                "stopped": self.stopped, "samples": int(self.start.data.rows.size),
+                "cutoff_hz": self.start.data.cutoff_hz, "params": self.final_fit.report()["params"],
+                "notes": self.notes}
+
+
+def effect_params(f: fitting.Fit, effect: str) -> dict:
+    """The fitted parameters of one effect of `f`: {name: {"value", "std"}} plus its
+    non-linear parameters (order, vs, delay_ms) as plain numbers."""
+    e = f.model.get(effect)
+    report = f.report()["params"]
+    out = {k: report[k] for k in e.names(f.model.structure)}
+    out.update(e.describe())
+    return out
+
+
+def discover(rec: Recording | fitting.Data, model: str, cutoff_hz: float | None = None,
+             max_steps: int = MAX_STEPS, progress: Callable[[str], None] | None = None, **diagnose_options) -> Discovery:
+    """Run the loop from `model` (text, e.g. "rigid,viscous,coulomb"). `progress` receives a line
+    per step; `diagnose_options` go to `adaptive.diagnose.diagnose` (blocks, alpha, min_reduction)."""
+    if max_steps < 1:
+        raise ModelError(f"max_steps must be at least 1 (got {max_steps})")
+    say = progress or (lambda line: None)
+    data = rec if isinstance(rec, fitting.Data) else fitting.prepare(rec, cutoff_hz)
+    cols = fitting.Columns(data)
+    start = fitting.fit(data, model, columns=cols)
+    current = start
+    spec = start.model.spec
+    steps: list[Step] = []
+    notes: list[str] = []
+    say(f"start: {spec}, rel_error {100 * start.rel_error:.2f} %")
+    while True:
+        try:
+            d = diagnose(data, spec, **diagnose_options)
+        except ModelError as e:
+            if steps and "already holds every effect" in str(e):
+                notes.append(str(e))
+                return Discovery(start, steps, None, "every effect in the model", notes)
+            raise
+        if d.verdict is None:
+            say(f"step {len(steps) + 1}: nothing significant is missing")
+            return Discovery(start, steps, d, "nothing significant missing", notes)
+        if len(steps) >= max_steps:
+            say(f"step cap ({max_steps}) reached; the next verdict would be {d.verdict.spec}")
+            notes.append(f"stopped at the step cap ({max_steps}); the next verdict was {d.verdict.spec}")
+            return Discovery(start, steps, d, "step cap", notes)
+        v = d.verdict
+        before = current.rel_error
+        if v.effect == "compliance":
+            params = dict(v.detail)
+            steps.append(Step(len(steps) + 1, v.effect, v.spec, params, before, before, f"{spec},{v.spec}", d, None,
+                              "a structural mode found in the frequency response above the identification band; "
+                              "it has no inverse-dynamics columns, so the torque error is unchanged"))
+            say(f"step {len(steps)}: + {v.spec} (frequency response; not refitted)")
+            return Discovery(start, steps, None, "compliance (not refitted)", notes)
+        spec = f"{spec},{v.spec}"
+        current = fitting.fit(data, spec, columns=cols)
+        spec = current.model.spec
+        steps.append(Step(len(steps) + 1, v.effect, v.spec, effect_params(current, v.effect), before,
+                          current.rel_error, spec, d, current))
+        say(f"step {len(steps)}: + {v.spec}, rel_error {100 * before:.2f} % -> {100 * current.rel_error:.2f} %")

@@ -1,0 +1,109 @@
+"""`manus fit REC --model EFFECTS`: identify a model's parameters from a recording (inverse
+dynamics, `adaptive.fit`), report each with its standard deviation and the rel_error, and draw the
+`compare` figure: measured against predicted torque, and measured positions against a free run of
+the fitted model in the JAX simulator (`runs.freerun`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from runs.common import add_common, note, table
+
+NAME = "fit"
+HELP = "identify a model's parameters from a recording (inverse dynamics), with std, rel_error and a compare figure"
+
+
+def add_model_options(p, required: bool = True) -> None:
+    """REC, --model and --cutoff: shared by fit, diagnose and discover."""
+    p.add_argument("recording", metavar="REC", help="a recording (.csv, .npz, or an EMPS .mat file)")
+    p.add_argument("--model", required=required, metavar="EFFECTS",
+                   help="effects of the model, e.g. rigid,viscous,coulomb (an argument fixes a non-linear "
+                        "parameter: cogging:39, delay:1ms; without one it is searched)")
+    p.add_argument("--cutoff", type=float, metavar="HZ",
+                   help="identification bandwidth (default: from the torque's spectrum)")
+
+
+def add_arguments(p) -> None:
+    add_model_options(p)
+    p.add_argument("--open-loop", action="store_true",
+                   help="free-run on the recorded torque even when the recording names its controller and reference")
+    p.add_argument("--no-sim", action="store_true", help="skip the free-run simulation (the figure shows the torque only)")
+    p.add_argument("--no-figures", action="store_true", help="skip the figure (and the free run)")
+    add_common(p)
+
+
+def load(args):
+    """The recording and the model text, checked: a one-line error for bad input."""
+    from plants import recording
+    from plants.effects import parse_effects
+    from plants.errors import ManusError
+
+    if args.cutoff is not None and args.cutoff <= 0:
+        raise ManusError(f"--cutoff {args.cutoff:g}: must be positive")
+    parse_effects(args.model)  # unknown names, duplicates: refused before the file is read
+    rec = recording.read(args.recording)
+    note(f"{rec.path}: {len(rec)} samples of {rec.n_joints} joint(s) at {rec.sample_rate_hz:g} Hz ({rec.structure_name})")
+    return rec
+
+
+def free_run_or_reason(f, open_loop: bool = False):
+    """The free run, or a one-line reason why there is none."""
+    from plants.errors import ManusError
+    from runs.freerun import free_run
+
+    try:
+        return free_run(f, open_loop=open_loop)
+    except ManusError as e:
+        return str(e)
+
+
+def run(args) -> dict:
+    from adaptive.fit import fit
+    from runs.fit_figures import compare_figure
+    from runs.freerun import nrmse_fit
+
+    rec = load(args)
+    f = fit(rec, args.model, cutoff_hz=args.cutoff)
+    out = f.report()
+    out["fit_percent"] = {"torque": nrmse_fit(f.data.tau(f.delay), f.predicted()).tolist()}
+    if not args.no_figures:
+        if args.no_sim:
+            run_ = "skipped (--no-sim)"
+        else:
+            note("free run of the fitted model in the simulator ...")
+            run_ = free_run_or_reason(f, args.open_loop)
+        if isinstance(run_, str):
+            out["free_run"] = {"mode": None, "how": run_}
+        else:
+            out["free_run"] = run_.report()
+            out["fit_percent"]["position"] = run_.fit_q.tolist()
+        stem = Path(rec.path).stem
+        out["figures"] = {"compare": compare_figure(f, run_, args.out, f"compare_{stem}.png")}
+    return out
+
+
+def render(r: dict) -> str:
+    rows = []
+    for k, p in r["params"].items():
+        std = p["std"]
+        rel = f"{100 * std / abs(p['value']):.2f}" if std is not None and p["value"] else "-"
+        rows.append([k, f"{p['value']:.6g}", "-" if std is None else f"{std:.3g}", rel])
+    lines = [f"model {r['spec']}: rel_error {100 * r['rel_error']:.2f} % on {r['samples']} rows "
+             f"(torque low-passed at {r['cutoff_hz']:.1f} Hz, {100 * r['standstill_excluded']:.1f} % left out at standstill)",
+             table(rows, ["parameter", "value", "std", "std %"])]
+    for k, v in r.get("nonlinear", {}).items():
+        lines.append(f"  {k} = {v:.6g} (searched or fixed)")
+    if r.get("redundant"):
+        lines.append(f"  redundant (explained by the others, set to 0): {', '.join(r['redundant'])}")
+    fits = r["fit_percent"]
+    lines.append("  torque fit (NRMSE) per joint: " + ", ".join(f"{x:.1f} %" for x in fits["torque"]))
+    if "free_run" in r:
+        fr = r["free_run"]
+        lines.append(f"  free run: {fr['how']}")
+        if "position" in fits:
+            lines.append("    position fit per joint: " + ", ".join(f"{x:.2f} %" for x in fits["position"]))
+        if "tracking_error_fit_percent" in fr:
+            lines.append("    tracking-error fit per joint: " + ", ".join(f"{x:.1f} %" for x in fr["tracking_error_fit_percent"]))
+    for k, v in r.get("figures", {}).items():
+        lines.append(f"  figure ({k}): {v}")
+    return "\n".join(lines)

@@ -1,0 +1,166 @@
+"""Free-run simulation of a fitted model against a recording (the position half of `compare`).
+
+The fitted model (`adaptive.fit.Fit`: its effects with their non-linear parameters, and θ) is
+simulated with the JAX simulator (`plants.simulator.Simulator`: the same effects, set-valued
+friction, the recorded encoder grid) over the whole recording, driven the way the rig was:
+
+- **closed loop on the recorded reference** when the recording says which controller ran and
+  logged its reference: manus's impedance controller (metadata `controller: impedance K=.. B=..`,
+  columns `qref1..n`, as `manus simulate` writes), or the EMPS rig's P-PD loop
+  vir = kp·kv·(qg − qm) − kv·v̂, force = gtau·vir (metadata `kp`, `kv`, `gtau`, column `qg`;
+  replayed on the recorded qm it gives the recorded `vir` within 0.7 %). The simulated arm then
+  meets the same reference through the same controller, as the real one did;
+- **open loop on the recorded torque** otherwise. A free run of a model with friction driven by
+  open-loop torque drifts (a small error in the Coulomb level or the inertia integrates into a
+  position error that nothing pulls back), so its position fit says more about the drift than
+  about the model; the figure says so.
+
+Under stiff closed-loop control the position follows the reference whatever the model, so the
+position fit alone is flattering: the tracking error q − q_ref, which the plant's dynamics shape,
+is compared too.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+
+from plants.references import PositionReference
+from plants.stepper import Controller
+
+SUBSTEPS = 10
+
+
+def nrmse_fit(y: np.ndarray, yhat: np.ndarray) -> np.ndarray:
+    """Per column, 100 (1 − ‖y − ŷ‖ / ‖y − mean y‖) [%] (MATLAB `compare`'s fit)."""
+    y, yhat = np.asarray(y, float).reshape(len(y), -1), np.asarray(yhat, float).reshape(len(y), -1)
+    den = np.linalg.norm(y - y.mean(0), axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(den > 0, 100 * (1 - np.linalg.norm(y - yhat, axis=0) / den), np.nan)
+
+
+class Sampled(PositionReference):
+    """A recorded reference, linearly interpolated between its samples."""
+
+    t: jnp.ndarray
+    q: jnp.ndarray  # (T, n)
+
+    def position(self, t):
+        return jnp.stack([jnp.interp(t, self.t, self.q[:, i]) for i in range(self.q.shape[1])])
+
+
+class Replay(Controller):
+    """Plays the recorded torque back, one sample per tick (open loop)."""
+
+    tau: jnp.ndarray  # (T, n)
+
+    def init(self, q0):
+        return jnp.asarray(0)
+
+    def step(self, k, q, ref):
+        return k + 1, self.tau[jnp.minimum(k, self.tau.shape[0] - 1)]
+
+
+class PPD(Controller):
+    """The EMPS rig's loop: force = gtau (kp kv (q_ref − q) − kv v̂), v̂ the first difference of
+    the two-sample mean 0.5 (q_k + q_{k−1}) (EMPS README)."""
+
+    kp: float
+    kv: float
+    gtau: float
+    dt: float
+
+    def init(self, q0):
+        q0 = jnp.asarray(q0, float)
+        return q0, q0  # q_{k-1}, mean_{k-1}
+
+    def step(self, state, q, ref):
+        q_prev, mean_prev = state
+        mean = 0.5 * (q + q_prev)
+        v = (mean - mean_prev) / self.dt
+        return (q, mean), self.gtau * (self.kp * self.kv * (ref.q - q) - self.kv * v)
+
+
+@dataclass
+class FreeRun:
+    t: np.ndarray
+    q: np.ndarray  # measured (T, n)
+    q_sim: np.ndarray  # simulated (T, n)
+    mode: str  # "closed loop" | "open loop"
+    how: str  # one line: what drove the simulation
+    fit_q: np.ndarray  # NRMSE fit of the positions per joint [%]
+    q_ref: np.ndarray | None = None  # the recorded reference (closed loop)
+    fit_tracking: np.ndarray | None = None  # NRMSE fit of the tracking error q − q_ref [%]
+
+    def report(self) -> dict:
+        out = {"mode": self.mode, "how": self.how, "position_fit_percent": self.fit_q.tolist()}
+        if self.fit_tracking is not None:
+            out["tracking_error_fit_percent"] = self.fit_tracking.tolist()
+        return out
+
+
+def _reference(rec) -> np.ndarray | None:
+    n = rec.n_joints
+    if all(f"qref{i + 1}" in rec.extra for i in range(n)):
+        return np.stack([rec.extra[f"qref{i + 1}"] for i in range(n)], 1)
+    if n == 1 and "qg" in rec.extra:
+        return rec.extra["qg"][:, None]
+    return None
+
+
+def _controller(rec, n: int):
+    """The controller the recording says ran, with a one-line description, or None."""
+    from adaptive.impedance import Impedance
+
+    meta = rec.meta
+    m = re.match(r"\s*impedance\s+K=([0-9.eE+-]+)\s+B=([0-9.eE+-]+)", meta.get("controller", ""))
+    if m:
+        k, b = float(m.group(1)), float(m.group(2))
+        return Impedance(k, b, n_joints=n), f"impedance K={k:g} B={b:g} (filtered first difference)"
+    if all(k in meta for k in ("kp", "kv", "gtau")) and "qg" in rec.extra:
+        kp, kv, gtau = (float(meta[k]) for k in ("kp", "kv", "gtau"))
+        return PPD(kp, kv, gtau, rec.dt), f"the EMPS P-PD loop kp={kp:g} kv={kv:g} gtau={gtau:.4g}"
+    return None
+
+
+def free_run(f, open_loop: bool = False) -> FreeRun:
+    """Simulate the fitted model `f` (an `adaptive.fit.Fit`) over its whole recording."""
+    from plants.closed_loop import simulate
+    from plants.errors import ModelError
+    from plants.references import Hold
+    from plants.simulator import Actuator, Encoder, Simulator
+
+    rec = f.data.rec
+    model = f.model
+    if not model.has("rigid"):
+        raise ModelError("a free run needs the 'rigid' effect (the model's inertia); fit with rigid to simulate")
+    n = rec.n_joints
+    params = {k: float(v) for k, v in f.params.items()}
+    encoder = Encoder(step=f.data.step) if f.data.step > 0 else None
+    actuator = Actuator() if rec.structure_name == "manus2" else None
+    ref = _reference(rec)
+    ctl = None if open_loop or ref is None else _controller(rec, n)
+    if ctl is not None:
+        controller, how = ctl
+        reference = Sampled(jnp.asarray(rec.t - rec.t[0]), jnp.asarray(ref))
+        if actuator is not None:
+            controller = eqx.tree_at(lambda c: c.limit, controller, actuator.limit) if hasattr(controller, "limit") else controller
+        mode, how = "closed loop", f"closed loop: {how} on the recorded reference"
+    else:
+        controller, reference = Replay(jnp.asarray(rec.tau)), Hold(rec.q[0])
+        mode, how = "open loop", "open loop: the recorded torque played back (friction models drift: no loop pulls them back)"
+    plant = Simulator(model, params, rate_hz=rec.sample_rate_hz, substeps=SUBSTEPS, actuator=actuator, encoder=encoder,
+                      q0=rec.q[0])
+    seconds = len(rec) / rec.sample_rate_hz
+    traj = simulate(plant, controller, reference, seconds)
+    q_sim = np.asarray(traj.q)[: len(rec)]
+    q = rec.q[: len(q_sim)]
+    out = FreeRun(rec.t[: len(q_sim)], q, q_sim, mode, how, nrmse_fit(q, q_sim))
+    if mode == "closed loop":
+        out.q_ref = ref[: len(q_sim)]
+        out.fit_tracking = nrmse_fit(q - out.q_ref, q_sim - out.q_ref)
+    return out
