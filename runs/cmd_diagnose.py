@@ -1,0 +1,67 @@
+"""`manus diagnose REC --model EFFECTS`: where does the model fail, and which effect is missing?
+(`adaptive.diagnose`: every effect not in the model is a candidate, judged on held-out blocks.)
+Writes the residual figure (`resid`) and one evidence figure per candidate."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from runs.cmd_fit import add_model_options, load
+from runs.common import add_common, note, table
+
+NAME = "diagnose"
+HELP = "where the model fails and which physical effect is missing: candidates best first, a verdict, figures"
+
+
+def add_arguments(p) -> None:
+    add_model_options(p)
+    p.add_argument("--no-figures", action="store_true", help="skip the figures")
+    add_common(p)
+
+
+def figures(d, out: Path, stem: str) -> dict:
+    from runs.diagnose_figures import evidence_figures, resid_figure
+
+    return {"resid": resid_figure(d, out, f"{stem}_resid.png"),
+            "evidence": evidence_figures(d, out, prefix=f"{stem}_")}
+
+
+def run(args) -> dict:
+    from adaptive.diagnose import diagnose
+
+    rec = load(args)
+    note(f"diagnosing {args.model}: fitting it with each missing effect in turn ...")
+    d = diagnose(rec, args.model, cutoff_hz=args.cutoff)
+    out = d.report()
+    if not args.no_figures:
+        stem = f"diagnose_{Path(rec.path).stem}"
+        out["figures"] = figures(d, args.out, stem)
+    return out
+
+
+def candidate_rows(candidates: list[dict], verdict: str | None) -> list[list]:
+    rows = []
+    for c in candidates:
+        detail = {k: v for k, v in c["detail"].items() if k != "per_joint_error_reduction"}
+        text = ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in detail.items())
+        flag = "<- verdict" if c["effect"] == verdict else (f"overlaps {c['overlaps']}" if c.get("overlaps") else "")
+        rows.append([c["effect"], f"{100 * c['error_reduction']:.1f}", f"{100 * c['cv_error_reduction']:.1f}",
+                     f"{c['p_value']:.2g}", "yes" if c["significant"] else "no", c["joint"], text, flag])
+    return rows
+
+
+def render(r: dict) -> str:
+    lines = [f"model {r['spec']}: rel_error {100 * r['rel_error']:.2f} % (torque low-passed at {r['cutoff_hz']:.1f} Hz)",
+             table(candidate_rows(r["candidates"], r["verdict"]),
+                   ["candidate", "removes %", "held out %", "p", "significant", "joint", "detail", ""])]
+    notes = [f"  {c['effect']}: {c['note']}" for c in r["candidates"] if c.get("note")] + [f"  {x}" for x in r["notes"]]
+    if notes:
+        lines += ["notes:"] + notes
+    lines.append(f"verdict: {r['verdict_spec'] or 'null (nothing significant is missing)'}")
+    if "figures" in r:
+        lines.append(f"residual figure: {r['figures']['resid']}")
+        ev = r["figures"]["evidence"]
+        if ev:
+            lines.append(f"evidence figures ({len(ev)}): {Path(next(iter(ev.values()))).parent}/"
+                         f"{Path(next(iter(ev.values()))).name.rsplit('evidence_', 1)[0]}evidence_<effect>.png")
+    return "\n".join(lines)

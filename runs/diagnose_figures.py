@@ -1,0 +1,239 @@
+"""Figures of a diagnosis: the residual analysis (in the spirit of MATLAB's `resid`) and one
+evidence figure per candidate effect, drawn so that a person sees why it is (or is not) missing.
+
+The residual is the identification residual of the current model on the used rows (filtered,
+decimated: one row every `k` samples; see `adaptive.fit.prepare`). Lags are in seconds.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from runs.common import pyplot, save
+
+Z99 = 2.576  # two-sided 99 % normal quantile
+MAX_LAG_ROWS = 60
+BINS = 41
+
+
+def _xcorr(a: np.ndarray, b: np.ndarray, lags: int) -> np.ndarray:
+    """Normalized cross-correlation r_ab(k) = Σ a(t+k) b(t) / (N σa σb), k = −lags..lags."""
+    a, b = a - a.mean(), b - b.mean()
+    N = a.size
+    den = N * a.std() * b.std() or 1.0
+    return np.array([np.sum(a[max(k, 0):N + min(k, 0)] * b[max(-k, 0):N - max(k, 0)]) / den
+                     for k in range(-lags, lags + 1)])
+
+
+def _binned(x: np.ndarray, y: np.ndarray, bins: int = BINS, edges=None):
+    """Mean of y and its standard error in bins of x (bins with fewer than 5 points dropped)."""
+    edges = np.linspace(*np.percentile(x, [0.5, 99.5]), bins + 1) if edges is None else edges
+    k = np.digitize(x, edges) - 1
+    centre, mean, se = [], [], []
+    for j in range(len(edges) - 1):
+        yy = y[k == j]
+        if yy.size >= 5:
+            centre.append(0.5 * (edges[j] + edges[j + 1]))
+            mean.append(yy.mean())
+            se.append(yy.std(ddof=1) / np.sqrt(yy.size))
+    return np.array(centre), np.array(mean), np.array(se)
+
+
+def _row_dt(data) -> float:
+    return float(np.median(np.diff(data.rows))) * data.dt
+
+
+def resid_figure(d, out: Path, name: str = "resid.png", title: str = "") -> str:
+    """Per joint, two rows of three panels: residual autocorrelation and its cross-correlation
+    with the input (the velocity, what drives the inverse model), both with 99 % bands; the
+    residual against time, against velocity, against position (binned means over the cloud);
+    and its spectrum beside the torque's."""
+    from scipy import signal
+
+    plt = pyplot()
+    f = d.base
+    data = f.data
+    n = data.n_joints
+    r, rows = f.residual, data.rows
+    q, qd, tau = data.q[rows], data.qd[rows], data.tau(f.delay)
+    t = data.rec.t[rows]
+    h = _row_dt(data)
+    L = min(MAX_LAG_ROWS, rows.size // 4)
+    lag_s = np.arange(-L, L + 1) * h
+    fig, axes = plt.subplots(2 * n, 3, figsize=(14, 5.2 * n), squeeze=False)
+    for i in range(n):
+        e = r[:, i]
+        acf = _xcorr(e, e, L)
+        ccf = _xcorr(e, qd[:, i], L)
+        N = e.size
+        ax = axes[2 * i, 0]
+        ax.bar(lag_s[L:] * 1e3, acf[L:], width=h * 1e3 * 0.8, color="C0")
+        ax.axhspan(-Z99 / np.sqrt(N), Z99 / np.sqrt(N), color="C3", alpha=0.15, lw=0, label="99 % band (white)")
+        ax.set_title(f"joint {i + 1}: residual autocorrelation", fontsize=9, loc="left")
+        ax.set_xlabel("lag [ms]")
+        ax.legend(fontsize=7, loc="upper right")
+        ax = axes[2 * i, 1]
+        # the band under 'e independent of the input', for autocorrelated e and u (Bartlett)
+        band = Z99 * np.sqrt(max(np.sum(acf * _xcorr(qd[:, i], qd[:, i], L)), 1.0) / N)
+        ax.bar(lag_s * 1e3, ccf, width=h * 1e3 * 0.8, color="C2")
+        ax.axhspan(-band, band, color="C3", alpha=0.15, lw=0, label="99 % band (independent)")
+        ax.set_title(f"cross-correlation residual × velocity q̇{i + 1} (input leads →)", fontsize=9, loc="left")
+        ax.set_xlabel("lag [ms]")
+        ax.legend(fontsize=7, loc="upper right")
+        ax = axes[2 * i, 2]
+        ax.plot(t, tau[:, i], color="0.75", lw=0.5, label="torque")
+        ax.plot(t, e, color="C3", lw=0.6, label="residual")
+        ax.set_title(f"residual against time (RMS {np.sqrt(np.mean(e**2)):.3g}, "
+                     f"{100 * np.linalg.norm(e) / np.linalg.norm(tau[:, i]):.1f} % of the torque)", fontsize=9, loc="left")
+        ax.set_xlabel("t [s]")
+        ax.legend(fontsize=7, loc="upper right")
+        for ax, x, label in ((axes[2 * i + 1, 0], qd[:, i], f"q̇{i + 1}"), (axes[2 * i + 1, 1], q[:, i], f"q{i + 1}")):
+            ax.plot(x, e, ".", ms=1.5, color="0.6", alpha=0.5, rasterized=True)
+            c, m, se = _binned(x, e)
+            ax.errorbar(c, m, yerr=2 * se, color="C3", lw=1.0, capsize=0, label="binned mean ± 2 se")
+            ax.axhline(0, color="k", lw=0.6)
+            ax.set_xlabel(label)
+            ax.set_title(f"residual against {label}", fontsize=9, loc="left")
+            ax.legend(fontsize=7, loc="upper right")
+        ax = axes[2 * i + 1, 2]
+        nper = min(256, e.size)
+        fr, pe = signal.welch(e, fs=1 / h, nperseg=nper)
+        _, pt = signal.welch(tau[:, i], fs=1 / h, nperseg=nper)
+        ax.semilogy(fr, pt, color="0.6", lw=0.8, label="torque")
+        ax.semilogy(fr, pe, color="C3", lw=0.9, label="residual")
+        k = int(np.argmax(pe[1:])) + 1
+        ax.plot(fr[k], pe[k], "v", color="k", ms=5, label=f"peak {fr[k]:.2f} Hz")
+        ax.axvline(data.cutoff_hz, color="0.4", ls=":", lw=0.8)
+        ax.set_xlabel("frequency [Hz] (dotted: identification cut-off)")
+        ax.set_title("spectrum", fontsize=9, loc="left")
+        ax.legend(fontsize=7, loc="upper right")
+    fig.suptitle(f"{title or Path(data.rec.path).name}: residual of {f.model.spec} (rel_error {100 * f.rel_error:.2f} %), "
+                 f"{rows.size} rows, one per {h * 1e3:.3g} ms", fontsize=10)
+    fig.tight_layout()
+    return save(fig, out, name)
+
+
+# -- evidence per candidate -----------------------------------------------------------------
+
+def _term(c, q, qd, i: int) -> np.ndarray:
+    """The candidate's fitted torque on joint i (numpy, unfiltered), for drawing over the residual."""
+    p = c.fit.params
+    j = str(i + 1)
+    e = c.fit.model.get(c.effect)
+    sgn = np.sign(qd)
+    if c.effect == "viscous":
+        return p["b" + j] * qd
+    if c.effect == "coulomb":
+        return p["Fc" + j] * sgn
+    if c.effect == "stribeck":
+        return p["dFs" + j] * np.exp(-(qd / float(e.vs)) ** 2) * sgn
+    if c.effect == "asymmetry":
+        return p["dFc" + j] * np.abs(sgn) + p["db" + j] * np.abs(qd)
+    if c.effect == "offset":
+        return p["off" + j] + 0 * q
+    if c.effect == "gravity":
+        return p["gc" + j] * np.cos(q) + p["gs" + j] * np.sin(q)
+    if c.effect == "cogging":
+        N = float(e.order)
+        return p["A" + j] * np.sin(N * q) + p["B" + j] * np.cos(N * q)
+    return 0 * q
+
+
+def _headline(c, verdict) -> str:
+    tag = "VERDICT" if c is verdict else ("significant" if c.significant else "not significant")
+    if c.overlaps:
+        tag += f", overlaps {c.overlaps}"
+    return (f"{c.spec} [{tag}]: removes {100 * c.error_reduction:.1f} % of the error "
+            f"({100 * c.cv_error_reduction:.1f} % held out, p = {c.p_value:.2g})")
+
+
+def _search_panel(ax, c, key: str, scale: float, xlabel: str, logx=False):
+    grid, errs = c.fit.search[key]
+    (ax.semilogx if logx else ax.plot)(np.asarray(grid) * scale, 100 * np.asarray(errs), color="C0", lw=0.9)
+    best = int(np.argmin(errs))
+    ax.plot(grid[best] * scale, 100 * errs[best], "o", color="C3", ms=4)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("rel_error [%]")
+    ax.set_title(f"search: best {grid[best] * scale:.4g}", fontsize=9, loc="left")
+
+
+def evidence_figure(d, c, out: Path, name: str, title: str = "") -> str:
+    """Why candidate `c` is (or is not) missing, per joint, plus its parameter search when it has one."""
+    plt = pyplot()
+    data = d.base.data
+    n = data.n_joints
+    rows = data.rows
+    q, qd, e = data.q[rows], data.qd[rows], d.base.residual
+    search = {"cogging": ("cogging", 1.0, "order N [cycles/rev or 1/m]", False),
+              "stribeck": ("stribeck", 1.0, "Stribeck velocity vs", True),
+              "delay": ("delay", 1e3, "assumed delay [ms]", False)}.get(c.effect)
+    has_search = search is not None and c.fit is not None and search[0] in c.fit.search
+    cols = n + int(has_search)
+    fig, axes = plt.subplots(1, cols, figsize=(5.2 * cols, 3.9), squeeze=False)
+    axes = axes[0]
+    for i in range(n):
+        ax = axes[i]
+        if c.effect == "compliance":
+            _compliance_panel(ax, c, i)
+            continue
+        if c.effect == "delay":
+            tau_full = data.tau(d.base.delay, full=True)
+            x = np.gradient(tau_full[:, i], data.dt)[rows]
+            xl, curve = f"dτ{i + 1}/dt (torque rate)", lambda x: float(c.fit.delay - d.base.delay) * x
+            how = "a late torque leaves residual ≈ delay × dτ/dt"
+        elif c.effect == "cogging":
+            N = float(c.fit.model.get("cogging").order)
+            x = np.mod(N * q[:, i], 2 * np.pi)
+            xl, how = f"phase N·q{i + 1} mod 2π (N = {N:g})", "residual against position modulo the cogging period"
+            curve = lambda x: _term(c, x / N, np.ones_like(x), i)
+        elif c.effect in ("offset", "gravity"):
+            x = q[:, i]
+            xl, how = f"q{i + 1}", "residual against position"
+            curve = lambda x: _term(c, x, np.ones_like(x), i)
+        else:  # friction: viscous, coulomb, stribeck, asymmetry
+            x = qd[:, i]
+            xl, how = f"q̇{i + 1}", "residual binned against velocity (a Coulomb term is a sign step at q̇ = 0)"
+            curve = lambda x: _term(c, np.zeros_like(x), x, i)
+        ax.plot(x, e[:, i], ".", ms=1.5, color="0.65", alpha=0.45, rasterized=True)
+        bc, bm, bse = _binned(x, e[:, i])
+        ax.errorbar(bc, bm, yerr=2 * bse, fmt="o-", ms=2.5, color="C3", lw=1.0, label="residual, binned mean ± 2 se")
+        xs = np.linspace(*np.percentile(x, [0.5, 99.5]), 400)
+        if c.effect in ("coulomb", "stribeck", "asymmetry", "viscous"):
+            xs = np.sort(np.r_[xs, -1e-12, 1e-12])
+        ax.plot(xs, curve(xs), color="C0", lw=1.6, label=f"fitted {c.effect} term")
+        ax.axhline(0, color="k", lw=0.6)
+        lim = np.percentile(np.abs(e[:, i]), 99.5) * 1.1
+        ax.set_ylim(-lim, lim)
+        red = c.detail.get("per_joint_error_reduction", [None] * n)[i]
+        ax.set_title(f"joint {i + 1}" + (f": removes {100 * red:.1f} %" if red is not None else ""), fontsize=9, loc="left")
+        ax.set_xlabel(xl)
+        ax.set_ylabel("residual")
+        ax.legend(fontsize=7, loc="upper right")
+        axes[0].text(0.01, 0.02, how, transform=axes[0].transAxes, fontsize=7, color="0.3")
+    if has_search:
+        _search_panel(axes[-1], c, *search)
+    text = _headline(c, d.verdict)
+    if c.note:
+        text += "\n" + c.note
+    fig.suptitle(f"{title or Path(data.rec.path).name}, model {d.base.model.spec} + {c.effect}: {text}", fontsize=9)
+    fig.tight_layout()
+    return save(fig, out, name)
+
+
+def _compliance_panel(ax, c, i: int):
+    m = c.mode
+    ax.loglog(m.freq[1:], m.measured[1:, i], color="k", lw=0.7, label="measured |θ̈/τ| (H1)")
+    ax.loglog(m.freq[1:], m.rigid[1:, i], color="C0", lw=1.0, label="rigid fit")
+    ax.loglog(m.freq[1:], m.fitted[1:, i], color="C3", lw=1.0, label=f"with a mode at {m.f_hz:.0f} Hz, ζ = {m.zeta:g}")
+    ax.axvline(m.f_hz, color="C3", ls=":", lw=0.8)
+    ax.set_xlabel("frequency [Hz]")
+    ax.set_title(f"joint {i + 1}: frequency response (resonance peak: {'yes' if m.resonant else 'no'})", fontsize=9, loc="left")
+    ax.legend(fontsize=7, loc="lower left")
+
+
+def evidence_figures(d, out: Path, prefix: str = "", title: str = "") -> dict[str, str]:
+    """One evidence figure per candidate: {effect: path}."""
+    return {c.effect: evidence_figure(d, c, out, f"{prefix}evidence_{c.effect}.png", title)
+            for c in d.candidates if c.fit is not None or c.mode is not None}
