@@ -42,6 +42,8 @@ from plants.recording import Recording
 MIN_CUTOFF_HZ = 10.0
 STANDSTILL_S = 0.005  # longer under two counts per band period than a zero crossing takes: at rest
 KINEMATIC_BAND = 4.0  # kinematics for the columns are filtered at this multiple of the cut-off
+MIN_SAMPLES = 8  # below this the recording cannot even be differentiated
+MIN_ROWS = 20  # fewer usable rows than this identify nothing reliably
 
 
 @dataclass
@@ -56,6 +58,7 @@ class Data:
     rows: np.ndarray  # indices of the samples used (edges cut, standstill left out, decimated)
     step: float  # the encoder grid (estimated when the file does not say)
     standstill: float  # fraction of the samples left out around standstill
+    window: np.ndarray | None = None  # the samples inside the filter's start-up edges (before standstill and decimation)
     _tau: dict = field(default_factory=dict)
 
     @property
@@ -144,7 +147,14 @@ def prepare(rec: Recording, cutoff_hz: float | None = None, decimate: int | None
     velocity predicts, and the low-pass spreads that sample's torque over its neighbours. A joint
     is at rest when its speed stays under two encoder counts per kinematic-band period for more
     than `STANDSTILL_S` (a mere zero crossing is shorter: the EMPS axis never rests, the arm under
-    impedance control sticks for tens of milliseconds at each reversal)."""
+    impedance control sticks for tens of milliseconds at each reversal).
+
+    A recording too short or too still to leave `MIN_ROWS` usable rows is still prepared: `fit`
+    refuses it, naming the parameters the remaining samples cannot identify (the model is not
+    known here)."""
+    if len(rec) < MIN_SAMPLES:
+        raise ModelError(f"{rec.path}: recording too short: {len(rec)} samples (at least {MIN_SAMPLES} are needed "
+                         "to differentiate the positions; no parameter is identifiable)")
     dt = rec.dt
     cutoff_hz = auto_cutoff(rec) if cutoff_hz is None else cutoff_hz
     if cutoff_hz <= 0:
@@ -166,10 +176,8 @@ def prepare(rec: Recording, cutoff_hz: float | None = None, decimate: int | None
     if decimate is None:
         decimate = max(1, int(0.25 / (cutoff_hz * dt)))
     rows = np.flatnonzero(keep)[::decimate]
-    if rows.size < 20:
-        raise ModelError(f"{rec.path}: recording too short or without motion: {len(rec)} samples leave "
-                         f"{rows.size} usable rows (filter transients and standstill left out)")
-    return Data(rec, cutoff_hz, q, qd, qdd, rows, step, float(1 - keep.sum() / max(usable, 1)))
+    window = np.arange(cut, max(cut, len(rec) - cut))[::decimate]
+    return Data(rec, cutoff_hz, q, qd, qdd, rows, step, float(1 - keep.sum() / max(usable, 1)), window)
 
 
 # -- regressor columns, computed once per effect ------------------------------------------
@@ -183,8 +191,9 @@ def _effect_columns(effect: Effect, structure, q, qd, qdd):
 class Columns:
     """Regressor columns of effects on prepared data, cached by effect spec."""
 
-    def __init__(self, data: Data):
+    def __init__(self, data: Data, rows: np.ndarray | None = None):
         self.data = data
+        self.rows = data.rows if rows is None else rows
         self._cache: dict[str, np.ndarray] = {}
         self._args = tuple(jnp.asarray(x) for x in (data.q, data.qd, data.qdd))
 
@@ -193,14 +202,14 @@ class Columns:
         if e.spec not in self._cache:
             d = self.data
             full = np.asarray(_effect_columns(e, d.rec.structure, *self._args))
-            self._cache[e.spec] = lowpass(full, d.dt, d.cutoff_hz)[d.rows]
+            self._cache[e.spec] = lowpass(full, d.dt, d.cutoff_hz)[self.rows]
         return self._cache[e.spec]
 
     def model(self, model: Model) -> np.ndarray:
         """(rows, n, P): the model's regressor, its effects' columns side by side."""
         blocks = [self.effect(e) for e in model.effects if e.linear]
         n = self.data.n_joints
-        return np.concatenate(blocks, axis=2) if blocks else np.zeros((self.data.rows.size, n, 0))
+        return np.concatenate(blocks, axis=2) if blocks else np.zeros((self.rows.size, n, 0))
 
 
 # -- least squares --------------------------------------------------------------------------
@@ -220,15 +229,9 @@ def solve(Y: np.ndarray, tau: np.ndarray, rtol: float = 1e-7, hac_lags: int = 5)
     X = Y.reshape(rows * n, P)
     y = tau.reshape(rows * n)
     scale = np.sqrt(np.mean(X**2, axis=0))
-    redundant = [j for j in range(P) if scale[j] == 0]
-    keep = [j for j in range(P) if scale[j] > 0]
-    if keep:
-        Xs = X[:, keep] / scale[keep]
-        # Gram–Schmidt order: a column is redundant when the earlier ones explain it
-        r = np.abs(np.diag(np.linalg.qr(Xs, mode="r")))
-        dependent = r < rtol * max(r.max(), 1e-300) * np.sqrt(rows * n)
-        redundant += [keep[j] for j in np.flatnonzero(dependent)]
-        keep = [j for j in keep if j not in redundant]
+    # Gram–Schmidt order: a column is redundant when the earlier ones explain it
+    redundant = unidentifiable(Y, rtol)
+    keep = [j for j in range(P) if j not in redundant]
     theta = np.zeros(P)
     std = np.full(P, np.nan)
     if keep:
@@ -292,6 +295,30 @@ class Fit:
             out["redundant"] = self.redundant
         return out
 
+    def evaluate(self, rec: Recording | Data) -> "Fit":
+        """These parameters, unchanged, applied to another recording (validation: the EMPS
+        reference's 5.98 % on the PULSES file). The recording is prepared at this fit's cut-off
+        (the band the parameters were identified in); the result is a `Fit` whose `residual`,
+        `rel_error` and `data` are the other recording's, with `theta`/`std` as identified here."""
+        data = rec if isinstance(rec, Data) else prepare(rec, self.data.cutoff_hz)
+        if data.n_joints != self.model.n_joints:
+            raise ModelError(f"{data.rec.path}: the fitted model has {self.model.n_joints} joints, the recording "
+                             f"{data.n_joints}")
+        if data.rec.structure_name != self.data.rec.structure_name:
+            raise ModelError(f"{data.rec.path}: structure {data.rec.structure_name!r}, but the model was fitted on "
+                             f"a {self.data.rec.structure_name!r} recording")
+        _check_rows(data, self.model)
+        tau = data.tau(self.delay)
+        resid = tau - Columns(data).model(self.model) @ self.theta
+        denom = np.linalg.norm(tau)
+        rel = float(np.linalg.norm(resid) / denom) if denom else np.inf
+        return Fit(self.model, list(self.names), self.theta, self.std, list(self.redundant), rel, resid, data,
+                   self.delay, {})
+
+    def rel_error_on(self, rec: Recording | Data) -> float:
+        """`rel_error` of these parameters on another recording (see `evaluate`)."""
+        return self.evaluate(rec).rel_error
+
 
 SEARCHABLE = ("cogging", "stribeck", "delay")
 
@@ -317,6 +344,7 @@ def fit(rec: Recording | Data, model: Model | str, cutoff_hz: float | None = Non
         raise ModelError("compliance is a structural mode above the identification bandwidth: "
                          "`manus diagnose` detects it from the spectrum; it has no inverse-dynamics columns")
     cols = columns or Columns(data)
+    _check_rows(data, model)
     _check_motion(data, model)
     search: dict = {}
     for name in SEARCHABLE:
@@ -329,6 +357,49 @@ def fit(rec: Recording | Data, model: Model | str, cutoff_hz: float | None = Non
     names = list(model.names)
     return Fit(model, names, sol.theta, sol.std, [names[j] for j in sol.redundant], sol.rel_error,
                sol.residual, data, delay, search)
+
+
+def _check_rows(data: Data, model: Model) -> None:
+    """Refuse a recording that leaves fewer than `MIN_ROWS` usable rows, naming the parameters
+    that are not identifiable: those outside the rank of the model's regressor over every sample
+    inside the filter's start-up edges (standstill included: at rest q̇ = q̈ = 0, so inertia and
+    friction columns vanish there; a recording shorter than its two edges has no row at all)."""
+    if data.rows.size >= MIN_ROWS:
+        return
+    window = data.window if data.window is not None else np.zeros(0, int)
+    lin = Model(model.structure, tuple(e for e in model.effects if e.linear))
+    names = list(lin.names)
+    if window.size:
+        Y = Columns(data, rows=window).model(lin)
+        lost = [names[j] for j in unidentifiable(Y)]
+    else:
+        lost = names
+    rec = data.rec
+    why = (f"{len(rec)} samples ({len(rec) * data.dt:.3g} s) leave {data.rows.size} usable rows "
+           f"(at least {MIN_ROWS} needed) once the filter's start-up ({edge(data.dt, data.cutoff_hz)} samples at "
+           f"each end, {data.cutoff_hz:.3g} Hz cut-off) and standstill are left out")
+    what = (f"parameters {', '.join(lost)} are not identifiable (the regressor has rank {len(names) - len(lost)} "
+            f"of {len(names)})" if lost else "too few rows to identify the parameters reliably")
+    raise ModelError(f"{rec.path}: recording too short or without motion: {why}; {what}; record longer, "
+                     "with the joints moving (e.g. a multi-sine reference)")
+
+
+def unidentifiable(Y: np.ndarray, rtol: float = 1e-7) -> list[int]:
+    """Columns of Y (rows, n, P) that are zero or that the earlier ones explain (the regressor's
+    rank deficiency, in column order); every column when there are fewer equations than the rank
+    would need."""
+    rows, n, P = Y.shape
+    if rows * n == 0:
+        return list(range(P))
+    X = Y.reshape(rows * n, P)
+    scale = np.sqrt(np.mean(X**2, axis=0))
+    out = [j for j in range(P) if not scale[j] > 0]
+    keep = [j for j in range(P) if scale[j] > 0]
+    if keep:
+        r = np.abs(np.diag(np.linalg.qr(X[:, keep] / scale[keep], mode="r")))
+        r = np.r_[r, np.zeros(len(keep) - r.size)]  # fewer equations than columns: the rest are lost
+        out += [keep[j] for j in np.flatnonzero(r < rtol * max(r.max(initial=0), 1e-300) * np.sqrt(rows * n))]
+    return sorted(out)
 
 
 def _check_motion(data: Data, model: Model) -> None:

@@ -1,0 +1,150 @@
+"""Inverse-dynamics fitting (`adaptive.fit`) against independent references: the published EMPS
+reference model (Janot, Gautier, Brunot 2019) and the simulator's truth parameters."""
+
+import json
+
+import numpy as np
+import pytest
+
+from adaptive.fit import fit, prepare
+from plants.errors import ManusError, ModelError
+from plants.recording import Recording
+from tests.adaptive import hidden
+
+# ../shared/data/emps/README.md: the reference model, its std and its relative errors
+PUBLISHED = {"M1": 95.1089, "b1": 203.5034, "Fc1": 20.3935, "off1": -3.1648}
+PUBLISHED_STD = {"M1": 0.11, "b1": 1.15, "Fc1": 0.10, "off1": 0.044}
+PUBLISHED_REL_ERROR, PUBLISHED_PULSES_REL_ERROR = 0.0408, 0.0598
+EMPS_MODEL = "rigid,viscous,coulomb,offset"
+
+
+@pytest.fixture(scope="module")
+def emps():
+    return hidden.emps("DATA_EMPS.mat")
+
+
+@pytest.fixture(scope="module")
+def pulses():
+    return hidden.emps("DATA_EMPS_PULSES.mat")
+
+
+@pytest.fixture(scope="module")
+def emps_fit(emps):
+    return fit(emps, EMPS_MODEL)
+
+
+@pytest.fixture(scope="module")
+def nominal():
+    return hidden.recording(())
+
+
+# -- EMPS: the published reference model ---------------------------------------------------------
+
+def test_emps_fit_gives_the_published_parameters_within_one_percent(emps_fit):
+    for name, value in PUBLISHED.items():
+        assert emps_fit.params[name] == pytest.approx(value, rel=0.01), name
+    assert abs(emps_fit.rel_error - PUBLISHED_REL_ERROR) < 0.005
+
+
+def test_emps_standard_deviations_match_the_published_ones(emps_fit):
+    # Newey–West over the decimated rows against the reference's std: same order (within 2x)
+    for name, s in zip(emps_fit.names, emps_fit.std):
+        assert PUBLISHED_STD[name] / 2 < s < 2 * PUBLISHED_STD[name], (name, s)
+
+
+def test_the_emps_model_applied_to_the_pulses_file(emps_fit, emps, pulses):
+    """The fitted parameters, unchanged, on the validation file. At the fit's own band (83 Hz,
+    three times where 99.5 % of the force's power lies) the pulses' edges leave more in the
+    residual than in the reference, which decimated its data (its anti-alias filter sits near 40 Hz):
+    7.0 % against 5.98 %. In a band like the reference's (50 Hz) both errors agree within 0.2 point."""
+    val = emps_fit.evaluate(pulses)
+    assert val.data.cutoff_hz == emps_fit.data.cutoff_hz
+    assert val.theta is emps_fit.theta
+    assert emps_fit.rel_error < val.rel_error < PUBLISHED_PULSES_REL_ERROR + 0.0125
+    assert emps_fit.rel_error_on(pulses) == val.rel_error
+    narrow = fit(prepare(emps, 50.0), EMPS_MODEL)
+    assert abs(narrow.rel_error - PUBLISHED_REL_ERROR) < 0.002
+    assert abs(narrow.rel_error_on(pulses) - PUBLISHED_PULSES_REL_ERROR) < 0.002
+    for name, value in PUBLISHED.items():
+        assert narrow.params[name] == pytest.approx(value, rel=0.005), name
+
+
+def test_evaluate_on_the_recording_it_was_fitted_on_reproduces_its_error(emps_fit, emps):
+    assert emps_fit.evaluate(emps).rel_error == pytest.approx(emps_fit.rel_error, rel=1e-9)
+
+
+def test_a_nested_effect_is_named_redundant_not_refused(emps, emps_fit):
+    """DESIGN §3: asymmetry's direction-independent part |sgn q̇| is an offset wherever the axis
+    moves, so with asymmetry in the model the offset is redundant: named, θ = 0, and the error is
+    what the independent columns reach."""
+    both = fit(emps, "rigid,viscous,coulomb,asymmetry,offset")
+    alone = fit(emps, "rigid,viscous,coulomb,asymmetry")
+    assert both.redundant == ["off1"] and both.params["off1"] == 0.0
+    assert both.rel_error == pytest.approx(alone.rel_error, rel=1e-9)
+    assert both.rel_error < emps_fit.rel_error
+    assert "redundant" in both.report() and both.report()["params"]["off1"]["std"] is None
+
+
+def test_fit_report_is_the_json_contract(emps_fit):
+    r = json.loads(json.dumps(emps_fit.report()))
+    assert {"model", "params", "rel_error", "samples"} <= set(r)
+    assert r["model"] == ["rigid", "viscous", "coulomb", "offset"]
+    assert set(r["params"]) == set(PUBLISHED) and set(r["params"]["M1"]) == {"value", "std"}
+    assert r["samples"] == emps_fit.data.rows.size and r["rel_error"] == emps_fit.rel_error
+    assert emps_fit.predicted().shape == emps_fit.residual.shape == (emps_fit.data.rows.size, 1)
+
+
+# -- simulated arm: the truth parameters ----------------------------------------------------------
+
+def test_the_nominal_model_recovers_the_simulated_truth(nominal):
+    f = fit(nominal, "rigid,viscous,coulomb")
+    truth = hidden.truth_params(())
+    for name in f.names:
+        assert f.params[name] == pytest.approx(truth[name], rel=0.02), name
+        assert abs(f.params[name] - truth[name]) < 6 * f.std[name == np.array(f.names)][0], name
+    assert f.rel_error < 0.005  # what is left: encoder and D/A quantization, filtering
+
+
+def test_nonlinear_parameters_are_found_by_search():
+    delayed = fit(hidden.recording(("delay",)), "rigid,viscous,coulomb,delay")
+    assert delayed.delay == pytest.approx(1e-3, abs=0.1e-3)
+    cogging = fit(hidden.recording(("cogging",)), "rigid,viscous,coulomb,cogging")
+    assert cogging.model.get("cogging").describe()["order"] == 39.0
+    assert cogging.params["A1"] == pytest.approx(0.02, rel=0.05)
+    fixed = fit(hidden.recording(("cogging",)), "rigid,viscous,coulomb,cogging:20")  # fixed, not searched
+    assert fixed.model.get("cogging").describe()["order"] == 20.0 and fixed.rel_error > cogging.rel_error
+
+
+# -- bad input (issue 4, item 5) ----------------------------------------------------------------
+
+def test_too_short_names_every_parameter(nominal):
+    short = nominal.window(2000, 2300)
+    with pytest.raises(ModelError, match="too short or without motion") as e:
+        fit(short, "rigid,viscous,coulomb")
+    assert "a1, a2, a3, b1, b2, Fc1, Fc2 are not identifiable" in str(e.value)
+    assert "rank 0 of 7" in str(e.value)
+
+
+def test_no_motion_names_the_parameters_outside_the_regressors_rank():
+    t = np.arange(3000) * 1e-3
+    still = Recording(t, np.tile([0.464, 2.409], (t.size, 1)), np.full((t.size, 2), 0.1), None,
+                      {"sample_rate_hz": "1000", "counts_per_rev": "131072"}, {}, "still.csv")
+    with pytest.raises(ModelError) as e:
+        fit(still, "rigid,viscous,coulomb,offset")
+    msg = str(e.value)
+    assert msg.startswith("still.csv: recording too short or without motion")
+    # at rest the inertia and friction columns vanish; the offset's does not
+    assert "parameters a1, a2, a3, b1, b2, Fc1, Fc2 are not identifiable" in msg and "off1" not in msg
+    assert "rank 2 of 9" in msg
+
+
+def test_unknown_effect_and_impossible_models_are_refused(nominal):
+    with pytest.raises(ModelError, match="unknown effect 'frictoin'.*vocabulary is rigid"):
+        fit(nominal, "rigid,frictoin")
+    with pytest.raises(ModelError, match="given twice"):
+        fit(nominal, "rigid,viscous,viscous")
+    with pytest.raises(ModelError, match="compliance is a structural mode"):
+        fit(nominal, "rigid,compliance")
+    one = Recording(nominal.t, nominal.q[:, :1], nominal.tau[:, :1], None, {"sample_rate_hz": "1000"}, {})
+    with pytest.raises(ManusError, match="recording 1"):
+        fit(one, hidden.Model(hidden.STRUCTURE, "rigid"))
