@@ -10,7 +10,8 @@ Columns: `t` [s]; `q1..qn` measured positions; `tau1..taun` commanded torques; o
 `qd1..qdn` true velocities; any other column is kept in `extra`. A file that breaks the rules is
 refused with a `RecordingError` naming the file, the line and the problem. One exception, so that
 a run killed mid-write is still readable: an incomplete last line (no newline at the end of the
-file) is dropped with a warning.
+file) is dropped with a warning: when it does not parse as a row, and always in a file whose
+metadata says `streamed: true` (a live run's recording, where it may parse yet be cut short).
 """
 
 from __future__ import annotations
@@ -154,10 +155,13 @@ def _read_csv(path: Path) -> Recording:
     _check_header(path, header_at + 1, header)
     ncol = len(header)
     body = [(i + 1, line) for i, line in enumerate(lines[header_at + 1:], start=header_at + 1) if line.strip()]
-    # A run killed mid-write leaves an incomplete last line: drop it with a warning.
+    # A run killed mid-write leaves an incomplete last line: drop it with a warning. A streamed
+    # file (`streamed: true`, written row by row by a live run) ends every complete row with a
+    # newline, so there an unterminated last line is dropped even when it parses: its last
+    # number may have been cut short (0.4183 -> 0.41).
     if body and not complete:
         lineno, last = body[-1]
-        if not _row_ok(last, ncol):
+        if not _row_ok(last, ncol) or meta.get("streamed", "").lower() == "true":
             warnings.warn(f"{path}:{lineno}: incomplete last line dropped (the file was cut mid-write)", stacklevel=2)
             body = body[:-1]
     if not body:
