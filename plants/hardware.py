@@ -1,0 +1,321 @@
+"""The hardware loop: any controller stepper (its velocity estimator inside) against a device,
+in real time, with safety limits, self-measurement and a recording written as it goes.
+
+    stepper = CompiledTick(controller, reference, dt=1e-3, counts_per_rev=131072)
+    result = run_loop(open_device("udp://127.0.0.1:5555"), stepper, seconds=10, record="rec.csv")
+
+Each tick: the device's sample k arrives (encoder counts), the compiled tick turns it into
+positions, runs the controller against the reference at t = k T, checks every number for NaN or
+Inf and clamps the torque; the loop clamps again (torque, then volts: no stepper output can pass
+the limits), sends the command, and logs the row. The device owns the clock (it samples at its
+rate); the loop answers each sample before the next one is due.
+
+Safety: a non-finite value anywhere (measurement, controller state, command), or the device
+reporting FAULT, stops the run with zero torque (`stopped_by` "fault"); no valid sample for
+`watchdog` seconds, or the device reporting that its own watchdog fired, stops it with
+"watchdog"; Ctrl-C or SIGTERM stop it with "user"; on every way out the device is sent zero torque
+and the end of the session, and the recording is flushed and closed.
+
+Self-measurement, kept per tick in the recording (`compute_us`, `period_us`, `late`) and
+summarized in the result: compute = from the sample in hand to the command sent; jitter = the
+interval between consecutive samples in hand minus T; a deadline miss = a command that left more
+than one period after its sample was taken (the device clock mapped onto the host's by the
+smallest transit seen so far).
+"""
+
+from __future__ import annotations
+
+import gc
+import math
+import signal
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from plants import protocol as P
+from plants.device import Device
+from plants.errors import ManusError
+from plants.recording import RecordingWriter
+from plants.stepper import Controller, Reference
+
+STOPS = ("end", "watchdog", "fault", "user")
+FIRST_SAMPLE_TIMEOUT = 0.5  # s: after HELLO, the device's first sample
+LOG_EVERY = 20  # rows handed to the writer at once (it flushes to disk at least every 0.1 s)
+
+
+def realtime_jax() -> None:
+    """Run each jitted call on the calling thread, with no hand-off to XLA's pool and back
+    (a tick's p50 36 -> 26 µs, p99 4x lower, measured). Call it before JAX computes anything:
+    the CPU client reads the setting when it is created."""
+    import jax
+
+    jax.config.update("jax_cpu_enable_async_dispatch", False)
+
+
+class CompiledTick:
+    """A controller and a reference compiled into one function of (state, counts, k), jitted
+    once with the configuration closed over. The state travels as one flat float vector and
+    the outputs come back in the same vector, so a tick is one call and one transfer.
+
+    `step(k, counts) -> (tau (n,), extras (m,), ok)`: the command [N·m] (zero unless ok), the
+    values named by `extras` (reference positions, the velocity estimate when the controller
+    keeps one), and whether every number was finite."""
+
+    def __init__(self, controller: Controller, reference: Reference, dt: float, counts_per_rev: float,
+                 n_joints: int, torque_limit: float):
+        import jax
+        import jax.numpy as jnp
+        from jax.flatten_util import ravel_pytree
+
+        self.n, self.dt = n_joints, float(dt)
+        step = 2 * math.pi / float(counts_per_rev)
+        limit = float(torque_limit)
+        self.q_step = step
+        probe = controller.init(jnp.asarray(reference(0.0).q, float))
+        flat0, unravel = ravel_pytree(probe)
+        self.size = int(flat0.size)
+        has_v = hasattr(probe, "qd") and np.shape(getattr(probe, "qd")) == (n_joints,)
+        self.extras = [f"qref{i + 1}" for i in range(n_joints)] + ([f"vhat{i + 1}" for i in range(n_joints)] if has_v else [])
+
+        def finite(tree):
+            leaves = [x for x in jax.tree.leaves(tree) if jnp.issubdtype(jnp.asarray(x).dtype, jnp.inexact)]
+            return jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in leaves])) if leaves else jnp.array(True)
+
+        def tick(flat, counts, k):
+            state = unravel(flat)
+            q = counts * step
+            ref = reference(k * dt)
+            state, tau = controller.step(state, q, ref)
+            ok = finite(state) & jnp.all(jnp.isfinite(tau)) & jnp.all(jnp.isfinite(ref.q))
+            ok = ok & ~jnp.any(jnp.asarray(getattr(state, "stopped", False)))  # a latched controller stop
+            tau = jnp.where(ok, jnp.clip(tau, -limit, limit), 0.0)
+            extra = [ref.q] + ([state.qd] if has_v else [])
+            return jnp.concatenate([ravel_pytree(state)[0], tau, *extra, ok[None].astype(flat.dtype)])
+
+        def init(counts):
+            return ravel_pytree(controller.init(counts * step))[0]
+
+        self._tick, self._init = jax.jit(tick), jax.jit(init)
+        self.flat = None
+
+    def warm_up(self, calls: int = 5) -> None:
+        """Compile and run a few ticks on made-up counts (before the device is opened)."""
+        counts = np.zeros(self.n, np.int32)
+        self.start(counts)
+        for k in range(calls):
+            self.step(k, counts)
+        self.flat = None
+
+    def start(self, counts) -> None:
+        self.flat = np.asarray(self._init(np.asarray(counts, np.int32)))
+        self._last = (0, np.asarray(counts, np.int32))
+
+    def keep_warm(self) -> None:
+        """Run the last tick again and throw the result away. Called while waiting for a
+        sample: a tick that follows 1 ms of waiting takes about 3x longer than one that follows
+        another tick here (caches gone cold; 130 vs 40 µs, measured), and the wait costs nothing."""
+        self._tick(self.flat, self._last[1], self._last[0])
+
+    def step(self, k: int, counts):
+        out = np.asarray(self._tick(self.flat, counts, k))
+        self._last = (k, counts)
+        s, n = self.size, self.n
+        self.flat = out[:s]
+        return out[s:s + n], out[s + n:-1], bool(out[-1])
+
+
+@dataclass
+class Result:
+    ticks: int = 0
+    deadline_misses: int = 0
+    compute_us: dict = field(default_factory=dict)
+    jitter_us: dict = field(default_factory=dict)
+    stopped_by: str = "end"
+    reason: str = ""
+    lost_samples: int = 0
+    device_late: int = 0
+    refused: dict = field(default_factory=dict)
+    tracking_rms: list = field(default_factory=list)
+    max_abs_tau: list = field(default_factory=list)
+    recording: str | None = None
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+def percentiles(x) -> dict:
+    x = np.asarray(x, float)
+    if x.size == 0:
+        return {"p50": None, "p99": None, "max": None}
+    return {"p50": round(float(np.percentile(x, 50)), 1), "p99": round(float(np.percentile(x, 99)), 1),
+            "max": round(float(x.max()), 1)}
+
+
+class _Stop:
+    """Ctrl-C and SIGTERM set a flag the loop checks every tick (no exception mid-send)."""
+
+    def __init__(self):
+        self.requested = False
+        self._old = {}
+
+    def __enter__(self):
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self._old[sig] = signal.signal(sig, self._set)
+        return self
+
+    def _set(self, *_):
+        self.requested = True
+
+    def __exit__(self, *exc):
+        for sig, old in self._old.items():
+            signal.signal(sig, old)
+
+
+def columns(n: int, extras: list[str]) -> list[str]:
+    return (["t"] + [f"q{i + 1}" for i in range(n)] + [f"tau{i + 1}" for i in range(n)] + list(extras)
+            + ["compute_us", "period_us", "latency_us", "late", "flags", "seq"])
+
+
+def run_loop(device: Device, stepper, seconds: float, record: str | Path | None = None, watchdog: float = 0.02,
+             torque_limit: float | None = None, volts: bool = True, meta: dict | None = None) -> Result:
+    """Run `stepper` (a `CompiledTick` or anything with n, dt, q_step, extras, start, step) against
+    `device` for `seconds`; see the module docstring. Connects the device itself."""
+    if not seconds > 0:
+        raise ManusError(f"seconds must be positive, got {seconds}")
+    if not watchdog > 0:
+        raise ManusError(f"the watchdog time must be positive, got {watchdog}")
+    info = device.info or device.connect()  # what the device is (the session itself starts below)
+    _check(device, info, stepper)
+    n, period = stepper.n, int(round(1e9 * stepper.dt))
+    limit = info.torque_limit if torque_limit is None else min(float(torque_limit), info.torque_limit)
+    ticks = int(round(seconds / stepper.dt))
+    writer = None
+    if record is not None:
+        m = {"sample_rate_hz": f"{info.rate_hz:g}", "counts_per_rev": f"{info.counts_per_rev:g}",
+             "command_hold": "zoh", "source": "manus run-hardware", "streamed": "true", **(meta or {})}
+        writer = RecordingWriter(record, columns(n, stepper.extras), m)
+    width = 1 + 2 * n + len(stepper.extras) + 6
+    rows = np.zeros((LOG_EVERY, width))
+    nrow = 0
+    t_in = np.zeros(ticks + 1, np.int64)
+    seqs = np.zeros(ticks + 1, np.int64)
+    compute = np.zeros(ticks + 1, np.int64)
+    late = np.zeros(ticks + 1, bool)
+    q_log = np.zeros((ticks + 1, n))
+    ref_log = np.zeros((ticks + 1, n))
+    tau_log = np.zeros((ticks + 1, n))
+    result = Result(recording=None if record is None else str(record))
+    clock, tpv = time.perf_counter_ns, info.torque_per_volt
+    i = 0
+    gc.collect()  # everything is ready before the session starts: the device's watchdog runs from HELLO
+    gc.disable()
+    try:
+        with _Stop() as stop:
+            device.connect()
+            sample = device.receive(clock() + int(FIRST_SAMPLE_TIMEOUT * 1e9), expect_ns=clock())
+            if sample is None:
+                result.stopped_by, result.reason = "watchdog", "no first sample from the device"
+                return result
+            stepper.start(sample.counts)
+            seq0, offset = sample.seq, None
+            while True:
+                t0 = clock()
+                k = (sample.seq - seq0) & 0xFFFFFFFF
+                tau, extras, ok = stepper.step(k, sample.counts)
+                tau = np.clip(tau, -limit, limit)
+                if not ok or not np.all(np.isfinite(tau)):
+                    tau = np.zeros(n)
+                    ok = False
+                out = np.clip(tau / tpv, -info.volt_limit, info.volt_limit) if volts else tau
+                device.send(sample.seq, out, P.CMD_VOLTS if volts else 0)
+                t1 = clock()
+                transit = t0 - sample.time_ns
+                offset = transit if offset is None or transit < offset else offset
+                t_in[i], seqs[i], compute[i] = t0, k, t1 - t0
+                latency = t1 - (sample.time_ns + offset)
+                late[i] = latency > period
+                q = sample.counts * stepper.q_step
+                result.device_late += bool(sample.flags & P.STATUS_LATE)
+                q_log[i], tau_log[i], ref_log[i] = q, tau, extras[:n]
+                prev = t_in[i - 1] if i and seqs[i - 1] == k - 1 else t0 - period
+                rows[nrow] = np.concatenate([[k * stepper.dt], q, tau, extras,
+                                             [(t1 - t0) / 1e3, (t0 - prev) / 1e3, latency / 1e3, late[i], sample.flags,
+                                              sample.seq]])
+                nrow += 1
+                i += 1
+                if nrow == LOG_EVERY:
+                    if writer is not None:
+                        writer.append(rows)
+                    nrow = 0
+                if not ok:
+                    result.stopped_by, result.reason = "fault", f"non-finite value at tick {k} (zero torque sent)"
+                    break
+                if sample.flags & P.STATUS_FAULT:
+                    result.stopped_by, result.reason = "fault", "the device reports a fault (it refused a command)"
+                    break
+                if sample.flags & P.STATUS_WATCHDOG:
+                    result.stopped_by, result.reason = "watchdog", "the device's watchdog fired (a command came too late)"
+                    break
+                if stop.requested:
+                    result.stopped_by, result.reason = "user", "interrupted"
+                    break
+                if k >= ticks - 1 or i > ticks:
+                    break
+                sample = device.receive(t0 + int(watchdog * 1e9), expect_ns=t0 + period,
+                                        idle=getattr(stepper, "keep_warm", None))
+                if sample is None:
+                    result.stopped_by = "watchdog"
+                    result.reason = f"no sample from the device for {watchdog * 1e3:g} ms"
+                    break
+    finally:
+        gc.enable()
+        device.stop()
+        if writer is not None:
+            if nrow:
+                writer.append(rows[:nrow])
+            writer.close()
+    return _summary(result, device, period, t_in[:i], seqs[:i], compute[:i], late[:i], q_log[:i], ref_log[:i], tau_log[:i])
+
+
+def _check(device, info, stepper) -> None:
+    where = getattr(device, "url", "device")
+    if info.n_joints != stepper.n:
+        device.stop()
+        raise ManusError(f"{where}: the device has {info.n_joints} joint(s), the controller {stepper.n}")
+    if abs(info.rate_hz * stepper.dt - 1) > 1e-6:
+        device.stop()
+        raise ManusError(f"{where}: the device samples at {info.rate_hz:g} Hz, the controller runs at {1 / stepper.dt:g} Hz")
+
+
+def _summary(result, device, period, t_in, seqs, compute, late, q, ref, tau) -> Result:
+    result.ticks = int(t_in.size)
+    result.deadline_misses = int(late.sum())
+    result.compute_us = percentiles(compute / 1e3)
+    consecutive = np.diff(seqs) == 1
+    result.jitter_us = percentiles(np.abs(np.diff(t_in)[consecutive] - period) / 1e3)
+    result.lost_samples = int(np.sum(np.diff(seqs) - 1)) if seqs.size > 1 else 0
+    result.refused = dict(device.refused)
+    if q.size:
+        result.tracking_rms = np.sqrt(np.mean((q - ref) ** 2, axis=0)).round(6).tolist()
+        result.max_abs_tau = np.abs(tau).max(axis=0).round(4).tolist()
+    return result
+
+
+def report(r: dict) -> str:
+    """The figures of a run, as printed at its end."""
+    c, j = r["compute_us"], r["jitter_us"]
+    lines = [f"stopped by {r['stopped_by']}" + (f": {r['reason']}" if r.get("reason") else ""),
+             f"  ticks {r['ticks']}, deadline misses {r['deadline_misses']}, lost samples {r['lost_samples']}",
+             f"  compute µs  p50 {c['p50']}  p99 {c['p99']}  max {c['max']}",
+             f"  jitter  µs  p50 {j['p50']}  p99 {j['p99']}  max {j['max']}"]
+    if r.get("refused"):
+        lines.append("  refused packets: " + ", ".join(f"{k} {v}" for k, v in sorted(r["refused"].items())))
+    if r.get("tracking_rms"):
+        lines.append("  tracking error RMS per joint [rad]: " + ", ".join(f"{x:.5f}" for x in r["tracking_rms"]))
+    if r.get("recording"):
+        lines.append(f"  recording: {r['recording']}")
+    return "\n".join(lines)

@@ -1,0 +1,65 @@
+"""`manus emulate --port P`: play the rig (the JAX simulator in real time behind the device protocol)."""
+
+from __future__ import annotations
+
+import signal
+from pathlib import Path
+
+from runs.common import note
+from runs.plants_cli import add_plant_options, build_plant
+
+NAME = "emulate"
+HELP = "play the rig: the simulator in real time behind the UDP device protocol (for run-hardware)"
+
+
+def add_arguments(p) -> None:
+    p.add_argument("--port", type=int, required=True, help="UDP port to listen on (0: any free port, printed)")
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
+    p.add_argument("--watchdog-ms", type=float, default=20.0,
+                   help="no valid command for this long: zero torque for the rest of the session (default 20: this 2-vCPU VM stalls a process for up to ~20 ms a few times a minute, measured)")
+    p.add_argument("--seconds", type=float, default=None, help="exit after this long (default: run until Ctrl-C)")
+    p.add_argument("--drop", type=float, default=0.0, help="fault injection: lose this fraction of packets each way")
+    p.add_argument("--garbage", type=float, default=0.0, help="fault injection: send this fraction of junk datagrams")
+    p.add_argument("--log", type=Path, default=None, metavar="FILE",
+                   help="write what the device did (positions, applied torques, flags) as a recording")
+    p.add_argument("--spin-ms", type=float, default=2.0,
+                   help="busy-wait this long before each tick instead of sleeping (a sleeping vCPU wakes late; default 2)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the fault injection")
+    p.add_argument("--json", action="store_true", help="print one JSON object on stdout at exit")
+    add_plant_options(p)
+
+
+def run(args) -> dict:
+    from plants.emulator import Emulator
+    from plants.errors import ManusError
+    from plants.hardware import realtime_jax
+
+    realtime_jax()
+
+    if not args.watchdog_ms > 0:
+        raise ManusError("--watchdog-ms must be positive")
+    if args.counts <= 0:
+        raise ManusError("--counts must be positive: a rig's encoder has a resolution")
+    plant = build_plant(args)
+    emu = Emulator(plant, args.port, args.host, watchdog=args.watchdog_ms / 1e3, drop=args.drop,
+                   garbage=args.garbage, log=args.log, seed=args.seed,
+                   spin=args.spin_ms / 1e3)
+    note(f"emulating {plant.model.spec} ({plant.model.n_joints} joints, {plant.rate_hz:g} Hz) "
+         f"on udp://{args.host}:{emu.port}", )
+    signal.signal(signal.SIGTERM, _interrupt)  # a terminate closes the log like Ctrl-C
+    try:
+        stats = emu.serve(args.seconds)
+    except KeyboardInterrupt:
+        emu.close()
+        stats = {"refused": dict(emu.refused), **dict(emu.stats)}
+    return {"port": emu.port, "truth": plant.model.spec, "sessions": emu.session, **stats}
+
+
+def _interrupt(*_):
+    raise KeyboardInterrupt
+
+
+def render(r: dict) -> str:
+    refused = ", ".join(f"{k} {v}" for k, v in sorted(r["refused"].items())) or "none"
+    return (f"emulator on port {r['port']} ({r['truth']}): {r['sessions']} session(s), {r.get('ticks', 0)} ticks, "
+            f"{r.get('late', 0)} late commands, {r.get('watchdog_trips', 0)} watchdog trips; refused: {refused}")
