@@ -29,7 +29,7 @@ def figures(d, out: Path, stem: str) -> dict:
 def run(args) -> dict:
     from adaptive.diagnose import diagnose
 
-    rec = load(args)
+    rec = load(args, proposing=True)
     note(f"diagnosing {args.model}: fitting it with each missing effect in turn ...")
     d = diagnose(rec, args.model, cutoff_hz=args.cutoff)
     out = d.report()

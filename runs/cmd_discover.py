@@ -52,7 +52,7 @@ def run(args) -> dict:
 
     if args.max_steps < 1:
         raise ManusError(f"--max-steps {args.max_steps}: at least 1")
-    rec = load(args)
+    rec = load(args, proposing=True)
     stem = Path(rec.path).stem
     note(f"discovering from {args.model} ...")
     sec = discover_section(rec, args.model, args.out, f"discover_{stem}_", f"{Path(rec.path).name} from `{args.model}`",

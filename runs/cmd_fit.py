@@ -32,15 +32,18 @@ def add_arguments(p) -> None:
     add_common(p)
 
 
-def load(args):
-    """The recording and the model text, checked: a one-line error for bad input."""
+def load(args, proposing: bool = False):
+    """The recording and the model text, checked: a one-line error for bad input. `proposing`
+    (diagnose, discover): a model holding every effect leaves nothing to propose."""
     from plants import recording
-    from plants.effects import parse_effects
+    from plants.effects import ORDER, parse_effects
     from plants.errors import ManusError
 
     if args.cutoff is not None and args.cutoff <= 0:
         raise ManusError(f"--cutoff {args.cutoff:g}: must be positive")
-    parse_effects(args.model)  # unknown names, duplicates: refused before the file is read
+    effects = parse_effects(args.model)  # unknown names, duplicates: refused before the file is read
+    if proposing and len(effects) == len(ORDER):
+        raise ManusError(f"the model {args.model} already holds every effect of the vocabulary: nothing is left to propose")
     rec = recording.read(args.recording)
     note(f"{rec.path}: {len(rec)} samples of {rec.n_joints} joint(s) at {rec.sample_rate_hz:g} Hz ({rec.structure_name})")
     return rec
