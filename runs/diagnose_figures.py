@@ -194,7 +194,11 @@ def evidence_figure(d, c, out: Path, name: str, title: str = "") -> str:
             curve = lambda x: _term(c, x, np.ones_like(x), i)
         else:  # friction: viscous, coulomb, stribeck, asymmetry
             x = qd[:, i]
-            xl, how = f"q̇{i + 1}", "residual binned against velocity (a Coulomb term is a sign step at q̇ = 0)"
+            xl = f"q̇{i + 1}"
+            how = "residual binned against velocity: " + {
+                "coulomb": "a Coulomb term is a sign step at q̇ = 0", "viscous": "a viscous term is a slope",
+                "stribeck": "a Stribeck term is a spike either side of q̇ = 0, fading with speed",
+                "asymmetry": "an asymmetry is even in q̇: a V (|q̇|) and a level off zero"}[c.effect]
             curve = lambda x: _term(c, np.zeros_like(x), x, i)
         ax.plot(x, e[:, i], ".", ms=1.5, color="0.65", alpha=0.45, rasterized=True)
         bc, bm, bse = _binned(x, e[:, i])
@@ -227,7 +231,10 @@ def _compliance_panel(ax, c, i: int):
     ax.loglog(m.freq[1:], m.measured[1:, i], color="k", lw=0.7, label="measured |θ̈/τ| (H1)")
     ax.loglog(m.freq[1:], m.rigid[1:, i], color="C0", lw=1.0, label="rigid fit")
     ax.loglog(m.freq[1:], m.fitted[1:, i], color="C3", lw=1.0, label=f"with a mode at {m.f_hz:.0f} Hz, ζ = {m.zeta:g}")
+    from adaptive.modes import BAND
+
     ax.axvline(m.f_hz, color="C3", ls=":", lw=0.8)
+    ax.axvspan(BAND[0], min(BAND[1], m.freq[-1]), color="C2", alpha=0.08, lw=0, label="band fitted (coherence-weighted)")
     ax.set_xlabel("frequency [Hz]")
     ax.set_title(f"joint {i + 1}: frequency response (resonance peak: {'yes' if m.resonant else 'no'})", fontsize=9, loc="left")
     ax.legend(fontsize=7, loc="lower left")
