@@ -146,6 +146,47 @@ class Result:
         return dict(self.__dict__)
 
 
+class HardwarePlant:
+    """The rig as a plant (DESIGN.md §5: `reset(key) -> (state, q)`, `step(state, command) ->
+    (state, q)`), for code written against that interface: an imperative wrapper (brax's
+    pattern), not a pure one, so it runs in Python, never inside `jit` or `scan`. The state is
+    the last sample; `step` sends the command answering it (clamped to the limits; a non-finite
+    one stops the device and raises) and waits for the next. `close()` ends at zero torque."""
+
+    def __init__(self, device: Device, torque_limit: float | None = None, watchdog: float = 0.02):
+        self.device, self.watchdog = device, float(watchdog)
+        self.info = device.info or device.connect()
+        self.limit = self.info.torque_limit if torque_limit is None else min(torque_limit, self.info.torque_limit)
+        self.dt = 1.0 / self.info.rate_hz
+        self.q_step = 2 * math.pi / self.info.counts_per_rev
+
+    def _next(self, timeout: float) -> P.Sensor:
+        sample = self.device.receive(time.perf_counter_ns() + int(timeout * 1e9))
+        if sample is None:
+            self.close()
+            raise ManusError(f"{getattr(self.device, 'url', 'device')}: no sample for {timeout * 1e3:g} ms (zero torque sent)")
+        return sample
+
+    def reset(self, key=None):
+        self.device.connect()
+        sample = self._next(FIRST_SAMPLE_TIMEOUT)
+        return sample, sample.counts * self.q_step
+
+    def step(self, state: P.Sensor, command):
+        tau = np.asarray(command, float)
+        if not np.all(np.isfinite(tau)):
+            self.close()
+            raise ManusError(f"non-finite command {tau.tolist()} at sample {state.seq} (zero torque sent)")
+        volts = np.clip(np.clip(tau, -self.limit, self.limit) / self.info.torque_per_volt, -self.info.volt_limit,
+                        self.info.volt_limit)
+        self.device.send(state.seq, volts, P.CMD_VOLTS)
+        sample = self._next(self.watchdog)
+        return sample, sample.counts * self.q_step
+
+    def close(self) -> None:
+        self.device.stop()
+
+
 def percentiles(x) -> dict:
     x = np.asarray(x, float)
     if x.size == 0:

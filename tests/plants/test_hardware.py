@@ -143,6 +143,25 @@ def test_a_two_second_run_tracks_its_reference_and_leaves_a_readable_recording(r
     assert np.all(dev_rec.tau[np.flatnonzero(rows)[-1]] == 0)
 
 
+def test_the_rig_as_a_plant_steps_like_the_simulator_would(rigs):
+    from plants.hardware import HardwarePlant
+
+    plant = HardwarePlant(_device(rigs, "clean"), watchdog=0.5)
+    state, q0 = plant.reset()
+    assert np.allclose(q0, [0.464, 2.409], atol=1e-4)  # the emulated arm starts at rest at the centre
+    q = q0
+    for _ in range(100):  # a constant 1 N·m on joint 1: it turns positive, from rest
+        state, q = plant.step(state, [1.0, 0.0])
+    assert q[0] - q0[0] > 1e-3
+    with pytest.raises(Exception, match="non-finite command"):
+        plant.step(state, [np.nan, 0.0])
+    dev_rec, rows = _session(rigs["clean"][2])
+    assert np.all(dev_rec.tau[np.flatnonzero(rows)[-1]] == 0)
+    applied = dev_rec.tau[rows][2:-1]  # the D/A's 1 N·m, once the first command arrived
+    assert np.any(np.abs(applied[:, 0] - 1.0) <= HALF_LSB_TORQUE) and np.all(applied[:, 1] == 0)
+    plant.device.close()
+
+
 class NaNAfter(Controller):
     """A controller that goes wrong: its inner controller's command until tick `at`, then NaN."""
 
