@@ -250,7 +250,7 @@ def run_loop(device: Device, stepper, seconds: float, record: str | Path | None 
     ref_log = np.zeros((ticks + 1, n))
     tau_log = np.zeros((ticks + 1, n))
     result = Result(recording=None if record is None else str(record))
-    clock, tpv = time.perf_counter_ns, info.torque_per_volt
+    clock, tpv, vmax = time.perf_counter_ns, info.torque_per_volt, info.volt_limit
     i = 0
     gc.collect()  # everything is ready before the session starts: the device's watchdog runs from HELLO
     gc.disable()
@@ -267,11 +267,11 @@ def run_loop(device: Device, stepper, seconds: float, record: str | Path | None 
                 t0 = clock()
                 k = (sample.seq - seq0) & 0xFFFFFFFF
                 tau, extras, ok = stepper.step(k, sample.counts)
-                tau = np.clip(tau, -limit, limit)
-                if not ok or not np.all(np.isfinite(tau)):
-                    tau = np.zeros(n)
-                    ok = False
-                out = np.clip(tau / tpv, -info.volt_limit, info.volt_limit) if volts else tau
+                tau = tau.tolist()  # Python floats: a few µs less than numpy on 2 values
+                if not ok or not all(map(math.isfinite, tau)):
+                    tau, ok = [0.0] * n, False
+                tau = [min(max(x, -limit), limit) for x in tau]  # the loop's own clamp, whatever the stepper did
+                out = [min(max(x / tpv, -vmax), vmax) for x in tau] if volts else tau
                 device.send(sample.seq, out, P.CMD_VOLTS if volts else 0)
                 t1 = clock()
                 transit = t0 - sample.time_ns
