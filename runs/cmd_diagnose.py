@@ -51,9 +51,11 @@ def candidate_rows(candidates: list[dict], verdict: str | None) -> list[list]:
 
 
 def render(r: dict) -> str:
+    from runs.report import left
+
     lines = [f"model {r['spec']}: rel_error {100 * r['rel_error']:.2f} % (torque low-passed at {r['cutoff_hz']:.1f} Hz)",
-             table(candidate_rows(r["candidates"], r["verdict"]),
-                   ["candidate", "removes %", "held out %", "p", "significant", "joint", "detail", ""])]
+             table(left([row[:6] + row[7:] + row[6:7] for row in candidate_rows(r["candidates"], r["verdict"])], (6, 7)),
+                   ["candidate", "removes %", "held out %", "p", "significant", "joint", "", "detail"])]
     notes = [f"  {c['effect']}: {c['note']}" for c in r["candidates"] if c.get("note")] + [f"  {x}" for x in r["notes"]]
     if notes:
         lines += ["notes:"] + notes
@@ -64,4 +66,4 @@ def render(r: dict) -> str:
         if ev:
             lines.append(f"evidence figures ({len(ev)}): {Path(next(iter(ev.values()))).parent}/"
                          f"{Path(next(iter(ev.values()))).name.rsplit('evidence_', 1)[0]}evidence_<effect>.png")
-    return "\n".join(lines)
+    return "\n".join(line.rstrip() for text in lines for line in text.splitlines())

@@ -64,11 +64,11 @@ def run(args) -> dict:
 
 
 def render(r: dict) -> str:
-    from runs.report import format_params
+    from runs.report import format_params, left
 
     rows = [[0, f"(start) {r['start']['model']}", "", f"{100 * r['start']['rel_error']:.2f}"]]
     rows += [[s["step"], s["spec"], format_params(s["params"]), f"{100 * s['rel_error']:.2f}"] for s in r["steps"]]
-    lines = [table(rows, ["step", "effect added", "parameters (value±std)", "rel_error %"]),
+    lines = [table(left(rows, (1, 2)), ["step", "effect added", "parameters (value±std)", "rel_error %"]),
              f"stopped: {r['stopped']}; final model {r['model']}, rel_error {100 * r['rel_error']:.2f} %"]
     lines += [f"  {n}" for n in r["notes"]]
     if "report" in r:

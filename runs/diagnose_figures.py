@@ -83,8 +83,8 @@ def resid_figure(d, out: Path, name: str = "resid.png", title: str = "") -> str:
         ax.set_xlabel("lag [ms]")
         ax.legend(fontsize=7, loc="upper right")
         ax = axes[2 * i, 2]
-        ax.plot(t, tau[:, i], color="0.75", lw=0.5, label="torque")
         ax.plot(t, e, color="C3", lw=0.6, label="residual")
+        ax.fill_between(t, -2 * np.std(e), 2 * np.std(e), color="0.85", lw=0, label="± 2 RMS")
         ax.set_title(f"residual against time (RMS {np.sqrt(np.mean(e**2)):.3g}, "
                      f"{100 * np.linalg.norm(e) / np.linalg.norm(tau[:, i]):.1f} % of the torque)", fontsize=9, loc="left")
         ax.set_xlabel("t [s]")

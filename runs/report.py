@@ -30,6 +30,17 @@ def step_rows(discovery) -> list[list]:
     return rows
 
 
+def left(rows: list[list], columns: tuple[int, ...]) -> list[list]:
+    """Pad the text of `columns` to a common width, so that `runs.common.table` (which right-aligns
+    every column but the first) shows them left-aligned."""
+    rows = [list(r) for r in rows]
+    for j in columns:
+        w = max((len(str(r[j])) for r in rows), default=0)
+        for r in rows:
+            r[j] = str(r[j]).ljust(w)
+    return rows
+
+
 def format_params(params: dict) -> str:
     parts = []
     for k, v in params.items():
