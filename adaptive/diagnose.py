@@ -144,16 +144,22 @@ def _n_params(model_effect, structure) -> int:
 
 
 def diagnose(rec: Recording | fitting.Data, model: Model | str, cutoff_hz: float | None = None,
-             blocks: int = BLOCKS, alpha: float = ALPHA, min_reduction: float = MIN_REDUCTION) -> Diagnosis:
-    """Fit `model` to the recording, then try every effect it lacks (see the module docstring)."""
-    structure = rec.structure if isinstance(rec, (Recording, fitting.Data)) else None
-    if isinstance(model, str):  # the text is checked before any work (unknown names, a full model)
-        model = Model(structure, model) if structure is not None else model
-    if isinstance(model, Model) and not [name for name in ORDER if not model.has(name)]:
-        raise ModelError(f"the model {model.spec} already holds every effect of the vocabulary: "
+             blocks: int = BLOCKS, alpha: float = ALPHA, min_reduction: float = MIN_REDUCTION,
+             columns: fitting.Columns | None = None) -> Diagnosis:
+    """Fit `model` to the recording, then try every effect it lacks (see the module docstring).
+    A loop over one prepared recording can pass its `columns` (a `fitting.Columns` of the same
+    data) so that each effect's columns are computed once for every step."""
+    structure = (rec.rec if isinstance(rec, fitting.Data) else rec).structure
+    # the text is checked before any work (unknown names, a full model); fit gets it as given, as
+    # text fixes the non-linear parameters written with an argument (cogging:39)
+    parsed = Model(structure, model) if isinstance(model, str) else model
+    if not [name for name in ORDER if not parsed.has(name)]:
+        raise ModelError(f"the model {parsed.spec} already holds every effect of the vocabulary: "
                          "nothing is left to propose")
     data = rec if isinstance(rec, fitting.Data) else fitting.prepare(rec, cutoff_hz)
-    cols = fitting.Columns(data)
+    if columns is not None and columns.data is not data:
+        raise ModelError("diagnose: the columns given were computed on other data")
+    cols = columns or fitting.Columns(data)
     base = fitting.fit(data, model, columns=cols)
     present = set(base.model.effect_names)
     missing = [name for name in ORDER if name not in present]

@@ -65,9 +65,13 @@ def recording(hidden: tuple[str, ...] = (), seconds: float = SECONDS, seed: int 
 def discover(rec, model: str, max_steps: int = 6):
     """Diagnose, add the verdict (as found: its spec), repeat until the verdict is null. Returns
     the diagnoses, the last with a null verdict unless the cap was reached."""
+    from adaptive.fit import Columns, prepare
+
+    data = prepare(rec)
+    cols = Columns(data)
     out = []
     for _ in range(max_steps + 1):
-        d = diagnose(rec, model)
+        d = diagnose(data, model, columns=cols)
         out.append(d)
         if d.verdict is None or d.verdict.effect == "compliance":
             break
