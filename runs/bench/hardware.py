@@ -106,6 +106,20 @@ def _measure(device, stepper, seconds: float) -> dict:
             "steal_percent": round(100 * (s1[0] - s0[0]) / max(s1[1] - s0[1], 1), 2)}
 
 
+def _tick_alone(stepper, calls: int = 5000) -> dict:
+    """The compiled tick called back to back, no device: what JAX costs without the loop."""
+    from plants.hardware import percentiles
+
+    counts = np.array([15480, 50256], np.int32)  # about the workspace centre
+    stepper.start(counts)
+    times = np.empty(calls)
+    for k in range(calls):
+        t0 = time.perf_counter_ns()
+        stepper.step(k, counts)
+        times[k] = time.perf_counter_ns() - t0
+    return percentiles(times / 1e3)
+
+
 def run(args) -> dict:
     from plants.errors import ManusError
     from plants.hardware import realtime_jax
@@ -126,6 +140,7 @@ def run(args) -> dict:
                 device.stop()
                 note(f"compiling {args.estimator} + {args.controller} ...")
                 stepper = build_stepper(info, args.controller, args.estimator, "rigid,viscous,coulomb", None, "benign")
+                alone = _tick_alone(stepper)
                 note(f"{args.estimator} + {args.controller}: {args.seconds:g} s at {info.rate_hz:g} Hz ...")
                 subject = _measure(device, stepper, args.seconds)
                 note(f"numpy impedance baseline: {args.baseline_seconds:g} s ...")
@@ -134,7 +149,8 @@ def run(args) -> dict:
         finally:
             proc.terminate()
             proc.wait(10)
-    figures = {"miss_fraction": subject["miss_fraction"], "compute_p50_us": subject["compute_us"]["p50"],
+    figures = {"tick_alone_p50_us": alone["p50"], "tick_alone_p99_us": alone["p99"],
+               "miss_fraction": subject["miss_fraction"], "compute_p50_us": subject["compute_us"]["p50"],
                "compute_p99_us": subject["compute_us"]["p99"], "jitter_p99_us": subject["jitter_us"]["p99"],
                "baseline_miss_fraction": baseline["miss_fraction"],
                "baseline_compute_p50_us": baseline["compute_us"]["p50"],
@@ -160,6 +176,8 @@ def render(r: dict) -> str:
     return "\n".join([
         f"hardware loop at {r['rate_hz']:g} Hz against the emulator ({r['plant']}), {r['cpus']} CPUs, "
         f"load average {r['load_average']:.2f} at the start",
+        f"  the compiled tick alone, back to back: p50 {r['figures']['tick_alone_p50_us']} µs, "
+        f"p99 {r['figures']['tick_alone_p99_us']} µs",
         line(r["subject_name"], r["subject"]),
         line(r["baseline_name"], r["baseline"]),
         f"  targets: misses < 0.1 %: {'met' if t['miss_fraction_below_0.1%'] else 'NOT met'}; "
