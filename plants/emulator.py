@@ -62,7 +62,6 @@ class Emulator:
         act = sim.actuator
         self.info = P.Info(self.n, sim.rate_hz, 2 * math.pi / float(sim.encoder.step), act.torque_per_volt, act.volts)
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:
             self.sock.bind((host, port))
         except OSError as e:
