@@ -121,11 +121,16 @@ def held_out_sse(Y: np.ndarray, tau: np.ndarray, folds) -> np.ndarray:
     """Per block, the squared error of a least-squares fit on the other blocks."""
     rows, n, P = Y.shape
     out = np.zeros(len(folds))
+    # normal equations on the scaled columns, solved by SVD (rank-deficient models keep their
+    # minimum-norm solution); einsum, not BLAS, for the tall products (see fit._Projection)
+    scale = np.sqrt(np.einsum("rnp,rnp->p", Y, Y) / (rows * n)) + 1e-300
+    Ys = Y / scale
     for k, (train, test) in enumerate(folds):
-        X = Y[train].reshape(-1, P)
-        scale = np.sqrt(np.mean(X**2, axis=0)) + 1e-300
-        coef = np.linalg.lstsq(X / scale, tau[train].reshape(-1), rcond=None)[0] / scale
-        out[k] = np.sum((tau[test] - Y[test] @ coef) ** 2)
+        G = np.einsum("rnp,rnq->pq", Ys[train], Ys[train])
+        b = np.einsum("rnp,rn->p", Ys[train], tau[train])
+        coef = np.linalg.lstsq(G, b, rcond=1e-12)[0]
+        e = tau[test] - np.einsum("rnp,p->rn", Ys[test], coef)
+        out[k] = np.einsum("rn,rn->", e, e)
     return out
 
 

@@ -425,16 +425,23 @@ class _Projection:
         self.shape = (rows, n)
         self.Q = np.linalg.qr(X / (np.sqrt(np.mean(X**2, axis=0)) + 1e-300))[0] if P else np.zeros((rows * n, 0))
 
+    # The products below are tall and thin (rows × a few columns): einsum's own loops, not BLAS,
+    # whose threads on a busy 2-core machine spin-wait far longer than these take (20x slower).
     def _perp(self, x):
-        return x - self.Q @ (self.Q.T @ x)
+        return x - np.einsum("ij,j...->i...", self.Q, np.einsum("ij,i...->j...", self.Q, x))
 
-    def rel_error(self, tau: np.ndarray, extra: np.ndarray | None = None) -> float:
+    def target(self, tau: np.ndarray) -> tuple:
+        """The torque's part outside the fixed columns and its norm², for many `rel_error` calls."""
         y = tau.reshape(-1)
-        r = self._perp(y)
+        return y, self._perp(y), float(np.einsum("i,i->", y, y))
+
+    def rel_error(self, tau: np.ndarray | tuple, extra: np.ndarray | None = None) -> float:
+        y, r, yy = tau if isinstance(tau, tuple) else self.target(tau)
         if extra is not None and extra.size:
             E = self._perp(extra.reshape(y.size, -1))
-            r = r - E @ np.linalg.lstsq(E, r, rcond=None)[0]
-        return float(np.linalg.norm(r) / np.linalg.norm(y))
+            coef = np.linalg.lstsq(np.einsum("ij,ik->jk", E, E), np.einsum("ij,i->j", E, r), rcond=1e-12)[0]
+            r = r - np.einsum("ij,j->i", E, coef)
+        return float(np.sqrt(np.einsum("i,i->", r, r) / yy))
 
 
 def _search(data: Data, cols: Columns, model: Model, e: Effect):
@@ -460,17 +467,19 @@ def _search(data: Data, cols: Columns, model: Model, e: Effect):
         # screen on unfiltered columns (sin(Nq) lies far below the cut-off at these speeds),
         # then evaluate the best few exactly
         q = data.q[data.rows]
-        screen = np.array([proj.rel_error(tau, np.concatenate([np.sin(N * q)[..., None] * np.eye(q.shape[1]),
+        target = proj.target(tau)
+        screen = np.array([proj.rel_error(target, np.concatenate([np.sin(N * q)[..., None] * np.eye(q.shape[1]),
                                                                  np.cos(N * q)[..., None] * np.eye(q.shape[1])], 2))
                            for N in grid])
         errs = screen.copy()
         for i in np.argsort(screen)[:3]:
-            errs[i] = proj.rel_error(tau, cols.effect(Cogging(order=float(grid[i]))))
+            errs[i] = proj.rel_error(target, cols.effect(Cogging(order=float(grid[i]))))
         return model.with_effect(Cogging(order=float(grid[int(np.argmin(errs))]))), (grid, errs)
     if isinstance(e, Stribeck):
         vmax = float(np.percentile(np.abs(data.qd[data.rows]), 95))
         grid = np.geomspace(max(vmax * 1e-3, 1e-9), vmax, 25)
-        errs = np.array([proj.rel_error(tau, cols.effect(Stribeck(vs=float(x)))) for x in grid])
+        target = proj.target(tau)
+        errs = np.array([proj.rel_error(target, cols.effect(Stribeck(vs=float(x)))) for x in grid])
         return model.with_effect(Stribeck(vs=float(grid[int(np.argmin(errs))]))), (grid, errs)
     raise ModelError(f"no search for effect {e.name!r}")
 
