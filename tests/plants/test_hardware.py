@@ -242,17 +242,18 @@ def test_ctrl_c_and_strangers(rigs, stepper, tmp_path):
         for _ in range(10):  # a valid sample, from the wrong address
             stranger.sendto(P.encode_sensor(10**6, 0, [0, 0]), dev.address)
 
-    timers = [threading.Timer(0.2, meddle), threading.Timer(0.5, os.kill, (os.getpid(), signal.SIGINT))]
+    # well after the loop's start (which takes up to ~0.5 s on a loaded CI machine)
+    timers = [threading.Timer(1.0, meddle), threading.Timer(1.6, os.kill, (os.getpid(), signal.SIGINT))]
     for t in timers:
         t.start()
-    r = run_loop(dev, stepper, 3.0, tmp_path / "user.csv", watchdog=0.5)
+    r = run_loop(dev, stepper, 4.0, tmp_path / "user.csv", watchdog=0.5)
     for t in timers:
         t.join()
     dev.close()
     stranger.close()
     assert r.stopped_by == "user"
     assert r.refused.get("address") == 10
-    assert 50 < r.ticks < 2900 and len(read(tmp_path / "user.csv")) == r.ticks
+    assert 50 < r.ticks < 3900 and len(read(tmp_path / "user.csv")) == r.ticks
     dev_rec, rows = _session(rigs["clean"][2])
     assert np.all(dev_rec.tau[np.flatnonzero(rows)[-1]] == 0)
 
