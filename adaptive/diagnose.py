@@ -122,7 +122,7 @@ def held_out_sse(Y: np.ndarray, tau: np.ndarray, folds) -> np.ndarray:
     rows, n, P = Y.shape
     out = np.zeros(len(folds))
     # normal equations on the scaled columns, solved by SVD (rank-deficient models keep their
-    # minimum-norm solution); einsum, not BLAS, for the tall products (see fit._Projection)
+    # minimum-norm solution); einsum, not BLAS, for the tall products (see search.Projection)
     scale = np.sqrt(np.einsum("rnp,rnp->p", Y, Y) / (rows * n)) + 1e-300
     Ys = Y / scale
     for k, (train, test) in enumerate(folds):
