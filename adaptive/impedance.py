@@ -9,7 +9,6 @@ set point (q̇_d = 0) this is the thesis's τ = k(x_d − x) − b_c v̂. The co
 
 from __future__ import annotations
 
-import equinox as eqx
 import jax.numpy as jnp
 from jax import Array
 

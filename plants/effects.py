@@ -37,7 +37,6 @@ and say so.
 
 from __future__ import annotations
 
-import abc
 import re
 from typing import ClassVar
 

@@ -35,7 +35,6 @@ def _timed(f, *args):
 def run(args) -> dict:
     import equinox as eqx
     import jax
-    import jax.numpy as jnp
 
     from adaptive.slotine_li import rollout
     from plants import Model, Simulator
