@@ -104,5 +104,13 @@ class Projection(eqx.Module):
             return theta
         i, j, k = self.cone
         eps, g = self.min_inertia, gamma
-        u, v, w = project_psd2(theta[i] - eps, theta[j], theta[k] - eps, g[i], g[j], g[k])
-        return theta.at[i].set(u + eps).at[j].set(v).at[k].set(w + eps)
+        u, v, w = theta[i] - eps, theta[j], theta[k] - eps
+
+        def onto_cone():
+            pu, pv, pw = project_psd2(u, v, w, g[i], g[j], g[k])
+            return theta.at[i].set(pu + eps).at[j].set(pv).at[k].set(pw + eps)
+
+        # inside, the cone leaves θ as it is: the search (most of a real-time tick) runs only
+        # when the estimate leaves it (under vmap `cond` becomes a select and both run)
+        inside = (u >= 0) & (w >= 0) & (u * w >= v * v)
+        return jax.lax.cond(inside, lambda: theta, onto_cone)

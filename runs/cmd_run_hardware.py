@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import functools
 import json
 from pathlib import Path
 
@@ -41,40 +40,6 @@ def reference_for(name: str, structure: str, n: int):
             "multisine": lambda: MultiSine(centre)}[name]()
 
 
-def realtime(controller):
-    """The controller with its parameter projection computed only when the estimate leaves the
-    admissible set (`lax.cond`): the same numbers, at a fraction of the per-tick cost (the
-    exact projection's grid and golden-section search otherwise run every tick, about 60 % of
-    a Kalman + Slotine-Li tick, measured)."""
-    import equinox as eqx
-
-    projection = getattr(controller, "projection", None)
-    if projection is None or getattr(projection, "cone", None) is None:
-        return controller
-    return eqx.tree_at(lambda c: c.projection, controller, _gated_projection()(projection))
-
-
-@functools.cache
-def _gated_projection():
-    """The class, built on first use (this module is imported before JAX is configured)."""
-    import equinox as eqx
-    import jax
-    import jax.numpy as jnp
-
-    class GatedProjection(eqx.Module):
-        inner: eqx.Module  # an adaptive.projection.Projection with a cone (manus2)
-
-        def __call__(self, theta, gamma):
-            p = self.inner
-            clipped = jnp.maximum(theta, p.lower)  # the box part, as Projection does first
-            i, j, k = p.cone
-            u, v, w = clipped[i] - p.min_inertia, clipped[j], clipped[k] - p.min_inertia
-            inside = (u >= 0) & (w >= 0) & (u * w >= v * v)  # then the cone leaves it unchanged
-            return jax.lax.cond(inside, lambda: clipped, lambda: p(theta, gamma))
-
-    return GatedProjection
-
-
 def build_stepper(info, controller: str, estimator: str, model_spec: str, structure: str | None, reference: str,
                   torque_limit: float | None = None):
     """The compiled tick of `controller` + `estimator` for the device described by `info`, warmed up."""
@@ -93,7 +58,7 @@ def build_stepper(info, controller: str, estimator: str, model_spec: str, struct
     if not limit > 0:
         raise ManusError(f"--torque-limit must be positive, got {torque_limit}")
     gains = {} if controller == "impedance" else {"limit": limit}
-    c = realtime(make_controller(controller, model, dt, estimator=estimator, **gains))
+    c = make_controller(controller, model, dt, estimator=estimator, **gains)
     tick = CompiledTick(c, reference_for(reference, structure, n), dt, info.counts_per_rev, n, limit)
     tick.warm_up()
     return tick
