@@ -216,12 +216,27 @@ def test_lost_and_garbage_packets_are_counted_and_the_run_goes_on(rigs, stepper,
     assert max(r.tracking_rms) < 5e-3
 
 
+def after_ticks(path: Path, ticks: int, action, timeout: float = 20.0) -> threading.Thread:
+    """Run `action` once the loop's recording holds `ticks` rows (it is flushed every 0.1 s):
+    faults are injected into a running loop however long its start took on a loaded machine."""
+    def wait():
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if path.exists() and path.read_text().count("\n") > ticks:
+                break
+            time.sleep(0.01)
+        action()
+
+    thread = threading.Thread(target=wait, daemon=True)
+    thread.start()
+    return thread
+
+
 def test_the_emulator_stopping_mid_run_trips_both_watchdogs(rigs, stepper, tmp_path):
     proc, port, log = rigs["clean"]
     dev = _device(rigs, "clean")
-    freeze = threading.Timer(0.5, lambda: (os.kill(proc.pid, signal.SIGSTOP),
-                                           threading.Timer(1.0, os.kill, (proc.pid, signal.SIGCONT)).start()))
-    freeze.start()
+    freeze = after_ticks(tmp_path / "frozen.csv", 300, lambda: (os.kill(proc.pid, signal.SIGSTOP), time.sleep(1.0),
+                                                                 os.kill(proc.pid, signal.SIGCONT)))
     r = run_loop(dev, stepper, 3.0, tmp_path / "frozen.csv", watchdog=0.55)
     dev.close()
     freeze.join()
@@ -242,10 +257,8 @@ def test_ctrl_c_and_strangers(rigs, stepper, tmp_path):
         for _ in range(10):  # a valid sample, from the wrong address
             stranger.sendto(P.encode_sensor(10**6, 0, [0, 0]), dev.address)
 
-    # well after the loop's start (which takes up to ~0.5 s on a loaded CI machine)
-    timers = [threading.Timer(1.0, meddle), threading.Timer(1.6, os.kill, (os.getpid(), signal.SIGINT))]
-    for t in timers:
-        t.start()
+    timers = [after_ticks(tmp_path / "user.csv", 200, lambda: (meddle(), time.sleep(0.5),
+                                                               os.kill(os.getpid(), signal.SIGINT)))]
     r = run_loop(dev, stepper, 4.0, tmp_path / "user.csv", watchdog=0.5)
     for t in timers:
         t.join()
