@@ -102,8 +102,6 @@ def discover(rec: Recording | fitting.Data, model: str, cutoff_hz: float | None 
         raise ModelError(f"max_steps must be at least 1 (got {max_steps})")
     say = progress or (lambda line: None)
     data = rec if isinstance(rec, fitting.Data) else fitting.prepare(rec, cutoff_hz)
-    if not hasattr(data, "structure"):  # diagnose() (in progress) reads data.structure, which Data lacks
-        data.structure = data.rec.structure
     cols = fitting.Columns(data)
     start = fitting.fit(data, model, columns=cols)
     current = start
