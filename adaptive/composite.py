@@ -60,8 +60,8 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
-from adaptive.regressors import Regressor
-from plants.errors import ModelError
+from manus.adaptive.regressors import Regressor
+from manus.plants.errors import ModelError
 
 
 class CompositeState(NamedTuple):

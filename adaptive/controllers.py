@@ -5,35 +5,35 @@ controller by name.
 
 | name | controller | gains (keywords) |
 |---|---|---|
-| `impedance` | `adaptive.impedance.Impedance`: τ = K (q_d − q) + B (q̇_d − v̂) | stiffness, damping, limit |
-| `slotine-li` | `adaptive.slotine_li.SlotineLi`, gradient law | gamma, lam, kd, theta0, form, boundary, project, min_inertia, lead, velocity_lag, limit |
+| `impedance` | `manus.adaptive.impedance.Impedance`: τ = K (q_d − q) + B (q̇_d − v̂) | stiffness, damping, limit |
+| `slotine-li` | `manus.adaptive.slotine_li.SlotineLi`, gradient law | gamma, lam, kd, theta0, form, boundary, project, min_inertia, lead, velocity_lag, limit |
 | `slotine-li-composite` | the same with composite adaptation (least-squares gain) | as slotine-li, plus bandwidth, weight, forgetting |
 
-`estimator` is an `estimators.base.Estimator`, a name in `estimators.NAMES` (a model-based one,
+`estimator` is a `manus.estimators.base.Estimator`, a name in `manus.estimators.NAMES` (a model-based one,
 `kalman_model` or `luenberger_model`, is built on the controller's model, and Slotine–Li hands it
 its current estimates every tick), or None (each controller's default). Every controller
-returned is a `plants.stepper.Controller`.
+returned is a `manus.plants.stepper.Controller`.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-import estimators
-from adaptive.composite import Composite
-from adaptive.impedance import Impedance
-from adaptive.slotine_li import SlotineLi
-from estimators.base import Estimator
-from plants.effects import Model
-from plants.errors import ManusError
-from plants.stepper import Controller
+from manus import estimators
+from manus.adaptive.composite import Composite
+from manus.adaptive.impedance import Impedance
+from manus.adaptive.slotine_li import SlotineLi
+from manus.estimators.base import Estimator
+from manus.plants.effects import Model
+from manus.plants.errors import ManusError
+from manus.plants.stepper import Controller
 
 NAMES = ("impedance", "slotine-li", "slotine-li-composite")
 COMPOSITE_KNOBS = ("bandwidth", "weight", "forgetting")
 
 
 def make_estimator(name: str, dt: float, model: Model, **knobs) -> Estimator:
-    """The estimator called `name` (`estimators.NAMES`) for a controller of `model`; a model-based
+    """The estimator called `name` (`manus.estimators.NAMES`) for a controller of `model`; a model-based
     one (`*_model`) predicts with that model, and the controller hands it its estimates."""
     if name.endswith("_model"):
         knobs.setdefault("model", model)
@@ -46,7 +46,7 @@ def make_controller(name: str, model: Model, dt: float, estimator: Estimator | s
     if name not in NAMES:
         raise ManusError(f"unknown controller {name!r}: expected one of {', '.join(NAMES)}")
     if not isinstance(model, Model):
-        raise ManusError(f"make_controller needs a plants.effects.Model, not {type(model).__name__}")
+        raise ManusError(f"make_controller needs a manus.plants.effects.Model, not {type(model).__name__}")
     if isinstance(estimator, str):
         estimator = make_estimator(estimator, dt, model)
     if name == "impedance":

@@ -18,7 +18,7 @@ The verdict is chosen in three steps:
 2. the one-standard-error rule: a simpler candidate (fewer parameters) whose held-out error is
    within one standard error of it (over the blocks) is preferred: an offset and a gravity term
    on a small swing fit alike, and the offset is the simpler story;
-3. the nested rule (DESIGN.md §3: effects overlap, and where one contains another the simpler
+3. the nested rule (docs/effects.md: effects overlap, and where one contains another the simpler
    explanation comes first): when the base model plus the chosen effect reproduces a simpler
    significant candidate's columns exactly (relative residual under `NESTED_RTOL` on the rows
    used), that candidate is proposed instead, even when the bigger one fits better; the bigger
@@ -34,7 +34,7 @@ The verdict is chosen in three steps:
 Candidates that explain the same thing as the verdict are marked `overlaps` (with the verdict
 added, they remove little more), with a note saying which fits better and by how much.
 
-`compliance` is judged in the frequency band where it lives (see `adaptive.modes`).
+`compliance` is judged in the frequency band where it lives (see `manus.adaptive.modes`).
 """
 
 from __future__ import annotations
@@ -44,11 +44,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
-from adaptive import fit as fitting
-from adaptive import modes
-from plants.effects import ORDER, VOCABULARY, Model
-from plants.errors import ModelError
-from plants.recording import Recording
+from manus.adaptive import fit as fitting
+from manus.adaptive import modes
+from manus.plants.effects import ORDER, VOCABULARY, Model
+from manus.plants.errors import ModelError
+from manus.plants.recording import Recording
 
 BLOCKS = 10
 ALPHA = 0.01

@@ -1,6 +1,6 @@
 """The discovery loop (`manus discover`): diagnose, add the verdict, refit, repeat.
 
-Starting from a model, each step diagnoses the current fit (`adaptive.diagnose`), adds the
+Starting from a model, each step diagnoses the current fit (`manus.adaptive.diagnose`), adds the
 verdict's effect with its non-linear parameter as found (its spec, e.g. `cogging:39` or
 `delay:1ms`, so later fits hold it fixed instead of searching again) and refits. The loop stops
 when the verdict is null (nothing significant is missing), after `max_steps` additions, or when
@@ -8,7 +8,7 @@ the verdict is `compliance`: a structural mode lives above the identification ba
 inverse-dynamics columns, so it is recorded as a step (with the frequency response's f and ζ) but
 cannot be refitted, and the loop ends there.
 
-The recording is prepared once (`adaptive.fit.prepare`): every step sees the same rows, so the
+The recording is prepared once (`manus.adaptive.fit.prepare`): every step sees the same rows, so the
 errors of successive steps are comparable.
 """
 
@@ -17,10 +17,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Callable
 
-from adaptive import fit as fitting
-from adaptive.diagnose import Candidate, Diagnosis, diagnose
-from plants.errors import ModelError
-from plants.recording import Recording
+from manus.adaptive import fit as fitting
+from manus.adaptive.diagnose import Candidate, Diagnosis, diagnose
+from manus.plants.errors import ModelError
+from manus.plants.recording import Recording
 
 MAX_STEPS = 6
 
@@ -97,7 +97,7 @@ def effect_params(f: fitting.Fit, effect: str) -> dict:
 def discover(rec: Recording | fitting.Data, model: str, cutoff_hz: float | None = None,
              max_steps: int = MAX_STEPS, progress: Callable[[str], None] | None = None, **diagnose_options) -> Discovery:
     """Run the loop from `model` (text, e.g. "rigid,viscous,coulomb"). `progress` receives a line
-    per step; `diagnose_options` go to `adaptive.diagnose.diagnose` (blocks, alpha, min_reduction)."""
+    per step; `diagnose_options` go to `manus.adaptive.diagnose.diagnose` (blocks, alpha, min_reduction)."""
     if max_steps < 1:
         raise ModelError(f"max_steps must be at least 1 (got {max_steps})")
     say = progress or (lambda line: None)

@@ -17,7 +17,7 @@ The recorded commands and positions are prepared once (`prepare`):
   samples per cut-off period (neighbouring rows of a low-passed signal carry no new information,
   and the standard deviations are computed from the decimated rows).
 
-The model's regressor is the stack of its effects' columns (`plants.effects`, ∂torque/∂θ), so
+The model's regressor is the stack of its effects' columns (`manus.plants.effects`, ∂torque/∂θ), so
 candidate models share the columns computed once (`Columns`). The least-squares solution names
 redundant parameters (a column that the earlier ones already explain) instead of failing, and
 reports each parameter's standard deviation from a heteroscedasticity- and
@@ -34,11 +34,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from adaptive.search import search as search_parameter
-from estimators.offline import differentiate, edge, lowpass
-from plants.effects import Effect, Model
-from plants.errors import ModelError
-from plants.recording import Recording
+from manus.adaptive.search import search as search_parameter
+from manus.estimators.offline import differentiate, edge, lowpass
+from manus.plants.effects import Effect, Model
+from manus.plants.errors import ModelError
+from manus.plants.recording import Recording
 
 MIN_CUTOFF_HZ = 10.0
 STANDSTILL_S = 0.005  # longer under two counts per band period than a zero crossing takes: at rest
@@ -283,7 +283,7 @@ class Fit:
         return self.data.tau(self.delay) - self.residual
 
     def report(self) -> dict:
-        """The JSON contract of `manus fit` (DESIGN.md §4)."""
+        """The JSON contract of `manus fit` (docs/cli.md)."""
         params = {k: {"value": float(v), "std": None if not np.isfinite(s) else float(s)}
                   for k, v, s in zip(self.names, self.theta, self.std)}
         nonlinear = {k: v for e in self.model.effects for k, v in e.describe().items()}

@@ -12,8 +12,8 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jax import Array
 
-from estimators.base import Estimator, FilteredFirstDifference
-from plants.stepper import Controller, RefSample
+from manus.estimators.base import Estimator, FilteredFirstDifference
+from manus.plants.stepper import Controller, RefSample
 
 
 class Impedance(Controller):

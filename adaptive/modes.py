@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import signal
 
-from plants.effects import Compliance
+from manus.plants.effects import Compliance
 
 BAND = (40.0, 450.0)  # Hz
 MIN_COHERENCE = 0.5  # bins below this carry no usable frequency response

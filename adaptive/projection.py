@@ -32,10 +32,10 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from adaptive.regressors import owners
-from plants.effects import Model
-from plants.errors import ModelError
-from plants.structures import Axis, Manus2
+from manus.adaptive.regressors import owners
+from manus.plants.effects import Model
+from manus.plants.errors import ModelError
+from manus.plants.structures import Axis, Manus2
 
 NONNEGATIVE = ("viscous", "coulomb", "stribeck")
 GRID = 32

@@ -1,5 +1,5 @@
 """Regressors for adaptive control: Y with Y θ = the torque a model asks for along a *reference*
-motion, built from the same effect definitions as the simulator and the fit (`plants.effects`).
+motion, built from the same effect definitions as the simulator and the fit (`manus.plants.effects`).
 
 Slotine–Li form (`form="slotine-li"`, the default). With the reference velocity and acceleration
 
@@ -45,8 +45,8 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
-from plants.effects import Model
-from plants.errors import ModelError
+from manus.plants.effects import Model
+from manus.plants.errors import ModelError
 
 FORMS = ("slotine-li", "thesis")
 DEFAULT_BOUNDARY = 0.01  # φ [rad/s]: under 1 % of the complex trajectory's peak speed
@@ -70,7 +70,7 @@ class Regressor(eqx.Module):
 
     def __init__(self, model: Model, form: str = "slotine-li", boundary: float = DEFAULT_BOUNDARY):
         if not isinstance(model, Model):
-            raise ModelError(f"a regressor needs a plants.effects.Model, not {type(model).__name__}")
+            raise ModelError(f"a regressor needs a manus.plants.effects.Model, not {type(model).__name__}")
         if form not in FORMS:
             raise ModelError(f"unknown regressor form {form!r}: expected one of {', '.join(FORMS)}")
         if not model.has("rigid"):

@@ -1,5 +1,5 @@
 """Search of a model's non-linear parameters (the cogging order, the Stribeck velocity, the
-delay) for `adaptive.fit`: a grid of least-squares fits, each cheap because the columns that do
+delay) for `manus.adaptive.fit`: a grid of least-squares fits, each cheap because the columns that do
 not change are projected out once (`Projection`)."""
 
 from __future__ import annotations
@@ -8,11 +8,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from plants.effects import Cogging, Delay, Effect, Model, Stribeck
-from plants.errors import ModelError
+from manus.plants.effects import Cogging, Delay, Effect, Model, Stribeck
+from manus.plants.errors import ModelError
 
 if TYPE_CHECKING:
-    from adaptive.fit import Columns, Data
+    from manus.adaptive.fit import Columns, Data
 
 
 class Projection:

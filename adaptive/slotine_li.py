@@ -2,16 +2,16 @@
 
 Each control tick (period T), from the measured position q and the reference (q_d, q̇_d, q̈_d):
 
-    v̂           = the velocity estimator's estimate of q̇ (any `estimators.base.Estimator`)
+    v̂           = the velocity estimator's estimate of q̇ (any `manus.estimators.base.Estimator`)
     q̃ = q − q_d,  s = (v̂ − q̇_d) + Λ q̃              tracking error (rad/s)
     q̇_r = q̇_d − Λ q̃,  q̈_r = q̈_d − Λ (v̂ − q̇_d)      reference velocity and acceleration
     τ = Y â − K_D s                                   command [N·m], clipped to ±`limit`
     â ← P(â − T Γ (Yᵀ s [+ κ Wᵀ e]))                  forward Euler at the control rate, projected
 
-Y = Y(q, v̂, q̇_r, q̈_r) is `adaptive.regressors.Regressor` (Slotine–Li or the thesis's form,
-friction columns at q̇_r), P the projection of `adaptive.projection` (H(q) positive definite,
+Y = Y(q, v̂, q̇_r, q̈_r) is `manus.adaptive.regressors.Regressor` (Slotine–Li or the thesis's form,
+friction columns at q̇_r), P the projection of `manus.adaptive.projection` (H(q) positive definite,
 friction ≥ 0; optional), and the bracketed term the prediction error of composite adaptation
-(`adaptive.composite`; optional). The command uses the estimate â of this tick, before it is
+(`manus.adaptive.composite`; optional). The command uses the estimate â of this tick, before it is
 updated. Signs: positive torque accelerates the joint positively; q̃ > 0 means ahead of the
 reference.
 
@@ -24,7 +24,7 @@ parameter scales with γ_i times the mean square of its column, and the friction
 friction estimates of the gradient law ring and drift (up to +16 % on Fc1 in the mean of 20 trials)
 and let the composite law's early transient throw some trials far off (measured). The velocity estimator defaults to the
 constant-velocity Kalman filter (`kalman_cv`): the thesis used the first difference, which works
-with the gradient law but is too noisy for composite adaptation (`adaptive.composite`).
+with the gradient law but is too noisy for composite adaptation (`manus.adaptive.composite`).
 
 Timing. A sampled loop is late twice, and both biases the estimates, not only the tracking:
 
@@ -44,7 +44,7 @@ Safety: a non-finite velocity estimate, measurement, command or estimate stops t
 for good: zero torque from that tick on, the estimates frozen at their last finite values, the
 run (and its data) carried on by whoever runs the loop.
 
-The same object runs in the JAX simulator (`plants.closed_loop`, or `rollout` below, which also
+The same object runs in the JAX simulator (`manus.plants.closed_loop`, or `rollout` below, which also
 logs the estimates), over recorded positions (`replay`), and jitted once in a real-time loop.
 """
 
@@ -58,15 +58,15 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from adaptive.composite import Composite, CompositeState
-from adaptive.projection import Projection
-from adaptive.regressors import DEFAULT_BOUNDARY, Regressor, owners
-import estimators
-from estimators.base import Estimator, run
-from plants.effects import Model
-from plants.errors import ManusError
-from plants.stepper import Controller, Plant, Reference, RefSample
-from plants.structures import Manus2
+from manus.adaptive.composite import Composite, CompositeState
+from manus.adaptive.projection import Projection
+from manus.adaptive.regressors import DEFAULT_BOUNDARY, Regressor, owners
+from manus import estimators
+from manus.estimators.base import Estimator, run
+from manus.plants.effects import Model
+from manus.plants.errors import ManusError
+from manus.plants.stepper import Controller, Plant, Reference, RefSample
+from manus.plants.structures import Manus2
 
 # Γ per effect [units of the parameter² per (N·m·rad)]; rigid of MANUS-2 from the thesis.
 GAINS = {"rigid": 0.2, "viscous": 5.0, "coulomb": 5.0, "stribeck": 5.0, "asymmetry": 5.0,
@@ -74,7 +74,7 @@ GAINS = {"rigid": 0.2, "viscous": 5.0, "coulomb": 5.0, "stribeck": 5.0, "asymmet
 THESIS_RIGID_GAINS = (0.2, 0.2, 0.5)  # Γ1, Γ2, Γ3 for a1, a2, a3 (thesis App. C)
 LAMBDA, KD = 5.0, 5.0  # Λ [1/s], K_D [N·m·s/rad] (thesis App. C)
 DEFAULT_ESTIMATOR = "kalman_cv"  # see the module docstring
-LIMIT = 22.2  # N·m: the D/A and amplifier chain's largest torque (plants.simulator.Actuator)
+LIMIT = 22.2  # N·m: the D/A and amplifier chain's largest torque (manus.plants.simulator.Actuator)
 
 
 class SlotineLiState(NamedTuple):
@@ -179,7 +179,7 @@ class SlotineLi(Controller):
             raise ManusError(f"control period dt must be positive, got {dt}")
         self.estimator = estimators.make(DEFAULT_ESTIMATOR, dt) if estimator is None else estimator
         if not isinstance(self.estimator, Estimator):
-            raise ManusError(f"estimator must be an estimators.base.Estimator, not {type(self.estimator).__name__}")
+            raise ManusError(f"estimator must be a manus.estimators.base.Estimator, not {type(self.estimator).__name__}")
         if not np.isclose(self.estimator.dt, dt):
             raise ManusError(f"the velocity estimator runs at dt = {self.estimator.dt:g} s but the controller "
                              f"at {dt:g} s")

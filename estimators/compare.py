@@ -20,12 +20,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from estimators import offline, scoring
-from estimators.base import Estimate, run
-from estimators.linear import THESIS_STEP
-from estimators.registry import MODEL_BASED, NAMES, knob_range, make
-from plants.errors import ManusError
-from plants.recording import Recording
+from manus.estimators import offline, scoring
+from manus.estimators.base import Estimate, run
+from manus.estimators.linear import THESIS_STEP
+from manus.estimators.registry import MODEL_BASED, NAMES, knob_range, make
+from manus.plants.errors import ManusError
+from manus.plants.recording import Recording
 
 START_SECONDS = 0.1  # skipped when scoring: every estimator starts from rest
 GRID_POINTS, GRID_ROUNDS = 13, 3
@@ -125,7 +125,7 @@ def compare(rec: Recording, names=NAMES, tune_knobs: bool = False, cutoff_hz: fl
             model_knobs: dict | None = None, progress=None) -> tuple[dict, dict]:
     """Run and score every estimator in `names` on the recording.
 
-    Returns (report, estimates): the report is JSON-ready (DESIGN.md §4), `estimates[name]` the
+    Returns (report, estimates): the report is JSON-ready (docs/cli.md), `estimates[name]` the
     velocity estimate (T, n), with `estimates["reference"]` the reference.
     """
     unknown = [n for n in names if n not in NAMES]

@@ -1,7 +1,7 @@
 """The plant model inside the model-based estimators (`kalman_model`, `luenberger_model`).
 
 Forward dynamics from the effect vocabulary, nothing re-defined: with the model's torque
-τ_model(q, q̇, q̈; θ) = H(q) q̈ + C(q, q̇) q̇ + (the other effects) (`plants.effects.Model.torque`),
+τ_model(q, q̇, q̈; θ) = H(q) q̈ + C(q, q̇) q̇ + (the other effects) (`manus.plants.effects.Model.torque`),
 
     q̈ = H(q)⁻¹ (τ − τ_model(q, q̇, 0; θ))
 
@@ -25,9 +25,9 @@ import equinox as eqx
 import jax.numpy as jnp
 from jax import Array
 
-from estimators.base import Estimator
-from plants.effects import Delay, Model
-from plants.errors import ManusError, ModelError
+from manus.estimators.base import Estimator
+from manus.plants.effects import Delay, Model
+from manus.plants.errors import ManusError, ModelError
 
 
 class ModelDynamics(eqx.Module):

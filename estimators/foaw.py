@@ -26,8 +26,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from estimators.base import Estimate, Estimator
-from estimators.linear import THESIS_STEP
+from manus.estimators.base import Estimate, Estimator
+from manus.estimators.linear import THESIS_STEP
 
 
 class Foaw(Estimator):

@@ -12,7 +12,7 @@ Units: `q` is [position² / s³] for the constant-velocity model (white accelera
 The bandwidth of the filter is ω = (q / (R T))^(1/2d) (the continuous steady-state filter of a
 d-fold integrator has its poles on a Butterworth pattern of that radius), so q = ω^(2d) R T.
 The default ω gives the velocity the quantization noise of the thesis's filtered first
-difference (`estimators.linear`): about 290 rad/s (constant acceleration) and 460 rad/s
+difference (`manus.estimators.linear`): about 290 rad/s (constant acceleration) and 460 rad/s
 (constant velocity) at 1 kHz. It scales with Δ, so the same default suits radians and metres.
 
 The covariance update is the Joseph form, P = (I − K H) P̄ (I − K H)ᵀ + K R Kᵀ, which stays
@@ -34,8 +34,8 @@ import numpy as np
 import scipy.linalg
 from jax import Array
 
-from estimators.base import Estimate, Estimator
-from estimators.linear import equal_noise_bandwidth, quantization_variance
+from manus.estimators.base import Estimate, Estimator
+from manus.estimators.linear import equal_noise_bandwidth, quantization_variance
 
 
 def transition(order: int, dt: float) -> np.ndarray:

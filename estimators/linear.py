@@ -17,8 +17,8 @@ import numpy as np
 import scipy.linalg
 import scipy.optimize
 
-from estimators.base import FilteredFirstDifference
-from plants.simulator import Encoder
+from manus.estimators.base import FilteredFirstDifference
+from manus.plants.simulator import Encoder
 
 THESIS_CORNER = FilteredFirstDifference().corner  # λ = 188.5 rad/s, the thesis's 30 Hz (eq. 3.19)
 THESIS_STEP = Encoder().step  # Δ = 2π/131072 rad, the thesis's encoder (§2.6)

@@ -8,7 +8,7 @@ sample just taken):
     q̂ ← q̄ + l₁ e,   q̂̇ ← v̄ + l₂ e
 
 a = 0 for the kinematic observer (a double integrator); the model-based one takes a from the plant
-model and the commanded torque (`estimators.dynamics`), so that it follows accelerations
+model and the commanded torque (`manus.estimators.dynamics`), so that it follows accelerations
 without the lag a kinematic observer needs to see them.
 
 Gains by pole placement: the error of the kinematic observer evolves as e ← (I − L H) F e, whose
@@ -19,7 +19,7 @@ z = exp(−ω T), a critically damped pair at the bandwidth ω [rad/s] (the knob
 
 The model-based observer uses the same gains; its error poles move by the model's own dynamics
 (T ∂a/∂(q, q̇), small against ω for a rigid arm). Default ω: the velocity carries the
-quantization noise of the thesis's filtered first difference (`estimators.linear`).
+quantization noise of the thesis's filtered first difference (`manus.estimators.linear`).
 """
 
 from __future__ import annotations
@@ -32,10 +32,10 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from estimators.base import Estimate
-from estimators.dynamics import ModelBased, ModelDynamics
-from estimators.kalman import transition
-from estimators.linear import equal_noise_bandwidth
+from manus.estimators.base import Estimate
+from manus.estimators.dynamics import ModelBased, ModelDynamics
+from manus.estimators.kalman import transition
+from manus.estimators.linear import equal_noise_bandwidth
 
 
 def gains(bandwidth: float, dt: float) -> np.ndarray:
@@ -65,7 +65,7 @@ class Luenberger(ModelBased):
     """The observer of the module docstring; `dynamics=None` makes it kinematic.
 
     Build a model-based one with `Luenberger(dt, dynamics=ModelDynamics(model, dt), theta0=θ)`
-    (or `estimators.make("luenberger_model", model=..., params=...)`).
+    (or `manus.estimators.make("luenberger_model", model=..., params=...)`).
     """
 
     dt: float = eqx.field(static=True)

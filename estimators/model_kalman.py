@@ -2,7 +2,7 @@
 joints together, predicting with the plant model and the commanded torque.
 
 State x = (q₁..qₙ, q̇₁..q̇ₙ). Over one period T, at the model's acceleration
-a = H(q)⁻¹(τ − τ_model(q, q̇, 0; θ)) (`estimators.dynamics`, θ in the state):
+a = H(q)⁻¹(τ − τ_model(q, q̇, 0; θ)) (`manus.estimators.dynamics`, θ in the state):
 
     x̄ = f(x) = (q + T q̇ + ½T² a, q̇ + T a),   F = ∂f/∂x (forward-mode, exact)
     P̄ = F P Fᵀ + q Q₁ ⊗ Iₙ,   Q₁ = [[T³/3, T²/2], [T²/2, T]]
@@ -30,10 +30,10 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from estimators.base import Estimate
-from estimators.dynamics import ModelBased, ModelDynamics
-from estimators.kalman import bandwidth_noise, default_bandwidth, steady_state, white_noise_covariance
-from estimators.linear import quantization_variance
+from manus.estimators.base import Estimate
+from manus.estimators.dynamics import ModelBased, ModelDynamics
+from manus.estimators.kalman import bandwidth_noise, default_bandwidth, steady_state, white_noise_covariance
+from manus.estimators.linear import quantization_variance
 
 
 def _inverse(S: Array) -> Array:

@@ -8,7 +8,7 @@
 Defaults are the thesis's where it has them: λ = 188.5 rad/s for the filtered first difference,
 measurement noise Δ²/12 of an encoder of step Δ = 2π/131072 rad (`step=` for another one), and
 the Kalman filters' and observers' bandwidths at the noise of the thesis's filter
-(`estimators.linear`). The model-based estimators take a `plants.effects.Model` (default: the
+(`manus.estimators.linear`). The model-based estimators take a `manus.plants.effects.Model` (default: the
 thesis's nominal model rigid,viscous,coulomb of the structure, manus2 for 2 joints, axis
 otherwise) and its parameters (default `Model.defaults()`), which `with_params` replaces in the
 state.
@@ -18,17 +18,17 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from estimators.base import Estimator, FilteredFirstDifference, FirstDifference
-from estimators.dynamics import ModelDynamics
-from estimators.foaw import Foaw
-from estimators.kalman import KinematicKalman
-from estimators.linear import THESIS_STEP, quantization_variance
-from estimators.luenberger import Luenberger
-from estimators.model_kalman import ModelKalman
-from estimators.sliding import Levant
-from plants.effects import Model
-from plants.errors import ManusError
-from plants.structures import structure_named
+from manus.estimators.base import Estimator, FilteredFirstDifference, FirstDifference
+from manus.estimators.dynamics import ModelDynamics
+from manus.estimators.foaw import Foaw
+from manus.estimators.kalman import KinematicKalman
+from manus.estimators.linear import THESIS_STEP, quantization_variance
+from manus.estimators.luenberger import Luenberger
+from manus.estimators.model_kalman import ModelKalman
+from manus.estimators.sliding import Levant
+from manus.plants.effects import Model
+from manus.plants.errors import ManusError
+from manus.plants.structures import structure_named
 
 NOMINAL_MODEL = "rigid,viscous,coulomb"  # the thesis's nominal model (§3.5)
 

@@ -20,8 +20,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from estimators.base import run
-from estimators.registry import MODEL_BASED, make
+from manus.estimators.base import run
+from manus.estimators.registry import MODEL_BASED, make
 
 _run_each = eqx.filter_jit(eqx.filter_vmap(run, in_axes=(None, 0, 0)))  # one joint, many signals
 

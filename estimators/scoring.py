@@ -1,7 +1,7 @@
 """How good a velocity estimate is: error while moving and while still, lag, noise, whiteness.
 
 All functions take numpy arrays (T, n) and return plain floats. `reference` is the true velocity
-when a recording has one, else the offline zero-phase estimate (`estimators.offline`).
+when a recording has one, else the offline zero-phase estimate (`manus.estimators.offline`).
 
 - **error**: estimate − reference; RMS and max over all joints, also separately over the samples
   where the reference moves and where it holds still (|reference| under `still_threshold`).

@@ -33,7 +33,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jax import Array
 
-from estimators.base import Estimate, Estimator
+from manus.estimators.base import Estimate, Estimator
 
 K1, K2 = 1.5, 1.1  # Levant (2003): λ₀ = 1.5, λ₁ = 1.1 for the first-order differentiator
 

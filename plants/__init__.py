@@ -1,10 +1,10 @@
 """The world: physical effects, the JAX simulator, closed-loop simulation, recordings."""
 
-from plants.effects import VOCABULARY, Effect, Model, parse_effects
-from plants.errors import ManusError, ModelError, RecordingError
-from plants.simulator import Actuator, Encoder, Simulator
-from plants.stepper import Controller, Plant, Reference, RefSample
-from plants.structures import Axis, Manus2, Structure, structure_named
+from manus.plants.effects import VOCABULARY, Effect, Model, parse_effects
+from manus.plants.errors import ManusError, ModelError, RecordingError
+from manus.plants.simulator import Actuator, Encoder, Simulator
+from manus.plants.stepper import Controller, Plant, Reference, RefSample
+from manus.plants.structures import Axis, Manus2, Structure, structure_named
 
 __all__ = [
     "VOCABULARY", "Effect", "Model", "parse_effects", "ManusError", "ModelError", "RecordingError",

@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from plants.stepper import Controller, Plant, Reference
+from manus.plants.stepper import Controller, Plant, Reference
 
 
 class Trajectory(NamedTuple):
@@ -106,7 +106,7 @@ def simulate_batch(plant: Plant, controller: Controller, reference: Reference, s
 
     The trials are vmapped inside the time scan (every per-trial scalar becomes a batch
     vector) and, when B divides the number of devices, split over the devices (`shard_map`;
-    `--xla_force_host_platform_device_count` makes each CPU core one, see `runs.cli`).
+    `--xla_force_host_platform_device_count` makes each CPU core one, see `manus.runs.cli`).
     """
     steps = int(round(seconds / plant.dt))
     unknown = set(batched) - {"plant", "controller", "reference"}

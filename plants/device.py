@@ -7,7 +7,7 @@
     device.stop(); device.close()                # zero torque, end of session
 
 The device owns the clock: it samples the encoders at its rate and streams SENSOR packets; the
-host answers each with a COMMAND before the next sample (see `plants.protocol`). Another
+host answers each with a COMMAND before the next sample (see `manus.plants.protocol`). Another
 transport (a serial line, shared memory to a real-time target) replaces `UdpDevice` by
 implementing `Device`. Every packet refused (another sender, wrong length, version, magic,
 kind, joint count or CRC, out of order) is counted in `refused` by reason, never acted on.
@@ -24,8 +24,8 @@ from urllib.parse import urlparse
 
 import numpy as np
 
-from plants import protocol as P
-from plants.errors import ManusError
+from manus.plants import protocol as P
+from manus.plants.errors import ManusError
 
 SPIN_NS = 1_000_000  # busy-wait from 1 ms before an expected packet (see `UdpDevice.receive`)
 WARM_GAP_NS, WARM_EVERY_NS = 150_000, 60_000  # `idle` calls stop this long before the expected packet

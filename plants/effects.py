@@ -1,4 +1,4 @@
-"""The vocabulary of physical effects (DESIGN.md §3), each defined once.
+"""The vocabulary of physical effects (docs/effects.md), each defined once.
 
 An effect is the torque it adds on each joint in the *inverse-dynamics* sense: the motor must
 supply it on top of the rest, so the equation of motion is
@@ -45,9 +45,9 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
-from plants import fastmath
-from plants.errors import ModelError
-from plants.structures import Manus2, Structure
+from manus.plants import fastmath
+from manus.plants.errors import ModelError
+from manus.plants.structures import Manus2, Structure
 
 
 def sign(v: Array, boundary: float = 0.0) -> Array:

@@ -31,11 +31,11 @@ from collections import Counter
 
 import numpy as np
 
-from plants import protocol as P
-from plants.device import WARM_EVERY_NS, WARM_GAP_NS
-from plants.errors import ManusError
-from plants.recording import RecordingWriter
-from plants.simulator import Simulator
+from manus.plants import protocol as P
+from manus.plants.device import WARM_EVERY_NS, WARM_GAP_NS
+from manus.plants.errors import ManusError
+from manus.plants.recording import RecordingWriter
+from manus.plants.simulator import Simulator
 
 
 

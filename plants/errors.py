@@ -9,7 +9,7 @@ class ManusError(Exception):
 
 
 class RecordingError(ManusError):
-    """A recording file that breaks the contract of DESIGN.md §2."""
+    """A recording file that breaks the contract of docs/recording.md."""
 
 
 class ModelError(ManusError):

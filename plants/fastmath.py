@@ -2,7 +2,7 @@
 
 XLA evaluates float64 `jnp.sin`/`jnp.cos` one element at a time on the CPU; written as range
 reduction plus polynomial kernels (multiplies, adds, rounding, selects) they vectorize, about 4×
-faster under `vmap` (../shared/notes/jax-cpu-performance.md). Every sin and cos of the physics
+faster under `vmap` (docs/performance.md). Every sin and cos of the physics
 (structures, effects) comes from here, so the simulator, the regressors and the tests agree.
 
 - Range reduction (Cody–Waite): k = round(x / (π/2)), r = x − k·P1 − k·P2 − k·P3 with π/2 split

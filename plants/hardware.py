@@ -35,11 +35,11 @@ from pathlib import Path
 
 import numpy as np
 
-from plants import protocol as P
-from plants.device import Device
-from plants.errors import ManusError
-from plants.recording import RecordingWriter
-from plants.stepper import Controller, Reference
+from manus.plants import protocol as P
+from manus.plants.device import Device
+from manus.plants.errors import ManusError
+from manus.plants.recording import RecordingWriter
+from manus.plants.stepper import Controller, Reference
 
 STOPS = ("end", "watchdog", "fault", "user")
 FIRST_SAMPLE_TIMEOUT = 0.5  # s: after HELLO, the device's first sample
@@ -147,7 +147,7 @@ class Result:
 
 
 class HardwarePlant:
-    """The rig as a plant (DESIGN.md §5: `reset(key) -> (state, q)`, `step(state, command) ->
+    """The rig as a plant (docs/architecture.md: `reset(key) -> (state, q)`, `step(state, command) ->
     (state, q)`), for code written against that interface: an imperative wrapper (brax's
     pattern), not a pure one, so it runs in Python, never inside `jit` or `scan`. The state is
     the last sample; `step` sends the command answering it (clamped to the limits; a non-finite

@@ -1,4 +1,4 @@
-"""Recording files (DESIGN.md §2): what a rig logged, in CSV, NPZ or the EMPS `.mat` form.
+"""Recording files (docs/recording.md): what a rig logged, in CSV, NPZ or the EMPS `.mat` form.
 
     # sample_rate_hz: 1000
     # counts_per_rev: 131072
@@ -26,8 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from plants.errors import RecordingError
-from plants.structures import Structure, structure_named
+from manus.plants.errors import RecordingError
+from manus.plants.structures import Structure, structure_named
 
 STRUCTURES = ("manus2", "axis")
 

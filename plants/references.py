@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from plants.stepper import Reference, RefSample
+from manus.plants.stepper import Reference, RefSample
 
 CENTRE = (0.464, 2.409)  # thesis App. C: workspace centre of MANUS-2 [rad]
 

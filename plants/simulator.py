@@ -31,10 +31,10 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from plants.effects import Compliance, Delay, Model
-from plants.errors import ModelError
-from plants.stepper import Plant
-from plants.structures import Diagonal, Joints, Manus2, greater, joints
+from manus.plants.effects import Compliance, Delay, Model
+from manus.plants.errors import ModelError
+from manus.plants.stepper import Plant
+from manus.plants.structures import Diagonal, Joints, Manus2, greater, joints
 
 TINY_SPEED = 1e-12  # evaluates friction levels "at rest" on the right side of the sign
 
@@ -175,7 +175,7 @@ class Simulator(Plant):
             held = held + self.torque_noise * jax.random.normal(sub, u.shape)
         h = self.dt / self.substeps
         n, s = self.model.n_joints, self.model.structure
-        # The sub-steps run on per-joint scalars (see plants.structures), stacked once per period;
+        # The sub-steps run on per-joint scalars (see manus.plants.structures), stacked once per period;
         # sin and cos of the configuration once per period, then turned by each sub-step's move.
         # The lags take at most two neighbouring values: a flag per sub-step picks the older one.
         lags = self._lags()

@@ -1,4 +1,4 @@
-"""The stepper interfaces shared by plants, estimators and controllers (DESIGN.md §5).
+"""The stepper interfaces shared by plants, estimators and controllers (docs/architecture.md).
 
 A stepper is an `equinox.Module` holding configuration only. Its state is an explicit pytree:
 `init(...) -> state` and `step(state, inputs) -> (state, outputs)` are pure, so the same object
@@ -45,7 +45,7 @@ class Controller(eqx.Module):
 class Plant(eqx.Module):
     """A world that takes torque commands and returns measured positions, one tick at a time.
 
-    Backends: the JAX simulator (`plants.simulator.Simulator`) and the hardware loop.
+    Backends: the JAX simulator (`manus.plants.simulator.Simulator`) and the hardware loop.
     """
 
     @abc.abstractmethod

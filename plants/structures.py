@@ -12,7 +12,7 @@ Two forms of the same definitions:
   scalars (`pose`, `shift`, `moved`, `mass`, `bias`, and the `Sym2`/`Diagonal` it returns), with
   2×2 algebra written out. Under `vmap` each scalar becomes a batch vector (structure of
   arrays), which XLA vectorizes; stacked (B, 2, 2) matrices would become a tiny matrix
-  product per trial (../shared/notes/jax-cpu-performance.md). `inertia` is built from `mass`.
+  product per trial (docs/performance.md). `inertia` is built from `mass`.
 
 Two structures:
 
@@ -35,7 +35,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jax import Array
 
-from plants import fastmath
+from manus.plants import fastmath
 
 Joints = tuple  # one scalar (or batch vector) per joint
 

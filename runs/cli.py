@@ -6,7 +6,7 @@
     def run(args) -> dict            # the result; `--json` prints it, else `render(result)`
     def render(result) -> str        # optional: the human-readable report
 
-Contract (DESIGN.md §4): `--json` prints one JSON object on stdout and nothing else there;
+Contract (docs/cli.md): `--json` prints one JSON object on stdout and nothing else there;
 progress and notes go to stderr; figures go to `--out DIR` (default runs/out/); an error is one
 line on stderr and a non-zero exit code.
 """
@@ -20,9 +20,8 @@ import os
 import pkgutil
 import sys
 
-import runs
-
-# Measured on this CPU (../shared/notes/jax-cpu-performance.md): compile a whole scan body as one
+from manus import runs
+# Measured on this CPU (docs/performance.md): compile a whole scan body as one
 # function, and expose both cores as devices for sharded batches. Must precede the JAX import.
 XLA_FLAGS = ("--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000000",
              "--xla_force_host_platform_device_count=2")
@@ -62,7 +61,7 @@ def main(argv: list[str] | None = None) -> int:
     cmds = commands()
     args = parser(cmds).parse_args(argv)
     configure_jax()
-    from plants.errors import ManusError
+    from manus.plants.errors import ManusError
 
     module = cmds[args.command]
     try:

@@ -12,9 +12,9 @@ HELP = "benchmarks (sim, estimators, diagnose, converge, stability, hardware), e
 
 
 def benchmarks() -> dict:
-    import runs.bench as pkg
+    import manus.runs.bench as pkg
 
-    return {m.name: importlib.import_module(f"runs.bench.{m.name}") for m in pkgutil.iter_modules(pkg.__path__)}
+    return {m.name: importlib.import_module(f"manus.runs.bench.{m.name}") for m in pkgutil.iter_modules(pkg.__path__)}
 
 
 def add_arguments(p) -> None:

@@ -21,8 +21,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from runs.common import add_common, note
-from runs.plants_cli import add_plant_options, build_plant
+from manus.runs.common import add_common, note
+from manus.runs.plants_cli import add_plant_options, build_plant
 
 NAME = "converge"
 HELP = "parameter-convergence trials of the Slotine-Li adaptive controller (thesis App. C), vmapped"
@@ -73,10 +73,10 @@ class Trials(NamedTuple):
 
 
 def reference_named(name: str, model):
-    from plants.errors import ManusError
-    from plants.references import Benign, Complex, MultiSine
-    from plants.simulator import workspace_centre
-    from plants.structures import Manus2
+    from manus.plants.errors import ManusError
+    from manus.plants.references import Benign, Complex, MultiSine
+    from manus.plants.simulator import workspace_centre
+    from manus.plants.structures import Manus2
 
     if name in ("benign", "complex") and not isinstance(model.structure, Manus2):
         raise ManusError(f"the {name} trajectory is the thesis's for the manus2 arm")
@@ -87,8 +87,8 @@ def reference_named(name: str, model):
 def controller_for(plant, model, law: str, estimator, form: str = "slotine-li", uncompensated=False,
                    **gains):
     """The Slotine–Li controller of a trial; timing compensated for the plant's known delay
-    unless told otherwise; `gains` as for `adaptive.make_controller`."""
-    from adaptive.controllers import make_controller, make_estimator
+    unless told otherwise; `gains` as for `manus.adaptive.make_controller`."""
+    from manus.adaptive.controllers import make_controller, make_estimator
 
     if isinstance(estimator, str) and plant.encoder is not None:  # the Kalman filters want the encoder step
         estimator = make_estimator(estimator, plant.dt, model, step=plant.encoder.step)
@@ -105,8 +105,8 @@ def run_trials(plant, controller, reference, trials: int, seconds: float, init_s
     import jax
     import jax.numpy as jnp
 
-    from adaptive.slotine_li import rollout_batch
-    from plants.errors import ManusError
+    from manus.adaptive.slotine_li import rollout_batch
+    from manus.plants.errors import ManusError
 
     mine, theirs = controller.regressor.model.structure, plant.model.structure
     if controller.n_joints != plant.model.n_joints or mine.name != theirs.name:
@@ -138,7 +138,7 @@ def settle_times(t: np.ndarray, theta: np.ndarray, truth: float, tol: float = 0.
 
 
 def summarize(tr: Trials) -> dict:
-    """Per-parameter figures (DESIGN.md §4) and the excitation."""
+    """Per-parameter figures (docs/cli.md) and the excitation."""
     ok = ~tr.stopped
     params = {}
     for i, name in enumerate(tr.names):
@@ -162,7 +162,7 @@ def summarize(tr: Trials) -> dict:
 
 
 def _pairs(items: list[str], flag: str) -> dict[str, float]:
-    from plants.errors import ManusError
+    from manus.plants.errors import ManusError
 
     out = {}
     for item in items:
@@ -175,9 +175,9 @@ def _pairs(items: list[str], flag: str) -> dict[str, float]:
 
 
 def run(args) -> dict:
-    from plants.effects import Model
-    from plants.errors import ManusError
-    from runs.converge_figures import plot_estimates, plot_tracking
+    from manus.plants.effects import Model
+    from manus.plants.errors import ManusError
+    from manus.runs.converge_figures import plot_estimates, plot_tracking
 
     plant = build_plant(args)
     model = Model(plant.model.structure, args.model)
@@ -206,7 +206,7 @@ def run(args) -> dict:
 
 
 def render(r: dict) -> str:
-    from runs.common import table
+    from manus.runs.common import table
 
     rows = []
     for name, p in r["params"].items():

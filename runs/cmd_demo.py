@@ -16,7 +16,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from runs.common import note
+from manus.runs.common import note
 
 NAME = "demo"
 HELP = "the main job: discover a hidden effect in a simulated arm, then the same loop on the real EMPS data; a report"
@@ -48,8 +48,8 @@ def add_arguments(p) -> None:
 
 def simulate_hidden(out: Path, seconds: float):
     """Part (a)'s recording: the arm with the hidden effect, under impedance control."""
-    from runs import cmd_simulate
-    from runs.cli import commands, parser
+    from manus.runs import cmd_simulate
+    from manus.runs.cli import commands, parser
 
     path = Path(out) / "hidden_cogging.csv"
     args = parser(commands()).parse_args(["simulate", "--truth", TRUTH, "--seconds", f"{seconds:g}", "--out", str(path)])
@@ -57,10 +57,10 @@ def simulate_hidden(out: Path, seconds: float):
 
 
 def run(args) -> dict:
-    from plants import recording
-    from plants.errors import ManusError
-    from runs import report
-    from runs.cmd_discover import discover_section, result
+    from manus.plants import recording
+    from manus.plants.errors import ManusError
+    from manus.runs import report
+    from manus.runs.cmd_discover import discover_section, result
 
     if args.seconds < 5:
         raise ManusError(f"--seconds {args.seconds:g}: the loop needs at least 5 s of recording")
@@ -97,7 +97,7 @@ def run(args) -> dict:
 
 
 def render(r: dict) -> str:
-    from runs.cmd_discover import render as discover_render
+    from manus.runs.cmd_discover import render as discover_render
 
     s = r["simulated"]
     lines = [f"(a) simulated arm, truth {s['truth']}, starting from {s['start']}:", discover_render(s["discovery"]), ""]

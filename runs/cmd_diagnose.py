@@ -1,13 +1,13 @@
 """`manus diagnose REC --model EFFECTS`: where does the model fail, and which effect is missing?
-(`adaptive.diagnose`: every effect not in the model is a candidate, judged on held-out blocks.)
+(`manus.adaptive.diagnose`: every effect not in the model is a candidate, judged on held-out blocks.)
 Writes the residual figure (`resid`) and one evidence figure per candidate."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from runs.cmd_fit import add_model_options, load
-from runs.common import add_common, note, table
+from manus.runs.cmd_fit import add_model_options, load
+from manus.runs.common import add_common, note, table
 
 NAME = "diagnose"
 HELP = "where the model fails and which physical effect is missing: candidates best first, a verdict, figures"
@@ -20,14 +20,14 @@ def add_arguments(p) -> None:
 
 
 def figures(d, out: Path, stem: str) -> dict:
-    from runs.diagnose_figures import evidence_figures, resid_figure
+    from manus.runs.diagnose_figures import evidence_figures, resid_figure
 
     return {"resid": resid_figure(d, out, f"{stem}_resid.png"),
             "evidence": evidence_figures(d, out, prefix=f"{stem}_")}
 
 
 def run(args) -> dict:
-    from adaptive.diagnose import diagnose
+    from manus.adaptive.diagnose import diagnose
 
     rec = load(args, proposing=True)
     note(f"diagnosing {args.model}: fitting it with each missing effect in turn ...")
@@ -51,7 +51,7 @@ def candidate_rows(candidates: list[dict], verdict: str | None) -> list[list]:
 
 
 def render(r: dict) -> str:
-    from runs.report import left
+    from manus.runs.report import left
 
     lines = [f"model {r['spec']}: rel_error {100 * r['rel_error']:.2f} % (torque low-passed at {r['cutoff_hz']:.1f} Hz)",
              table(left([row[:6] + row[7:] + row[6:7] for row in candidate_rows(r["candidates"], r["verdict"])], (6, 7)),

@@ -1,4 +1,4 @@
-"""`manus discover REC --model EFFECTS`: the loop of issue 4 (`adaptive.discover`): diagnose, add
+"""`manus discover REC --model EFFECTS`: the loop of issue 4 (`manus.adaptive.discover`): diagnose, add
 the verdict, refit, until nothing significant is missing. Prints the table of steps and writes a
 report (Markdown with its figures) into `--out`."""
 
@@ -6,8 +6,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from runs.cmd_fit import add_model_options, load
-from runs.common import add_common, note, table
+from manus.runs.cmd_fit import add_model_options, load
+from manus.runs.common import add_common, note, table
 
 NAME = "discover"
 HELP = "the loop: diagnose, add the missing effect, refit, until nothing significant is missing; writes a report"
@@ -23,8 +23,8 @@ def add_arguments(p) -> None:
 def discover_section(rec, model: str, out: Path, prefix: str, title: str, intro: str = "", cutoff_hz=None,
                      max_steps: int = 6, figures: bool = True):
     """Run the loop on `rec` and make its report section (figures drawn into `out`)."""
-    from adaptive.discover import discover
-    from runs.report import Section, make_figures
+    from manus.adaptive.discover import discover
+    from manus.runs.report import Section, make_figures
 
     disc = discover(rec, model, cutoff_hz=cutoff_hz, max_steps=max_steps, progress=lambda line: note("  " + line))
     section = Section(title, str(rec.path), disc, intro=intro)
@@ -47,8 +47,8 @@ def result(section) -> dict:
 
 
 def run(args) -> dict:
-    from plants.errors import ManusError
-    from runs import report
+    from manus.plants.errors import ManusError
+    from manus.runs import report
 
     if args.max_steps < 1:
         raise ManusError(f"--max-steps {args.max_steps}: at least 1")
@@ -64,7 +64,7 @@ def run(args) -> dict:
 
 
 def render(r: dict) -> str:
-    from runs.report import format_params, left
+    from manus.runs.report import format_params, left
 
     rows = [[0, f"(start) {r['start']['model']}", "", f"{100 * r['start']['rel_error']:.2f}"]]
     rows += [[s["step"], s["spec"], format_params(s["params"]), f"{100 * s['rel_error']:.2f}"] for s in r["steps"]]

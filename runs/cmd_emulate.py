@@ -5,8 +5,8 @@ from __future__ import annotations
 import signal
 from pathlib import Path
 
-from runs.common import note
-from runs.plants_cli import add_plant_options, build_plant
+from manus.runs.common import note
+from manus.runs.plants_cli import add_plant_options, build_plant
 
 NAME = "emulate"
 HELP = "play the rig: the simulator in real time behind the UDP device protocol (for run-hardware)"
@@ -30,9 +30,9 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> dict:
-    from plants.emulator import Emulator
-    from plants.errors import ManusError
-    from plants.hardware import realtime_jax
+    from manus.plants.emulator import Emulator
+    from manus.plants.errors import ManusError
+    from manus.plants.hardware import realtime_jax
 
     realtime_jax()
 

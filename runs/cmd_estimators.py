@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from runs.common import add_common, note, table
+from manus.runs.common import add_common, note, table
 
 NAME = "estimators"
 HELP = "compare every velocity estimator on a recording (against its true velocity, or the offline reference)"
@@ -25,11 +25,11 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> dict:
-    from estimators import NAMES
-    from estimators.compare import compare
-    from plants import Model, recording
-    from plants.errors import ManusError
-    from runs.plants_cli import parse_params
+    from manus.estimators import NAMES
+    from manus.estimators.compare import compare
+    from manus.plants import Model, recording
+    from manus.plants.errors import ManusError
+    from manus.runs.plants_cli import parse_params
 
     names = NAMES if not args.only else tuple(n.strip() for n in args.only.split(",") if n.strip())
     unknown = [n for n in names if n not in NAMES]
@@ -55,8 +55,8 @@ def run(args) -> dict:
 def figures(rec, report: dict, estimates: dict, out) -> dict:
     import numpy as np
 
-    from estimators.response import frequency_response
-    from runs.estimator_figures import estimates_figure, response_figure
+    from manus.estimators.response import frequency_response
+    from manus.runs.estimator_figures import estimates_figure, response_figure
 
     paths = {"estimates": [estimates_figure(rec.t, estimates, report, out, j) for j in range(rec.n_joints)]}
     freqs = np.geomspace(0.5, 0.45 / rec.dt, 40)

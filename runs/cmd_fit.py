@@ -1,13 +1,13 @@
 """`manus fit REC --model EFFECTS`: identify a model's parameters from a recording (inverse
-dynamics, `adaptive.fit`), report each with its standard deviation and the rel_error, and draw the
+dynamics, `manus.adaptive.fit`), report each with its standard deviation and the rel_error, and draw the
 `compare` figure: measured against predicted torque, and measured positions against a free run of
-the fitted model in the JAX simulator (`runs.freerun`)."""
+the fitted model in the JAX simulator (`manus.runs.freerun`)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from runs.common import add_common, note, table
+from manus.runs.common import add_common, note, table
 
 NAME = "fit"
 HELP = "identify a model's parameters from a recording (inverse dynamics), with std, rel_error and a compare figure"
@@ -35,9 +35,9 @@ def add_arguments(p) -> None:
 def load(args, proposing: bool = False):
     """The recording and the model text, checked: a one-line error for bad input. `proposing`
     (diagnose, discover): a model holding every effect leaves nothing to propose."""
-    from plants import recording
-    from plants.effects import ORDER, parse_effects
-    from plants.errors import ManusError
+    from manus.plants import recording
+    from manus.plants.effects import ORDER, parse_effects
+    from manus.plants.errors import ManusError
 
     if args.cutoff is not None and args.cutoff <= 0:
         raise ManusError(f"--cutoff {args.cutoff:g}: must be positive")
@@ -51,8 +51,8 @@ def load(args, proposing: bool = False):
 
 def free_run_or_reason(f, open_loop: bool = False):
     """The free run, or a one-line reason why there is none."""
-    from plants.errors import ManusError
-    from runs.freerun import free_run
+    from manus.plants.errors import ManusError
+    from manus.runs.freerun import free_run
 
     try:
         return free_run(f, open_loop=open_loop)
@@ -61,9 +61,9 @@ def free_run_or_reason(f, open_loop: bool = False):
 
 
 def run(args) -> dict:
-    from adaptive.fit import fit
-    from runs.fit_figures import compare_figure
-    from runs.freerun import nrmse_fit
+    from manus.adaptive.fit import fit
+    from manus.runs.fit_figures import compare_figure
+    from manus.runs.freerun import nrmse_fit
 
     rec = load(args)
     f = fit(rec, args.model, cutoff_hz=args.cutoff)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from runs.common import note
+from manus.runs.common import note
 
 NAME = "run-hardware"
 HELP = "run an adaptive controller and velocity estimator against a rig at its rate, with safety and a recording"
@@ -30,8 +30,8 @@ def add_arguments(p) -> None:
 def reference_for(name: str, structure: str, n: int):
     import numpy as np
 
-    from plants.errors import ManusError
-    from plants.references import CENTRE, Benign, Complex, Hold, MultiSine
+    from manus.plants.errors import ManusError
+    from manus.plants.references import CENTRE, Benign, Complex, Hold, MultiSine
 
     centre = np.array(CENTRE) if structure == "manus2" else np.zeros(n)
     if name in ("benign", "complex") and structure != "manus2":
@@ -43,10 +43,10 @@ def reference_for(name: str, structure: str, n: int):
 def build_stepper(info, controller: str, estimator: str, model_spec: str, structure: str | None, reference: str,
                   torque_limit: float | None = None):
     """The compiled tick of `controller` + `estimator` for the device described by `info`, warmed up."""
-    from adaptive.controllers import make_controller
-    from plants import Model, structure_named
-    from plants.errors import ManusError
-    from plants.hardware import CompiledTick
+    from manus.adaptive.controllers import make_controller
+    from manus.plants import Model, structure_named
+    from manus.plants.errors import ManusError
+    from manus.plants.hardware import CompiledTick
 
     n = info.n_joints
     structure = structure or ("manus2" if n == 2 else "axis")
@@ -65,9 +65,9 @@ def build_stepper(info, controller: str, estimator: str, model_spec: str, struct
 
 
 def run(args) -> dict:
-    from plants.device import open_device
-    from plants.errors import ManusError
-    from plants.hardware import realtime_jax, report, run_loop
+    from manus.plants.device import open_device
+    from manus.plants.errors import ManusError
+    from manus.plants.hardware import realtime_jax, report, run_loop
 
     realtime_jax()
     if not args.seconds > 0:
@@ -99,6 +99,6 @@ def run(args) -> dict:
 
 
 def render(r: dict) -> str:
-    from plants.hardware import report
+    from manus.plants.hardware import report
 
     return report(r)

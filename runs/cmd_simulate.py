@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from runs.common import note
-from runs.plants_cli import add_plant_options, build_plant
+from manus.runs.common import note
+from manus.runs.plants_cli import add_plant_options, build_plant
 
 NAME = "simulate"
 HELP = "simulate the arm (or axes) under impedance control and write a recording with true velocities"
@@ -28,13 +28,13 @@ def run(args) -> dict:
     import jax
     import numpy as np
 
-    from adaptive.impedance import Impedance
-    from plants import recording
-    from plants.closed_loop import simulate
-    from plants.errors import ManusError
-    from plants.references import Benign, Complex, Hold, MultiSine
-    from plants.simulator import workspace_centre
-    from runs.plots import plot_recording, rms
+    from manus.adaptive.impedance import Impedance
+    from manus.plants import recording
+    from manus.plants.closed_loop import simulate
+    from manus.plants.errors import ManusError
+    from manus.plants.references import Benign, Complex, Hold, MultiSine
+    from manus.plants.simulator import workspace_centre
+    from manus.runs.plots import plot_recording, rms
 
     if args.seconds <= 0:
         raise ManusError("--seconds must be positive")

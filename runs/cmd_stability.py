@@ -14,8 +14,8 @@ import time
 
 import numpy as np
 
-from plants.errors import ManusError
-from runs.common import add_common, note, table
+from manus.plants.errors import ManusError
+from manus.runs.common import add_common, note, table
 
 NAME = "stability"
 HELP = "impedance limits: Type 1/Type 2 stability map, negative damping, 100 Hz, sensitivity (thesis ch. 4, App. D)"
@@ -47,12 +47,12 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> dict:
-    from plants.closed_loop import simulate
-    from runs import sweep
-    from runs.stability import analysis, figures
-    from runs.stability.search import boundary, read_map, stability_map
-    from runs.stability.sensitivity import sensitivity
-    from runs.stability.steptest import TYPE2, StepTest, line_amplitude
+    from manus.plants.closed_loop import simulate
+    from manus.runs import sweep
+    from manus.runs.stability import analysis, figures
+    from manus.runs.stability.search import boundary, read_map, stability_map
+    from manus.runs.stability.sensitivity import sensitivity
+    from manus.runs.stability.steptest import TYPE2, StepTest, line_amplitude
 
     b_cs, ks = _range(args.b_c, "b-c"), _range(args.k, "k", positive=True)
     cluster = sweep.client_for(args.cluster) if args.cluster else None
@@ -102,7 +102,7 @@ def run(args) -> dict:
 def _type2_example(smap) -> tuple[float, float] | None:
     """A point just past the Type 2 threshold (Fig. 4-22): the first unstable k of the Type 2
     row nearest the middle of that edge."""
-    from runs.stability.steptest import TYPE2
+    from manus.runs.stability.steptest import TYPE2
 
     rows = np.flatnonzero((smap.limit_kind == TYPE2) & np.isfinite(smap.limit))
     if rows.size == 0:

@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from plants.errors import ManusError
-from runs.common import add_common, note, pyplot, save, table
+from manus.plants.errors import ManusError
+from manus.runs.common import add_common, note, pyplot, save, table
 
 NAME = "sysid"
 HELP = "system identification of thesis §3.5 (locked-joint oscillations) and the Cartesian ellipses of §3.6"
@@ -23,7 +23,7 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> dict:
-    from runs import sysid
+    from manus.runs import sysid
 
     if not 0.02 <= args.displacement <= 1.0:
         raise ManusError(f"--displacement {args.displacement:g}: expected 0.02 to 1 rad")
@@ -68,7 +68,7 @@ def _friction_range(corners: np.ndarray) -> tuple[float, float]:
 def _by_radius(points, cart) -> list[dict]:
     """Each parameter's least and largest value along the column through the centre: they
     depend on the distance from the motor axis alone (§3.6)."""
-    from runs.sysid import CENTRE, endpoint
+    from manus.runs.sysid import CENTRE, endpoint
 
     on_axis = np.flatnonzero(np.isclose(points[:, 0], endpoint(CENTRE)[0]))
     return [{"radius": float(np.hypot(*points[i])), "inertia": np.linalg.eigvalsh(cart[i]["inertia"]).tolist(),
@@ -78,7 +78,7 @@ def _by_radius(points, cart) -> list[dict]:
 
 def _plot_oscillations(traces: dict, replays: dict, out) -> str:
     """Figs. 3-18 to 3-20: each test's recording and the fitted model run through it."""
-    from runs.sysid import lock_tests
+    from manus.runs.sysid import lock_tests
 
     plt = pyplot()
     fig, axes = plt.subplots(1, len(traces), figsize=(4.2 * len(traces), 3.2), squeeze=False)

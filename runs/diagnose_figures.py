@@ -2,7 +2,7 @@
 evidence figure per candidate effect, drawn so that a person sees why it is (or is not) missing.
 
 The residual is the identification residual of the current model on the used rows (filtered,
-decimated: one row every `k` samples; see `adaptive.fit.prepare`). Lags are in seconds.
+decimated: one row every `k` samples; see `manus.adaptive.fit.prepare`). Lags are in seconds.
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from runs.common import pyplot, save
+from manus.runs.common import pyplot, save
 
 Z99 = 2.576  # two-sided 99 % normal quantile
 MAX_LAG_ROWS = 60
@@ -231,7 +231,7 @@ def _compliance_panel(ax, c, i: int):
     ax.loglog(m.freq[1:], m.measured[1:, i], color="k", lw=0.7, label="measured |θ̈/τ| (H1)")
     ax.loglog(m.freq[1:], m.rigid[1:, i], color="C0", lw=1.0, label="rigid fit")
     ax.loglog(m.freq[1:], m.fitted[1:, i], color="C3", lw=1.0, label=f"with a mode at {m.f_hz:.0f} Hz, ζ = {m.zeta:g}")
-    from adaptive.modes import BAND
+    from manus.adaptive.modes import BAND
 
     ax.axvline(m.f_hz, color="C3", ls=":", lw=0.8)
     ax.axvspan(BAND[0], min(BAND[1], m.freq[-1]), color="C2", alpha=0.08, lw=0, label="band fitted (coherence-weighted)")

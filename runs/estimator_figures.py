@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from runs.common import pyplot, save
+from manus.runs.common import pyplot, save
 
 ZOOM_SECONDS = 0.2
 

@@ -1,7 +1,7 @@
 """Free-run simulation of a fitted model against a recording (the position half of `compare`).
 
-The fitted model (`adaptive.fit.Fit`: its effects with their non-linear parameters, and θ) is
-simulated with the JAX simulator (`plants.simulator.Simulator`: the same effects, set-valued
+The fitted model (`manus.adaptive.fit.Fit`: its effects with their non-linear parameters, and θ) is
+simulated with the JAX simulator (`manus.plants.simulator.Simulator`: the same effects, set-valued
 friction, the recorded encoder grid) over the whole recording, driven the way the rig was:
 
 - **closed loop on the recorded reference** when the recording says which controller ran and
@@ -29,8 +29,8 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from plants.references import PositionReference
-from plants.stepper import Controller
+from manus.plants.references import PositionReference
+from manus.plants.stepper import Controller
 
 SUBSTEPS = 10
 
@@ -114,7 +114,7 @@ def _reference(rec) -> np.ndarray | None:
 
 def _controller(rec, n: int):
     """The controller the recording says ran, with a one-line description, or None."""
-    from adaptive.impedance import Impedance
+    from manus.adaptive.impedance import Impedance
 
     meta = rec.meta
     m = re.match(r"\s*impedance\s+K=([0-9.eE+-]+)\s+B=([0-9.eE+-]+)", meta.get("controller", ""))
@@ -128,11 +128,11 @@ def _controller(rec, n: int):
 
 
 def free_run(f, open_loop: bool = False) -> FreeRun:
-    """Simulate the fitted model `f` (an `adaptive.fit.Fit`) over its whole recording."""
-    from plants.closed_loop import simulate
-    from plants.errors import ModelError
-    from plants.references import Hold
-    from plants.simulator import Actuator, Encoder, Simulator
+    """Simulate the fitted model `f` (a `manus.adaptive.fit.Fit`) over its whole recording."""
+    from manus.plants.closed_loop import simulate
+    from manus.plants.errors import ModelError
+    from manus.plants.references import Hold
+    from manus.plants.simulator import Actuator, Encoder, Simulator
 
     rec = f.data.rec
     model = f.model

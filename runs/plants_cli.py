@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from plants.errors import ManusError
+from manus.plants.errors import ManusError
 
 THESIS_TRUTH = "rigid,viscous,coulomb,delay"  # the thesis's plant: §3.5 friction, §3.2 delay
 
@@ -39,7 +39,7 @@ def build_plant(args):
     """The simulator the options describe."""
     import math
 
-    from plants import Encoder, Model, Simulator, structure_named
+    from manus.plants import Encoder, Model, Simulator, structure_named
 
     if args.rate <= 0 or args.substeps < 1:
         raise ManusError("--rate must be positive and --substeps at least 1")

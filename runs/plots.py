@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from runs.common import pyplot
+from manus.runs.common import pyplot
 
 
 def plot_recording(rec, path: Path, title: str = "") -> str:

@@ -9,7 +9,7 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from runs.common import figure_dir
+from manus.runs.common import figure_dir
 
 
 @dataclass
@@ -31,7 +31,7 @@ def step_rows(discovery) -> list[list]:
 
 
 def left(rows: list[list], columns: tuple[int, ...]) -> list[list]:
-    """Pad the text of `columns` to a common width, so that `runs.common.table` (which right-aligns
+    """Pad the text of `columns` to a common width, so that `manus.runs.common.table` (which right-aligns
     every column but the first) shows them left-aligned."""
     rows = [list(r) for r in rows]
     for j in columns:
@@ -56,9 +56,9 @@ def format_params(params: dict) -> str:
 
 def make_figures(section: Section, out: Path, prefix: str, free_run: bool = True) -> None:
     """Draw the section's figures into `out` (names start with `prefix`)."""
-    from runs.cmd_fit import free_run_or_reason
-    from runs.diagnose_figures import evidence_figure, resid_figure
-    from runs.fit_figures import compare_figure, waterfall_figure
+    from manus.runs.cmd_fit import free_run_or_reason
+    from manus.runs.diagnose_figures import evidence_figure, resid_figure
+    from manus.runs.fit_figures import compare_figure, waterfall_figure
 
     disc = section.discovery
     name = Path(section.recording).name

@@ -15,13 +15,13 @@ oscillation identifies the one-coordinate model H ẍ + b ẋ + F sgn(ẋ) + K x
 locked coordinate φ = c·q, driven through the same motors: τ_lock = −(K_L (φ − φ_d) + B_L φ̇̂) cᵀ
 with K_L = 1000 N·m/rad and B_L = 5 N·m·s/rad on the filtered first-difference velocity (stable
 with margin ≥ 2.8 for every locked inertia, by the sampled linear analysis of
-`runs.stability.linear`). For the relative lock the pair (+τ, −τ) is what a pin between the
+`manus.runs.stability.linear`). For the relative lock the pair (+τ, −τ) is what a pin between the
 links would exert; it cancels in τ1 + τ2, the torque the third test reads. The lock yields by
 about a milliradian under the coupling torques: its share of the identified inertia is below
 0.5 %.
 
 **The fit.** Equation error, linear least squares: the recorded position is differentiated
-offline (zero-phase, `estimators.offline`), the commanded torque is centred on the sample
+offline (zero-phase, `manus.estimators.offline`), the commanded torque is centred on the sample
 (the zero-order hold applies τ_k over [t_k, t_k + T): (τ_{k−1} + τ_k)/2) and low-passed alike,
 and samples near a velocity reversal (where sgn(ẋ) is not defined and the filter smears the
 friction's jump) are left out.
@@ -37,9 +37,9 @@ from typing import NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-from estimators.base import Estimator, FilteredFirstDifference
-from estimators.offline import differentiate, edge, lowpass
-from plants.stepper import Controller, RefSample
+from manus.estimators.base import Estimator, FilteredFirstDifference
+from manus.estimators.offline import differentiate, edge, lowpass
+from manus.plants.stepper import Controller, RefSample
 
 LINKS = (0.40533, 0.48793)  # m, upper arm and forearm (two-bar equivalent of the linkage)
 CENTRE = (0.464, 2.409)  # rad, the workspace centre (0.508 m from the motor axis)
@@ -117,9 +117,9 @@ def simulate_test(test: LockTest, params: dict | None = None, displacement: floa
     """Run one locked test on the MANUS-2 arm (rigid, viscous, coulomb; the thesis's actuator
     chain and encoder): at rest displaced by `displacement` rad along d, released (the spring's
     set point steps back) at `release` s. Returns the closed-loop trajectory."""
-    from plants import Manus2, Model, Simulator
-    from plants.closed_loop import simulate
-    from plants.references import Step
+    from manus.plants import Manus2, Model, Simulator
+    from manus.plants.closed_loop import simulate
+    from manus.plants.references import Step
 
     plant = Simulator(Model(Manus2(), "rigid,viscous,coulomb"), params)
     eq = np.asarray(test.equilibrium)
@@ -131,10 +131,10 @@ def simulate_test(test: LockTest, params: dict | None = None, displacement: floa
 def replay(test: LockTest, fit: Fit, displacement: float = 0.3, seconds: float = 6.0, release: float = 0.5):
     """The fitted one-coordinate model (eqs. 3.7, 3.8, 3.10: an axis with inertia H, b and F
     under the same spring) through the same test: compare with the recording (Figs. 3-18 to 3-20)."""
-    from adaptive.impedance import Impedance
-    from plants import Axis, Model, Simulator
-    from plants.closed_loop import simulate
-    from plants.references import Step
+    from manus.adaptive.impedance import Impedance
+    from manus.plants import Axis, Model, Simulator
+    from manus.plants.closed_loop import simulate
+    from manus.plants.references import Step
 
     plant = Simulator(Model(Axis(), "rigid,viscous,coulomb"), {"M1": fit.inertia, "b1": fit.damping, "Fc1": fit.friction})
     x0 = test.equilibrium[test.joint]

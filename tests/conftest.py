@@ -1,4 +1,4 @@
-"""Tests use float64 and compare against independent references (DESIGN.md §6)."""
+"""Tests use float64 and compare against independent references (docs/architecture.md)."""
 
 import os
 import pathlib

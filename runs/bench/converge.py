@@ -36,13 +36,13 @@ def run(args) -> dict:
     import equinox as eqx
     import jax
 
-    from adaptive.slotine_li import rollout
-    from plants import Model, Simulator
-    from plants.errors import ManusError
-    from plants.references import Complex
-    from plants.structures import Manus2
-    from runs.cmd_converge import EVERY, controller_for, run_trials
-    from runs.common import note
+    from manus.adaptive.slotine_li import rollout
+    from manus.plants import Model, Simulator
+    from manus.plants.errors import ManusError
+    from manus.plants.references import Complex
+    from manus.plants.structures import Manus2
+    from manus.runs.cmd_converge import EVERY, controller_for, run_trials
+    from manus.runs.common import note
 
     if args.trials < 1 or args.sample < 1 or args.seconds <= 0 or args.tick_sample <= 0:
         raise ManusError("need --trials, --sample >= 1 and positive --seconds, --tick-sample")

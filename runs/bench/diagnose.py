@@ -7,7 +7,7 @@ under impedance control following a multi-sine (`manus simulate`'s defaults). Ti
   its non-linear parameter searched, judged on held-out blocks; compliance from the frequency
   response), from the raw recording (the filtering and differentiation included): the first call
   (with JAX compilation of the regressor columns) and the best of `--repeats` after it;
-- `adaptive.fit.fit` of the nominal model alone, the same way;
+- `manus.adaptive.fit.fit` of the nominal model alone, the same way;
 - the baseline: a plain `scipy.optimize.least_squares` fit of the same model (the closed-form
   torque of the arm in numpy on the same kinematics, low-passed like the torque, on the rows `fit` uses),
   and how far its parameters are from `fit`'s.
@@ -48,7 +48,7 @@ def scipy_fit(data, delay: float = 0.0) -> tuple[np.ndarray, float]:
     sharp sgn(q̇) is compared with a smooth torque and the fit is biased."""
     from scipy.optimize import least_squares
 
-    from estimators.offline import lowpass
+    from manus.estimators.offline import lowpass
 
     tau = data.tau(delay)
 
@@ -75,16 +75,16 @@ def _timed(fn, repeats: int):
 def run(args) -> dict:
     import jax
 
-    from adaptive.diagnose import diagnose
-    from adaptive.fit import fit, prepare
-    from plants import Manus2, Model, Simulator
-    from plants.closed_loop import simulate
-    from plants.errors import ManusError
-    from plants.recording import from_trajectory
-    from plants.references import MultiSine
-    from plants.simulator import workspace_centre
-    from adaptive.impedance import Impedance
-    from runs.common import note
+    from manus.adaptive.diagnose import diagnose
+    from manus.adaptive.fit import fit, prepare
+    from manus.plants import Manus2, Model, Simulator
+    from manus.plants.closed_loop import simulate
+    from manus.plants.errors import ManusError
+    from manus.plants.recording import from_trajectory
+    from manus.plants.references import MultiSine
+    from manus.plants.simulator import workspace_centre
+    from manus.adaptive.impedance import Impedance
+    from manus.runs.common import note
 
     if args.seconds < 5 or args.repeats < 0:
         raise ManusError("--seconds must be at least 5 and --repeats not negative")

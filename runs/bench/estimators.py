@@ -1,13 +1,13 @@
 """`manus bench estimators`: what each velocity estimator costs.
 
 - **per step**, as a 1 kHz loop runs it: the estimator's step compiled once
-  (`estimators.compiled_step`) and called from Python with a numpy measurement, the estimate
+  (`manus.estimators.compiled_step`) and called from Python with a numpy measurement, the estimate
   read back to numpy; p50 and p99 of the wall time per call [µs] over `--calls` ticks (garbage
   collector off, as in a real-time loop). Beside it, in the same run: the same step under
   `eqx.filter_jit` (kalman_ca), filterpy's `KalmanFilter.predict/update` (the constant-
   acceleration filter, one per joint, the textbook numpy implementation) and a `jax.jit` of
   `x + 1`: the floor that JAX's dispatch and read-back alone cost.
-- **per recording**: estimates per second over a recorded array with `lax.scan` (`estimators.run`,
+- **per recording**: estimates per second over a recorded array with `lax.scan` (`manus.estimators.run`,
   jitted), best of three.
 """
 
@@ -29,7 +29,7 @@ def add_arguments(p) -> None:
 
 
 def _motion(samples: int, joints: int):
-    from estimators.linear import THESIS_STEP
+    from manus.estimators.linear import THESIS_STEP
 
     t = np.arange(samples) * 1e-3
     q = 0.1 * np.sin(2 * np.pi * np.outer(t, 0.7 + 0.9 * np.arange(joints)))
@@ -54,7 +54,7 @@ def _percentiles(call, inputs) -> dict:
 def _jax_step(estimator, q0, filter_jit: bool = False):
     import equinox as eqx
 
-    from estimators import compiled_step
+    from manus.estimators import compiled_step
 
     step = eqx.filter_jit(estimator.step) if filter_jit else compiled_step(estimator)
     state = [estimator.init(q0)]
@@ -70,7 +70,7 @@ def _filterpy_ca(q0, r):
     from filterpy.common import Q_continuous_white_noise
     from filterpy.kalman import KalmanFilter
 
-    from estimators.kalman import KinematicKalman, transition
+    from manus.estimators.kalman import KinematicKalman, transition
 
     ref = KinematicKalman(1e-3, 3, r=r)
     filters = []
@@ -95,10 +95,10 @@ def run(args) -> dict:
     import jax
     import jax.numpy as jnp
 
-    from estimators import NAMES, make, run as scan_run
-    from estimators.linear import quantization_variance
-    from plants.errors import ManusError
-    from runs.common import note
+    from manus.estimators import NAMES, make, run as scan_run
+    from manus.estimators.linear import quantization_variance
+    from manus.plants.errors import ManusError
+    from manus.runs.common import note
 
     if args.calls < 300 or args.samples < 1000 or args.joints < 1:
         raise ManusError("--calls must be at least 300, --samples at least 1000, --joints at least 1")
@@ -146,7 +146,7 @@ def run(args) -> dict:
 
 
 def render(r: dict) -> str:
-    from runs.common import table
+    from manus.runs.common import table
 
     rows = [[n, f"{v['p50_us']:.0f}", f"{v['p99_us']:.0f}", f"{v['scan_per_s']:.3g}",
              "yes" if n in r["within_target"] else "NO"] for n, v in r["estimators"].items()]

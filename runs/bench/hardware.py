@@ -1,7 +1,7 @@
 """`manus bench hardware`: the real-time loop at 1 kHz against the rig emulator on loopback.
 
 A `manus emulate` process plays the rig (the thesis plant `rigid,viscous,coulomb,delay`, the
-D/A and the 131072 counts/rev encoder) and the loop of `plants.hardware` runs in this process,
+D/A and the 131072 counts/rev encoder) and the loop of `manus.plants.hardware` runs in this process,
 twice:
 
 - the subject: the constant-velocity Kalman filter + Slotine–Li adaptive controller compiled
@@ -78,7 +78,7 @@ def _steal() -> tuple[int, int]:
 
 def _emulator(tmp: Path):
     err = tmp / "emulator.err"
-    proc = subprocess.Popen([sys.executable, "-m", "runs.cli", "emulate", "--port", "0", "--truth", PLANT,
+    proc = subprocess.Popen([sys.executable, "-m", "manus.runs.cli", "emulate", "--port", "0", "--truth", PLANT,
                              "--watchdog-ms", "1000"], stdout=subprocess.DEVNULL, stderr=open(err, "w"))
     end = time.monotonic() + 120
     while time.monotonic() < end:
@@ -86,7 +86,7 @@ def _emulator(tmp: Path):
         if m:
             return proc, int(m.group(1))
         if proc.poll() is not None:
-            from plants.errors import ManusError
+            from manus.plants.errors import ManusError
 
             raise ManusError(f"the emulator did not start: {err.read_text().strip()}")
         time.sleep(0.05)
@@ -95,7 +95,7 @@ def _emulator(tmp: Path):
 
 
 def _measure(device, stepper, seconds: float) -> dict:
-    from plants.hardware import run_loop
+    from manus.plants.hardware import run_loop
 
     s0 = _steal()
     r = run_loop(device, stepper, seconds, None, watchdog=1.0)
@@ -108,7 +108,7 @@ def _measure(device, stepper, seconds: float) -> dict:
 
 def _tick_alone(stepper, calls: int = 5000) -> dict:
     """The compiled tick called back to back, no device: what JAX costs without the loop."""
-    from plants.hardware import percentiles
+    from manus.plants.hardware import percentiles
 
     counts = np.array([15480, 50256], np.int32)  # about the workspace centre
     stepper.start(counts)
@@ -121,13 +121,13 @@ def _tick_alone(stepper, calls: int = 5000) -> dict:
 
 
 def run(args) -> dict:
-    from plants.errors import ManusError
-    from plants.hardware import realtime_jax
+    from manus.plants.errors import ManusError
+    from manus.plants.hardware import realtime_jax
 
     realtime_jax()  # before JAX computes anything
-    from plants.device import open_device
-    from runs.cmd_run_hardware import build_stepper
-    from runs.common import note
+    from manus.plants.device import open_device
+    from manus.runs.cmd_run_hardware import build_stepper
+    from manus.runs.common import note
 
     if not (args.seconds > 0 and args.baseline_seconds > 0):
         raise ManusError("--seconds and --baseline-seconds must be positive")

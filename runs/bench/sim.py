@@ -1,7 +1,7 @@
 """`manus bench sim`: closed-loop simulation of the MANUS-2 arm in control steps per second.
 
 The thesis plant (`rigid,viscous,coulomb,delay`, the actuator chain and the 131072 counts/rev
-encoder: `plants.Simulator`'s defaults) under impedance control (`adaptive.impedance.Impedance`,
+encoder: `manus.plants.Simulator`'s defaults) under impedance control (`manus.adaptive.impedance.Impedance`,
 the filtered first-difference velocity) following the complex trajectory (App. C), 1 kHz
 control with 10 physics sub-steps, timed three ways in one run (best of `--repeats`, compile
 excluded):
@@ -51,8 +51,8 @@ def _best(fn, repeats: int) -> tuple[float, float]:
 def numpy_closed_loop(seconds: float, stiffness=30.0, damping=1.0) -> np.ndarray:
     """The benchmark's closed loop as a plain numpy loop; returns the measured positions (T, 2).
 
-    The same equations as `plants.Simulator` with the thesis plant and
-    `adaptive.impedance.Impedance`, written out for this one model: absolute-angle arm
+    The same equations as `manus.plants.Simulator` with the thesis plant and
+    `manus.adaptive.impedance.Impedance`, written out for this one model: absolute-angle arm
     (eqs. C.1–C.2), viscous and Coulomb friction, Störmer–Verlet sub-steps with the implicit
     (Moreau) friction step, 12-bit D/A, a 1 ms delay (one period), 131072 counts/rev encoder.
     """
@@ -113,12 +113,12 @@ def run(args) -> dict:
     import jax
     import jax.numpy as jnp
 
-    from adaptive.impedance import Impedance
-    from plants import Manus2, Model, Simulator
-    from plants.closed_loop import simulate, simulate_batch
-    from plants.errors import ManusError
-    from plants.references import Complex
-    from runs.common import note
+    from manus.adaptive.impedance import Impedance
+    from manus.plants import Manus2, Model, Simulator
+    from manus.plants.closed_loop import simulate, simulate_batch
+    from manus.plants.errors import ManusError
+    from manus.plants.references import Complex
+    from manus.runs.common import note
 
     load = os.getloadavg()[0]
     if args.trials < 1 or args.seconds <= 0 or args.numpy_seconds <= 0 or args.every < 1 or args.repeats < 1:

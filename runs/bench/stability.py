@@ -30,10 +30,10 @@ def _best(fn, repeats: int) -> float:
 def run(args) -> dict:
     import jax
 
-    from plants.errors import ManusError
-    from runs import sweep
-    from runs.common import note
-    from runs.stability.steptest import StepTest
+    from manus.plants.errors import ManusError
+    from manus.runs import sweep
+    from manus.runs.common import note
+    from manus.runs.stability.steptest import StepTest
 
     if args.points < 1 or args.loop_points < 1 or args.repeats < 1:
         raise ManusError("--points, --loop-points and --repeats must be positive")

@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from runs.stability.linear import SPRINGS, LinearAxis, curve
-from runs.stability.search import boundary, edge, slope, stability_map
-from runs.stability.steptest import TYPE1, TYPE2, StepTest
+from manus.runs.stability.linear import SPRINGS, LinearAxis, curve
+from manus.runs.stability.search import boundary, edge, slope, stability_map
+from manus.runs.stability.steptest import TYPE1, TYPE2, StepTest
 
 THESIS_POLES = [-186.5, complex(-1.7, 9.9), complex(-1.7, -9.9)]  # §3.7, k = 100, b_c = 2
 THESIS_NEGATIVE_DAMPING = -1.5  # N·s/m, §4.5
@@ -43,7 +43,7 @@ def eq41_poles(k: float = 100.0, b_c: float = 2.0) -> dict:
 def type1_curves(b_cs, base: LinearAxis = LinearAxis(), springs=(0.0, *SPRINGS), rate_hz: float = 1000.0) -> dict:
     """k_max per b_c: continuous (the thesis's analysis) for each spring; sampled at `rate_hz`
     uncoupled, rigid and with the shaft mode (the linear face of Type 2)."""
-    from plants.effects import Compliance
+    from manus.plants.effects import Compliance
 
     b_cs = np.asarray(b_cs, float)
     return {"b_c": b_cs.tolist(),

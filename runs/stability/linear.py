@@ -21,7 +21,7 @@ of the same loop with an order-8 Padé delay agrees to 10⁻⁴ (tests); the clo
 that Padé delay) confirm each limit. With `rate_hz` the loop is the exact sampled one instead:
 the plant discretized with a zero-order hold and the delay (a fractional delay handled exactly,
 Åström & Wittenmark §3.2), the velocity filter in the Tustin form the controller runs
-(`estimators.base.FilteredFirstDifference`), position read at each tick and the command held
+(`manus.estimators.base.FilteredFirstDifference`), position read at each tick and the command held
 over the period — the simulator's own sampling order, so this threshold is what the simulator
 reaches without quantization (tests check it).
 
@@ -38,7 +38,7 @@ import numpy as np
 import scipy.linalg
 import scipy.optimize
 
-from plants.effects import Compliance
+from manus.plants.effects import Compliance
 
 PADE_ORDER = 8
 SPRINGS = (1050.0, 1883.0, 3826.0, 9842.0, 34660.0, 130900.0)  # table 4.2 [N/m]
@@ -48,7 +48,7 @@ SPRINGS = (1050.0, 1883.0, 3826.0, 9842.0, 34660.0, 130900.0)  # table 4.2 [N/m]
 class LinearAxis:
     """The linear 1-DOF model: mass [kg], damping [N·s/m], velocity-filter corner λ [rad/s],
     delay [s], environment spring [N/m]; `shaft` adds the compliance effect's two-mass mode
-    (`plants.effects.Compliance`: motor fraction, frequency and damping ratio)."""
+    (`manus.plants.effects.Compliance`: motor fraction, frequency and damping ratio)."""
 
     mass: float = 1.0
     damping: float = 1.5

@@ -48,12 +48,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from adaptive.impedance import Impedance
-from estimators.base import FilteredFirstDifference
-from plants import Axis, Encoder, Model, Simulator
-from plants.effects import Compliance, Effect, per_joint, stack
-from plants.references import Step
-from runs.stability.linear import LinearAxis
+from manus.adaptive.impedance import Impedance
+from manus.estimators.base import FilteredFirstDifference
+from manus.plants import Axis, Encoder, Model, Simulator
+from manus.plants.effects import Compliance, Effect, per_joint, stack
+from manus.plants.references import Step
+from manus.runs.stability.linear import LinearAxis
 
 THESIS_PSD = 1e-6  # m², the thesis's Type 2 criterion (§4.5)
 SAMPLES_1KHZ = 1000  # the thesis's last second: 1000 samples

@@ -17,13 +17,13 @@ import functools
 import jax
 import numpy as np
 
-from adaptive.diagnose import diagnose
-from adaptive.impedance import Impedance
-from plants import Model, Simulator
-from plants.closed_loop import simulate
-from plants.recording import from_trajectory
-from plants.references import MultiSine
-from plants.structures import Manus2
+from manus.adaptive.diagnose import diagnose
+from manus.adaptive.impedance import Impedance
+from manus.plants import Model, Simulator
+from manus.plants.closed_loop import simulate
+from manus.plants.recording import from_trajectory
+from manus.plants.references import MultiSine
+from manus.plants.structures import Manus2
 
 SECONDS = 20.0  # also the `manus bench diagnose` size: 20 s, 2 joints, 1 kHz
 AMPLITUDE = 0.3  # rad: a swing wide enough that a tilted plane's cos/sin is not a constant
@@ -65,7 +65,7 @@ def recording(hidden: tuple[str, ...] = (), seconds: float = SECONDS, seed: int 
 def discover(rec, model: str, max_steps: int = 6):
     """Diagnose, add the verdict (as found: its spec), repeat until the verdict is null. Returns
     the diagnoses, the last with a null verdict unless the cap was reached."""
-    from adaptive.fit import Columns, prepare
+    from manus.adaptive.fit import Columns, prepare
 
     data = prepare(rec)
     cols = Columns(data)
@@ -85,7 +85,7 @@ def square_wave_recording(seconds: float = 6.0):
     import equinox as eqx
     import jax.numpy as jnp
 
-    from plants.recording import Recording
+    from manus.plants.recording import Recording
 
     sim = Simulator(Model(STRUCTURE, "rigid,viscous,coulomb,compliance"))
     t = np.arange(int(seconds * sim.rate_hz)) * sim.dt
@@ -111,6 +111,6 @@ def emps(name: str = "DATA_EMPS.mat"):
 
 @functools.lru_cache(maxsize=None)
 def _read(path: str):
-    from plants.recording import read
+    from manus.plants.recording import read
 
     return read(path)

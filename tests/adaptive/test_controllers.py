@@ -2,11 +2,11 @@
 
 import pytest
 
-from adaptive import CONTROLLERS, Composite, Impedance, SlotineLi, make_controller
-from estimators.base import FilteredFirstDifference
-from plants import Model
-from plants.errors import ManusError
-from plants.structures import Axis, Manus2
+from manus.adaptive import CONTROLLERS, Composite, Impedance, SlotineLi, make_controller
+from manus.estimators.base import FilteredFirstDifference
+from manus.plants import Model
+from manus.plants.errors import ManusError
+from manus.plants.structures import Axis, Manus2
 
 MODEL = Model(Manus2(), "rigid,viscous")
 
@@ -38,7 +38,7 @@ def test_estimators_come_by_name_and_model_based_ones_use_the_controllers_model(
     (("slotine-li", MODEL, 1e-3), {"gains": 3.0}, "unexpected keyword argument 'gains'"),
     (("slotine-li-composite", MODEL, 1e-3), {"bandwidth": -5.0}, "composite bandwidth must be positive"),
     (("impedance", MODEL, 1e-3), {"stiffness": -30.0}, "stiffness must be positive definite"),
-    (("slotine-li", "rigid", 1e-3), {}, "needs a plants.effects.Model"),
+    (("slotine-li", "rigid", 1e-3), {}, "needs a manus.plants.effects.Model"),
 ])
 def test_bad_requests_are_refused_with_a_clear_message(args, kwargs, match):
     with pytest.raises(ManusError, match=match):

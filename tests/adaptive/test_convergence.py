@@ -10,10 +10,10 @@ import json
 
 import pytest
 
-from plants import Model, Simulator
-from plants.structures import Manus2
-from runs.cli import main
-from runs.cmd_converge import controller_for, reference_named, run_trials, summarize
+from manus.plants import Model, Simulator
+from manus.plants.structures import Manus2
+from manus.runs.cli import main
+from manus.runs.cmd_converge import controller_for, reference_named, run_trials, summarize
 
 TRUTH = "rigid,viscous,coulomb"
 RIGID = ("a1", "a2", "a3")

@@ -1,4 +1,4 @@
-"""Diagnosis (`adaptive.diagnose`) on recordings whose missing effect is known: simulated arms
+"""Diagnosis (`manus.adaptive.diagnose`) on recordings whose missing effect is known: simulated arms
 with hidden effects (the truth parameters are the reference), the EMPS axis against its published
 reference model, and the compliant shaft under the thesis's open-loop square wave."""
 
@@ -8,9 +8,9 @@ import time
 import numpy as np
 import pytest
 
-from adaptive.diagnose import diagnose
-from adaptive.fit import fit
-from plants.errors import ModelError
+from manus.adaptive.diagnose import diagnose
+from manus.adaptive.fit import fit
+from manus.plants.errors import ModelError
 from tests.adaptive import hidden
 
 # per hidden effect: the relative tolerance on its fitted linear parameters against the truth
@@ -192,7 +192,7 @@ def test_unknown_effect_and_short_recordings_are_refused():
 def test_prepared_data_and_fixed_nonlinear_parameters_are_kept():
     """`discover` prepares once and passes the data and the model as text: cogging:39 written with
     its order is held, not searched again."""
-    from adaptive.fit import prepare
+    from manus.adaptive.fit import prepare
 
     rec = hidden.recording(("offset", "cogging"))
     data = prepare(rec)

@@ -1,4 +1,4 @@
-"""Inverse-dynamics fitting (`adaptive.fit`) against independent references: the published EMPS
+"""Inverse-dynamics fitting (`manus.adaptive.fit`) against independent references: the published EMPS
 reference model (Janot, Gautier, Brunot 2019) and the simulator's truth parameters."""
 
 import json
@@ -6,9 +6,9 @@ import json
 import numpy as np
 import pytest
 
-from adaptive.fit import fit, prepare
-from plants.errors import ManusError, ModelError
-from plants.recording import Recording
+from manus.adaptive.fit import fit, prepare
+from manus.plants.errors import ManusError, ModelError
+from manus.plants.recording import Recording
 from tests.adaptive import hidden
 
 # ../shared/data/emps/README.md: the reference model, its std and its relative errors

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 
-from adaptive.projection import Projection, project_psd2
-from plants.effects import Model
-from plants.structures import Axis, Manus2
+from manus.adaptive.projection import Projection, project_psd2
+from manus.plants.effects import Model
+from manus.plants.structures import Axis, Manus2
 
 MODEL = Model(Manus2(), "rigid,viscous,coulomb,offset")
 GAMMA = np.array([0.2, 0.2, 0.5, 20, 20, 20, 20, 20, 20])

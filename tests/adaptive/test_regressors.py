@@ -6,11 +6,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from adaptive.regressors import Regressor
-from plants.effects import Model
-from plants.errors import ModelError
-from plants.references import Complex
-from plants.structures import Axis, Manus2
+from manus.adaptive.regressors import Regressor
+from manus.plants.effects import Model
+from manus.plants.errors import ModelError
+from manus.plants.references import Complex
+from manus.plants.structures import Axis, Manus2
 
 ALL_LINEAR = "rigid,viscous,coulomb,stribeck,asymmetry,offset,gravity,cogging"
 

@@ -8,13 +8,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from adaptive import Composite, SlotineLi, make_controller, replay, rollout
-from estimators.base import Estimate, Estimator, FirstDifference
-from plants import Model, Simulator
-from plants.closed_loop import simulate
-from plants.errors import ManusError
-from plants.references import Complex
-from plants.structures import Axis, Manus2
+from manus.adaptive import Composite, SlotineLi, make_controller, replay, rollout
+from manus.estimators.base import Estimate, Estimator, FirstDifference
+from manus.plants import Model, Simulator
+from manus.plants.closed_loop import simulate
+from manus.plants.errors import ManusError
+from manus.plants.references import Complex
+from manus.plants.structures import Axis, Manus2
 
 TRUTH = Model(Manus2(), "rigid,viscous")
 THETA = np.array([0.349, 0.241, 0.246, 0.222, 0.181])

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from plants.references import MultiSine, PositionReference
+from manus.plants.references import MultiSine, PositionReference
 
 STEP = 2 * math.pi / 131072
 DT = 1e-3
@@ -45,10 +45,10 @@ def arm_recording(tmp_path_factory):
     """The thesis's arm (rigid, viscous, Coulomb, 1 ms delay) under stiff impedance control
     (K = 300 N·m/rad, B = 4 N·m·s/rad, the thesis's filtered first difference in the loop),
     3.5 s: 2.5 s of motion, then holding still. Written as a CSV recording with the truth."""
-    from adaptive.impedance import Impedance
-    from plants import Model, Simulator, recording
-    from plants.closed_loop import simulate
-    from plants.structures import Manus2
+    from manus.adaptive.impedance import Impedance
+    from manus.plants import Model, Simulator, recording
+    from manus.plants.closed_loop import simulate
+    from manus.plants.structures import Manus2
 
     plant = Simulator(Model(Manus2(), "rigid,viscous,coulomb,delay"))
     reference = MoveThenHold(MultiSine(amplitude=0.1, f_min=0.5, f_max=5.0, components=6, ramp=0.3), 2.5)
@@ -61,6 +61,6 @@ def arm_recording(tmp_path_factory):
 @pytest.fixture(scope="session")
 def arm_report(arm_recording):
     """`compare` of every estimator on the arm recording: (report, estimates)."""
-    from estimators.compare import compare
+    from manus.estimators.compare import compare
 
     return compare(arm_recording)

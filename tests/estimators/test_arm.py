@@ -8,9 +8,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import estimators
-from plants import Manus2, Model
-from estimators.compare import Setup, reference_velocity, run_estimator, tune
+from manus import estimators
+from manus.plants import Manus2, Model
+from manus.estimators.compare import Setup, reference_velocity, run_estimator, tune
 
 
 def test_kalman_ca_is_5x_better_than_the_thesis_filter_at_under_1ms(arm_recording, arm_report):

@@ -1,4 +1,4 @@
-"""`manus estimators` (DESIGN.md §4) and the registry's errors."""
+"""`manus estimators` (docs/cli.md) and the registry's errors."""
 
 import json
 
@@ -6,9 +6,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import estimators
-from plants.errors import ManusError
-from runs.cli import main
+from manus import estimators
+from manus.plants.errors import ManusError
+from manus.runs.cli import main
 
 KEYS = {"name", "rms_error", "max_error", "moving", "still", "lag_ms", "noise_50hz"}
 

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from scipy.io import loadmat
 
-import estimators
-from runs.cli import main
+from manus import estimators
+from manus.runs.cli import main
 
 
 def rig_output(m, estimate):

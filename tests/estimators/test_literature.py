@@ -5,8 +5,8 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-import estimators
-from estimators.sliding import K1, K2
+from manus import estimators
+from manus.estimators.sliding import K1, K2
 from tests.estimators.conftest import DT, STEP
 
 scan = eqx.filter_jit(estimators.run)

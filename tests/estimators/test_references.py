@@ -10,9 +10,9 @@ import scipy.signal
 from filterpy.common import Q_continuous_white_noise
 from filterpy.kalman import ExtendedKalmanFilter, KalmanFilter
 
-import estimators
-from estimators.kalman import transition
-from estimators.sliding import K1, K2
+from manus import estimators
+from manus.estimators.kalman import transition
+from manus.estimators.sliding import K1, K2
 from tests.estimators.conftest import DT, STEP
 
 R = STEP**2 / 12

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import scipy.signal
 
-import estimators
-from estimators.linear import THESIS_CORNER, ffd_noise_gain
-from estimators.response import frequency_response
+from manus import estimators
+from manus.estimators.linear import THESIS_CORNER, ffd_noise_gain
+from manus.estimators.response import frequency_response
 
 DT = 1e-3
 

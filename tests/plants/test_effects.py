@@ -5,9 +5,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from plants.effects import VOCABULARY, Model, parse_effects
-from plants.errors import ModelError
-from plants.structures import Axis, Manus2
+from manus.plants.effects import VOCABULARY, Model, parse_effects
+from manus.plants.errors import ModelError
+from manus.plants.structures import Axis, Manus2
 
 LINEAR = [name for name, cls in VOCABULARY.items() if cls().linear]
 

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from plants import fastmath
+from manus.plants import fastmath
 
 RNG = np.random.default_rng(7)
 SINCOS = jax.jit(fastmath.sincos)

@@ -18,17 +18,17 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from plants import protocol as P
-from plants.hardware import realtime_jax
+from manus.plants import protocol as P
+from manus.plants.hardware import realtime_jax
 
 realtime_jax()
 
-from plants.device import open_device  # noqa: E402
-from plants.hardware import CompiledTick, run_loop  # noqa: E402
-from plants.recording import RecordingWriter, read  # noqa: E402
-from plants.stepper import Controller  # noqa: E402
+from manus.plants.device import open_device  # noqa: E402
+from manus.plants.hardware import CompiledTick, run_loop  # noqa: E402
+from manus.plants.recording import RecordingWriter, read  # noqa: E402
+from manus.plants.stepper import Controller  # noqa: E402
 
-MANUS = [sys.executable, "-m", "runs.cli"]
+MANUS = [sys.executable, "-m", "manus.runs.cli"]
 ROOT = Path(__file__).resolve().parents[2]
 TRUTH = "rigid,viscous,coulomb"
 HALF_LSB_TORQUE = 10.0 / 2**11 * 2.22 / 2  # the D/A's rounding, in N·m
@@ -79,7 +79,7 @@ def rigs(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def stepper(rigs):
-    from runs.cmd_run_hardware import build_stepper
+    from manus.runs.cmd_run_hardware import build_stepper
 
     dev = open_device(f"udp://127.0.0.1:{rigs['clean'][1]}")
     info = dev.connect()
@@ -144,7 +144,7 @@ def test_a_two_second_run_tracks_its_reference_and_leaves_a_readable_recording(r
 
 
 def test_the_rig_as_a_plant_steps_like_the_simulator_would(rigs):
-    from plants.hardware import HardwarePlant
+    from manus.plants.hardware import HardwarePlant
 
     plant = HardwarePlant(_device(rigs, "clean"), watchdog=0.5)
     state, q0 = plant.reset()
@@ -178,9 +178,9 @@ class NaNAfter(Controller):
 
 
 def test_a_controller_returning_nan_stops_the_run_at_zero_torque(rigs, tmp_path):
-    from adaptive.controllers import make_controller
-    from plants import Model, structure_named
-    from plants.references import Benign
+    from manus.adaptive.controllers import make_controller
+    from manus.plants import Model, structure_named
+    from manus.plants.references import Benign
 
     dev = _device(rigs, "clean")
     ctrl = NaNAfter(make_controller("impedance", Model(structure_named("manus2", 2), TRUTH), 1e-3), 300)

@@ -7,8 +7,8 @@ import time
 import numpy as np
 import pytest
 
-from plants import protocol as P
-from plants.device import DeviceError, UdpDevice, open_device
+from manus.plants import protocol as P
+from manus.plants.device import DeviceError, UdpDevice, open_device
 
 
 def test_packets_round_trip_exactly():

@@ -5,9 +5,9 @@ import warnings
 import numpy as np
 import pytest
 
-from plants import recording
-from plants.errors import RecordingError
-from plants.recording import Recording, RecordingWriter
+from manus.plants import recording
+from manus.plants.errors import RecordingError
+from manus.plants.recording import Recording, RecordingWriter
 
 GOOD = """# sample_rate_hz: 1000
 # counts_per_rev: 131072

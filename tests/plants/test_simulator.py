@@ -13,11 +13,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from adaptive.impedance import Impedance
-from plants import Encoder, Model, Simulator
-from plants.closed_loop import simulate, simulate_batch
-from plants.references import Complex, MultiSine
-from plants.structures import Axis, Manus2
+from manus.adaptive.impedance import Impedance
+from manus.plants import Encoder, Model, Simulator
+from manus.plants.closed_loop import simulate, simulate_batch
+from manus.plants.references import Complex, MultiSine
+from manus.plants.structures import Axis, Manus2
 
 A1, A2, A3, B1, B2 = 0.349, 0.241, 0.246, 0.222, 0.181
 
@@ -289,11 +289,11 @@ import json, os
 os.environ["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2"
 import equinox as eqx, jax, jax.numpy as jnp, numpy as np
 jax.config.update("jax_enable_x64", True)
-from adaptive.impedance import Impedance
-from plants import Model, Simulator
-from plants.closed_loop import simulate, simulate_batch
-from plants.references import Complex
-from plants.structures import Manus2
+from manus.adaptive.impedance import Impedance
+from manus.plants import Model, Simulator
+from manus.plants.closed_loop import simulate, simulate_batch
+from manus.plants.references import Complex
+from manus.plants.structures import Manus2
 plant = Simulator(Model(Manus2(), "rigid,viscous,coulomb,delay"), torque_noise=0.01)
 gains = jnp.array([10.0, 25.0, 40.0, 60.0])
 controllers = eqx.filter_vmap(lambda k: Impedance(k, 1.0))(gains)

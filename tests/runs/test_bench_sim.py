@@ -2,7 +2,7 @@
 
 import json
 
-from runs.cli import main
+from manus.runs.cli import main
 
 
 def test_bench_sim_reports_its_figures_beside_a_numpy_loop_of_the_same_model(capsys):

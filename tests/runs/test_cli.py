@@ -4,8 +4,8 @@ import json
 
 import numpy as np
 
-from plants import recording
-from runs.cli import main
+from manus.plants import recording
+from manus.runs.cli import main
 
 
 def test_simulate_writes_a_readable_recording_with_truth(tmp_path, capsys):

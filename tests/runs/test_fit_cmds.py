@@ -1,5 +1,5 @@
 """`manus fit`, `diagnose`, `discover`, `demo` and `bench diagnose`: the command-line contract
-(DESIGN.md §4), the figures and the report, the loop finding a hidden effect, and bad input.
+(docs/cli.md), the figures and the report, the loop finding a hidden effect, and bad input.
 
 One simulated recording is shared: the arm under impedance control for 20 s with 39/rev cogging
 hidden from the thesis's nominal model (rigid, viscous, Coulomb)."""
@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from runs.cli import commands, main, parser
+from manus.runs.cli import commands, main, parser
 
 TRUTH = "rigid,viscous,coulomb,cogging:39"
 NOMINAL = "rigid,viscous,coulomb"
@@ -18,7 +18,7 @@ NOMINAL = "rigid,viscous,coulomb"
 
 @pytest.fixture(scope="module")
 def hidden_cogging(tmp_path_factory) -> str:
-    from runs import cmd_simulate
+    from manus.runs import cmd_simulate
 
     path = tmp_path_factory.mktemp("rec") / "hidden.csv"
     args = parser(commands()).parse_args(["simulate", "--truth", TRUTH, "--seconds", "20", "--out", str(path)])
@@ -55,7 +55,7 @@ def test_fit_reports_every_parameter_with_std_and_the_compare_figure(capsys, hid
     assert set(r["params"]) == {"a1", "a2", "a3", "b1", "b2", "Fc1", "Fc2", "A1", "A2", "B1", "B2"}
     assert all(set(p) == {"value", "std"} and p["std"] > 0 for p in r["params"].values())
     assert r["nonlinear"]["order"] == 39  # the cogging order, searched
-    # the thesis's inertia parameters (plants.structures defaults) within 2 %
+    # the thesis's inertia parameters (manus.plants.structures defaults) within 2 %
     for k, truth in {"a1": 0.349, "a2": 0.241, "a3": 0.246}.items():
         assert abs(r["params"][k]["value"] / truth - 1) < 0.02, (k, r["params"][k])
     assert r["rel_error"] < 0.015 and r["samples"] > 500

@@ -5,9 +5,9 @@ import json
 
 import pytest
 
-from runs import cli
-from runs.stability.sensitivity import check
-from runs.stability.steptest import TYPE2
+from manus.runs import cli
+from manus.runs.stability.sensitivity import check
+from manus.runs.stability.steptest import TYPE2
 
 
 def test_stability_command_json(tmp_path, capsys):

@@ -4,10 +4,10 @@ worker, each vmapped) give the same result; trials do not depend on the batch th
 import numpy as np
 import pytest
 
-from plants.errors import ManusError
-from runs import sweep
-from runs.stability.search import read_map
-from runs.stability.steptest import StepTest, verdict
+from manus.plants.errors import ManusError
+from manus.runs import sweep
+from manus.runs.stability.search import read_map
+from manus.runs.stability.steptest import StepTest, verdict
 
 TEST = StepTest(seconds=2.5, at=1.0)  # a shorter step test: the same code, cheaper
 B_CS = np.array([0.0, 12.0, 24.0, 36.0])

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from runs import cmd_sysid, sysid
+from manus.runs import cmd_sysid, sysid
 
 THESIS = {"a1": 0.349, "a2": 0.241, "a3": 0.246, "b1": 0.222, "b2": 0.181, "Fc1": 0.099, "Fc2": 0.139}
 
