@@ -41,7 +41,7 @@ def commands() -> dict[str, object]:
     found = {}
     for info in pkgutil.iter_modules(runs.__path__):
         if info.name.startswith("cmd_"):
-            module = importlib.import_module(f"runs.{info.name}")
+            module = importlib.import_module(f"manus.runs.{info.name}")
             found[getattr(module, "NAME", info.name[4:].replace("_", "-"))] = module
     return dict(sorted(found.items()))
 

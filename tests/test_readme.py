@@ -33,6 +33,20 @@ def test_one_import_name(tmp_path):
     assert out.stdout.strip() == "[]"
 
 
+def test_every_module_imports_outside_the_tree(tmp_path):
+    """Every module of the package, and the `manus` command's list of commands, from another
+    directory: a leftover import of a bare folder name (`runs.x`) would fail only there."""
+    code = ("import pkgutil, importlib, manus, manus.plants, manus.estimators, manus.adaptive, manus.runs\n"
+            "for pkg in (manus.plants, manus.estimators, manus.adaptive, manus.runs):\n"
+            "    for m in pkgutil.walk_packages(pkg.__path__, pkg.__name__ + '.'):\n"
+            "        importlib.import_module(m.name)\n"
+            "from manus.runs.cli import commands\n"
+            "print(len(commands()))")
+    out = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert int(out.stdout.split()[-1]) >= 10
+
+
 def test_package_does_not_need_shared():
     """Nothing in the package refers to ../shared, except the demo's search for the EMPS file."""
     hits = [f"{p.relative_to(ROOT)}:{i + 1}" for d in ("plants", "estimators", "adaptive", "runs", "manus")
