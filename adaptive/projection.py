@@ -16,10 +16,23 @@ Slotine–Li proof never grows by projecting (a Euclidean projection with a non-
 make it grow). The composite law's least-squares gain P is not diagonal; there the metric is
 diag(P)⁻¹: the estimates stay admissible, and the inequality holds only approximately.
 
-The box constraints separate (Γ is diagonal). The cone is done exactly: a point outside it is
-projected onto its boundary, the rank-one matrices t n nᵀ with n = (cos φ, sin φ), t ≥ 0; for a
-given φ the best t is closed-form, and φ is found by a grid over [0, π) refined by golden-section
-search (to about 1e-9 rad).
+The box constraints separate (Γ is diagonal). The cone is a second-order cone: in the coordinates
+z = Γ^{-1/2} (u, v, w) of the metric, P = (z_u + z_w)/√2, M = (z_u − z_w)/√2, V = z_v, the set
+{[[u, v], [v, w]] ⪰ 0} is {P ≥ √(M² + r V²)}, r = 2 γ_v/√(γ_u γ_w): an elliptic cone, projected on
+in the Euclidean norm of z. A point (P₀, M₀, V₀) outside it with P₀ ≥ 0 lands on its boundary at
+
+    M = M₀/(1 + μ),   V = V₀/(1 + r μ),   P = √(M² + r V²),   for the μ ∈ [0, 1] with
+    F(μ) = P₀ / √(M² + r V²) − (1 − μ) = 0
+
+(the stationarity conditions P = P₀/(1 − μ), M = M₀/(1 + μ), V = V₀/(1 + r μ) on P² = M² + r V²).
+F is concave and increasing on [0, 1] (1/√(a⁻² + b⁻²) is concave in a, b > 0, here affine in μ),
+so Newton's method from a point left of the root climbs to it monotonically; it starts from the
+larger of the roots with M or V alone (both left of it) and takes `NEWTON_STEPS` steps, no branch:
+machine precision for 1e-6 ≤ r ≤ 1e6 (and every iterate lies on the boundary: admissible even
+unconverged). A point with P₀ < 0 goes through Moreau's decomposition, P_K(z) = z + P_K*(−z), onto
+the dual cone K* = {P ≥ √(M² + V²/r)}, where −z has P ≥ 0 (inside K*, i.e. z in the polar cone:
+the projection is the apex, 0). Everything is elementwise arithmetic with a fixed number of steps:
+under `vmap` every quantity is a batch vector.
 """
 
 from __future__ import annotations
@@ -38,40 +51,48 @@ from manus.plants.errors import ModelError
 from manus.plants.structures import Axis, Manus2
 
 NONNEGATIVE = ("viscous", "coulomb", "stribeck")
-GRID = 32
-GOLDEN_STEPS = 40
-INV_PHI = (math.sqrt(5) - 1) / 2
+NEWTON_STEPS = 10
+_SQRT_HALF = math.sqrt(0.5)
 
 
-def _ray(phi):
-    c, s = jnp.cos(phi), jnp.sin(phi)
-    return c * c, c * s, s * s
+def _onto_elliptic_cone(p0, m0, v0, r):
+    """The Euclidean projection of (p0, m0, v0), p0 >= 0, onto {P ≥ √(M² + r V²)} (module docstring)."""
+    am, av = jnp.abs(m0), jnp.sqrt(r) * jnp.abs(v0)
+    tiny = jnp.finfo(jnp.result_type(p0, float)).tiny
+    # the roots with M alone and with V alone: left of the root of both together
+    mu = jnp.maximum(0.0, jnp.maximum((am - p0) / jnp.maximum(am + p0, tiny),
+                                      (av - p0) / jnp.maximum(r * p0 + av, tiny)))
+
+    def newton(_, mu):
+        m, v = m0 / (1.0 + mu), v0 / (1.0 + r * mu)
+        rho2 = jnp.maximum(m * m + r * v * v, tiny)
+        rho = jnp.sqrt(rho2)
+        # F = p0/ρ − (1 − μ); dρ/dμ = −(m²/(1 + μ) + r² v²/(1 + r μ))/ρ
+        f = p0 / rho - (1.0 - mu)
+        df = 1.0 + p0 * (m * m / (1.0 + mu) + r * r * v * v / (1.0 + r * mu)) / (rho2 * rho)
+        return mu - f / df
+
+    mu = jax.lax.fori_loop(0, NEWTON_STEPS, newton, mu, unroll=True)
+    m, v = m0 / (1.0 + mu), v0 / (1.0 + r * mu)
+    inside = m0 * m0 + r * v0 * v0 <= p0 * p0
+    return (jnp.where(inside, p0, jnp.sqrt(m * m + r * v * v)), jnp.where(inside, m0, m),
+            jnp.where(inside, v0, v))
 
 
 def project_psd2(u, v, w, g1, g2, g3):
-    """The point of {[[u, v], [v, w]] ⪰ 0} closest to (u, v, w) in the metric diag(1/g)."""
-    def fit(phi):
-        r = _ray(phi)
-        num = u * r[0] / g1 + v * r[1] / g2 + w * r[2] / g3
-        den = r[0] ** 2 / g1 + r[1] ** 2 / g2 + r[2] ** 2 / g3
-        return jnp.maximum(num, 0.0) ** 2 / den, jnp.maximum(num, 0.0) / den  # gain, best t
-
-    phis = jnp.arange(GRID) * (jnp.pi / GRID)
-    best = phis[jnp.argmax(jax.vmap(lambda p: fit(p)[0])(phis))]
-    h = jnp.pi / GRID
-
-    def golden(_, ab):
-        a, b = ab
-        c, d = b - INV_PHI * (b - a), a + INV_PHI * (b - a)
-        left = fit(c)[0] >= fit(d)[0]
-        return jnp.where(left, a, c), jnp.where(left, d, b)
-
-    a, b = jax.lax.fori_loop(0, GOLDEN_STEPS, golden, (best - h, best + h))
-    phi = 0.5 * (a + b)
-    t = fit(phi)[1]
-    r = _ray(phi)
+    """The point of {[[u, v], [v, w]] ⪰ 0} closest to (u, v, w) in the metric diag(1/g)
+    (module docstring); points inside come back unchanged."""
+    s1, s2, s3 = jnp.sqrt(g1), jnp.sqrt(g2), jnp.sqrt(g3)
+    zu, zw = u / s1, w / s3
+    p0, m0, v0 = (zu + zw) * _SQRT_HALF, (zu - zw) * _SQRT_HALF, v / s2
+    r = 2.0 * g2 / (s1 * s3)
+    dual = p0 < 0  # Moreau: P_K(z) = z + P_K*(−z), K* the cone with 1/r
+    sign = jnp.where(dual, -1.0, 1.0)
+    p, m, n = _onto_elliptic_cone(sign * p0, sign * m0, sign * v0, jnp.where(dual, 1.0 / r, r))
+    p, m, n = (jnp.where(dual, x0 + x, x) for x0, x in ((p0, p), (m0, m), (v0, n)))
     inside = (u >= 0) & (w >= 0) & (u * w >= v * v)
-    return tuple(jnp.where(inside, x, t * ri) for x, ri in zip((u, v, w), r))
+    return (jnp.where(inside, u, s1 * (p + m) * _SQRT_HALF), jnp.where(inside, v, s2 * n),
+            jnp.where(inside, w, s3 * (p - m) * _SQRT_HALF))
 
 
 class Projection(eqx.Module):
@@ -106,11 +127,8 @@ class Projection(eqx.Module):
         eps, g = self.min_inertia, gamma
         u, v, w = theta[i] - eps, theta[j], theta[k] - eps
 
-        def onto_cone():
-            pu, pv, pw = project_psd2(u, v, w, g[i], g[j], g[k])
-            return theta.at[i].set(pu + eps).at[j].set(pv).at[k].set(pw + eps)
-
-        # inside, the cone leaves θ as it is: the search (most of a real-time tick) runs only
-        # when the estimate leaves it (under vmap `cond` becomes a select and both run)
+        pu, pv, pw = project_psd2(u, v, w, g[i], g[j], g[k])
+        # a select, no branch: under vmap a `cond` runs both sides anyway, and the projection is
+        # a few dozen flops; inside the cone θ comes back bit for bit
         inside = (u >= 0) & (w >= 0) & (u * w >= v * v)
-        return jax.lax.cond(inside, lambda: theta, onto_cone)
+        return jnp.where(inside, theta, theta.at[i].set(pu + eps).at[j].set(pv).at[k].set(pw + eps))
