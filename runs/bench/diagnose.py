@@ -11,6 +11,12 @@ under impedance control following a multi-sine (`manus simulate`'s defaults). Ti
 - the baseline: a plain `scipy.optimize.least_squares` fit of the same model (the closed-form
   torque of the arm in numpy on the same kinematics, low-passed like the torque, on the rows `fit` uses),
   and how far its parameters are from `fit`'s.
+
+`--calibrate` instead runs the calibration set (`manus.runs.calibration`): `--recordings` N
+recordings with nothing missing and N per hidden effect of the vocabulary, each under a condition
+drawn from its seed, and reports the false-alarm rate (a verdict on a recording with nothing
+missing), the detection rate (the verdict names the hidden effect; and with the right joint) per
+effect and per condition value, each with its Wilson 95 % interval, and the time per recording.
 """
 
 from __future__ import annotations
@@ -30,6 +36,13 @@ NAMES = ("a1", "a2", "a3", "b1", "b2", "Fc1", "Fc2")
 def add_arguments(p) -> None:
     p.add_argument("--seconds", type=float, default=20.0, help="length of the simulated recording [s]")
     p.add_argument("--repeats", type=int, default=2, help="best of this many timed runs after the first")
+    p.add_argument("--calibrate", action="store_true",
+                   help="false-alarm and detection rates over the calibration set (manus.runs.calibration)")
+    p.add_argument("--recordings", type=int, default=100,
+                   help="with --calibrate: recordings with nothing missing, and this many per hidden effect")
+    p.add_argument("--seed", type=int, default=0, help="with --calibrate: the first seed of the set")
+    p.add_argument("--effects", default="",
+                   help="with --calibrate: a comma-separated subset of the hidden effects (default: every effect)")
 
 
 def arm_torque(theta: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
@@ -73,6 +86,8 @@ def _timed(fn, repeats: int):
 
 
 def run(args) -> dict:
+    if getattr(args, "calibrate", False):
+        return calibrate(args)
     import jax
 
     from manus.adaptive.diagnose import diagnose
@@ -116,6 +131,8 @@ def run(args) -> dict:
 
 
 def render(r: dict) -> str:
+    if "calibration" in r:
+        return render_calibration(r)
     f = r["figures"]
     return "\n".join([
         f"diagnose {r['model']} on {r['seconds']:g} s of the simulated arm (truth {r['truth']}), {r['samples']} samples "
@@ -128,3 +145,190 @@ def render(r: dict) -> str:
         f"against fit's {100 * r['rel_error']['fit']:.2f} %)",
         f"  diagnose costs {r['diagnose_over_scipy']:.3g} plain scipy fits",
     ])
+
+
+# -- the calibration set -------------------------------------------------------------------------
+CONDITION_KEYS = ("structure", "rate", "excitation", "torque", "hold")
+Z95 = 1.959963984540054
+
+
+def wilson(k: int, n: int, z: float = Z95) -> tuple[float, float]:
+    """The Wilson score interval of a proportion k/n (95 % by default); (0, 1) when n = 0."""
+    if n == 0:
+        return 0.0, 1.0
+    p = k / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def rate(k: int, n: int) -> dict:
+    lo, hi = wilson(k, n)
+    return {"k": k, "n": n, "rate": k / n if n else None, "lo": lo, "hi": hi}
+
+
+def case_seed(seed: int, effect_index: int, i: int) -> int:
+    """The seed of recording i of the set for one hidden effect (index 0: nothing hidden)."""
+    return int(np.random.SeedSequence([seed, effect_index, i]).generate_state(1)[0] % 2**31)
+
+
+def run_one(seed: int, hidden: str | None) -> dict:
+    """Simulate one calibration recording and diagnose it; never raises (a ManusError is an
+    `error`, anything else a `crash`, both reported)."""
+    import traceback
+
+    from manus.adaptive.diagnose import diagnose
+    from manus.plants.errors import ManusError
+    from manus.runs import calibration
+
+    out = {"seed": seed, "hidden": hidden}
+    try:
+        c = calibration.case(seed, hidden)
+    except Exception as e:  # the simulator: a bug of the bench, reported as a crash
+        out.update(outcome="crash", error=f"case: {type(e).__name__}: {e}", trace=traceback.format_exc(limit=6))
+        return out
+    out.update(condition=c.condition, joint=c.joint, start=c.start, simulate_s=c.seconds)
+    t0 = time.perf_counter()
+    try:
+        d = diagnose(c.rec, c.start)
+    except ManusError as e:
+        out.update(outcome="error", error=str(e), diagnose_s=time.perf_counter() - t0)
+        return out
+    except Exception as e:
+        out.update(outcome="crash", error=f"{type(e).__name__}: {e}", trace=traceback.format_exc(limit=8),
+                   diagnose_s=time.perf_counter() - t0)
+        return out
+    out["diagnose_s"] = time.perf_counter() - t0
+    v = d.verdict
+    out["verdict"] = None if v is None else v.effect
+    out["verdict_spec"] = None if v is None else v.spec
+    out["verdict_joint"] = None if v is None else int(v.joint)
+    if hidden is None:
+        out["outcome"] = "quiet" if v is None else "false alarm"
+    else:
+        named = v is not None and v.effect == hidden
+        out["named"] = bool(named)
+        out["right_joint"] = bool(named and (c.joint is None or v.joint == c.joint))
+        out["outcome"] = "named" if named else ("missed" if v is None else "wrong")
+    return out
+
+
+def summarize(results: list[dict]) -> dict:
+    """False-alarm and detection rates, overall, per effect and per condition value."""
+    nulls = [r for r in results if r["hidden"] is None]
+    hidden = [r for r in results if r["hidden"] is not None]
+
+    def alarms(rs):
+        return rate(sum(r["outcome"] == "false alarm" for r in rs), len(rs))
+
+    def detections(rs):
+        return {"named": rate(sum(bool(r.get("named")) for r in rs), len(rs)),
+                "right_joint": rate(sum(bool(r.get("right_joint")) for r in rs), len(rs))}
+
+    per_effect = {}
+    for name in dict.fromkeys(r["hidden"] for r in hidden):
+        rs = [r for r in hidden if r["hidden"] == name]
+        per_effect[name] = {**detections(rs), "verdicts": _counts(r.get("verdict") or r["outcome"] for r in rs)}
+    per_condition = {}
+    for key in CONDITION_KEYS:
+        values = sorted({str(r["condition"][key]) for r in results if "condition" in r})
+        per_condition[key] = {
+            v: {"false_alarm": alarms([r for r in nulls if str(r.get("condition", {}).get(key)) == v]),
+                **detections([r for r in hidden if str(r.get("condition", {}).get(key)) == v])}
+            for v in values}
+    times = [r["diagnose_s"] for r in results if "diagnose_s" in r]
+    sims = [r["simulate_s"] for r in results if "simulate_s" in r]
+    return {"false_alarm": alarms(nulls), "false_alarm_verdicts": _counts(r.get("verdict") for r in nulls
+                                                                          if r["outcome"] == "false alarm"),
+            "detection": detections(hidden), "per_effect": per_effect, "per_condition": per_condition,
+            "errors": sum(r["outcome"] == "error" for r in results), "crashes": sum(r["outcome"] == "crash" for r in results),
+            "diagnose_s_per_recording": {"mean": float(np.mean(times)) if times else None,
+                                         "median": float(np.median(times)) if times else None,
+                                         "max": float(np.max(times)) if times else None},
+            "simulate_s_per_recording": {"mean": float(np.mean(sims)) if sims else None}}
+
+
+def _counts(items) -> dict:
+    out: dict = {}
+    for x in items:
+        out[str(x)] = out.get(str(x), 0) + 1
+    return dict(sorted(out.items(), key=lambda kv: -kv[1]))
+
+
+def calibrate(args) -> dict:
+    from manus.plants.errors import ManusError
+    from manus.runs import calibration
+    from manus.runs.common import note
+
+    n = args.recordings
+    if n < 1:
+        raise ManusError("--recordings must be at least 1")
+    effects = calibration.hidden_effects()
+    if args.effects:
+        chosen = [e.strip() for e in args.effects.split(",") if e.strip()]
+        bad = [e for e in chosen if e not in effects]
+        if bad:
+            raise ManusError(f"--effects: unknown effect(s) {', '.join(bad)}: the vocabulary is {', '.join(effects)}")
+        effects = tuple(chosen)
+    plan = [(case_seed(args.seed, 0, i), None) for i in range(n)]
+    plan += [(case_seed(args.seed, 1 + calibration.hidden_effects().index(e), i), e) for e in effects for i in range(n)]
+    note(f"calibration: {n} recordings with nothing missing and {n} per hidden effect ({', '.join(effects)}): "
+         f"{len(plan)} in all")
+    t0 = time.perf_counter()
+    results = []
+    for k, (seed, hidden) in enumerate(plan, 1):
+        r = run_one(seed, hidden)
+        results.append(r)
+        if r["outcome"] in ("crash", "error", "false alarm", "missed", "wrong"):
+            c = r.get("condition", {})
+            note(f"  [{k}/{len(plan)}] hidden {hidden or 'nothing'} (seed {seed}, {c.get('structure')} {c.get('rate')} Hz "
+                 f"{c.get('excitation')} {c.get('torque')} hold {c.get('hold')}): {r['outcome']}"
+                 + (f" {r.get('verdict_spec')}" if r.get("verdict_spec") else "") + (f": {r['error']}" if "error" in r else ""))
+        elif k % 20 == 0:
+            note(f"  [{k}/{len(plan)}] {time.perf_counter() - t0:.0f} s")
+    summary = summarize(results)
+    wall = time.perf_counter() - t0
+    crashes = {}
+    for r in results:
+        if r["outcome"] == "crash":
+            crashes.setdefault(r["error"].splitlines()[0][:200], {"count": 0, "seed": r["seed"], "hidden": r["hidden"],
+                                                                  "trace": r.get("trace", "")})["count"] += 1
+    return {"figures": {"false_alarm_rate": summary["false_alarm"]["rate"],
+                        "detection_rate": summary["detection"]["named"]["rate"],
+                        "diagnose_s_per_recording": summary["diagnose_s_per_recording"]["mean"],
+                        "wall_s": wall},
+            "calibration": summary, "crashes": crashes, "recordings": n, "seed": args.seed, "effects": list(effects),
+            "amplitude": calibration.AMPLITUDE, "results": [{k: v for k, v in r.items() if k != "trace"} for r in results],
+            "load_average": os.getloadavg()[0], "cpu_count": os.cpu_count()}
+
+
+def _pct(r: dict) -> str:
+    if not r["n"]:
+        return "-"
+    return f"{100 * r['rate']:5.1f} % [{100 * r['lo']:.0f}, {100 * r['hi']:.0f}] ({r['k']}/{r['n']})"
+
+
+def render_calibration(r: dict) -> str:
+    s = r["calibration"]
+    lines = [f"calibration: {r['recordings']} recordings per row, seed {r['seed']}, hidden at "
+             f"{100 * r['amplitude']:g} % of the torque RMS; rates with Wilson 95 % intervals",
+             f"  false alarms (verdict on nothing missing): {_pct(s['false_alarm'])}"
+             + (f"  verdicts: {s['false_alarm_verdicts']}" if s["false_alarm_verdicts"] else ""),
+             f"  detection (verdict = hidden effect):       {_pct(s['detection']['named'])}",
+             f"  ... and with the right joint:              {_pct(s['detection']['right_joint'])}",
+             "",
+             f"{'hidden effect':<14}{'named':<32}{'right joint':<32}verdicts"]
+    for name, e in s["per_effect"].items():
+        lines.append(f"{name:<14}{_pct(e['named']):<32}{_pct(e['right_joint']):<32}{e['verdicts']}")
+    lines += ["", f"{'condition':<24}{'false alarm':<32}{'named':<32}right joint"]
+    for key, values in s["per_condition"].items():
+        for v, x in values.items():
+            lines.append(f"{key + '=' + v:<24}{_pct(x['false_alarm']):<32}{_pct(x['named']):<32}{_pct(x['right_joint'])}")
+    t = s["diagnose_s_per_recording"]
+    lines += ["", f"time per recording: diagnose {t['mean']:.2f} s mean, {t['median']:.2f} s median, {t['max']:.2f} s max; "
+              f"simulation {s['simulate_s_per_recording']['mean']:.2f} s mean; wall {r['figures']['wall_s']:.0f} s"
+              if t["mean"] is not None else "time per recording: -",
+              f"errors (ManusError): {s['errors']}, crashes (any other exception): {s['crashes']}"]
+    for msg, c in r["crashes"].items():
+        lines.append(f"  crash x{c['count']} (first: seed {c['seed']}, hidden {c['hidden']}): {msg}")
+    return "\n".join(lines)
