@@ -131,4 +131,6 @@ class Projection(eqx.Module):
         # a select, no branch: under vmap a `cond` runs both sides anyway, and the projection is
         # a few dozen flops; inside the cone θ comes back bit for bit
         inside = (u >= 0) & (w >= 0) & (u * w >= v * v)
-        return jnp.where(inside, theta, theta.at[i].set(pu + eps).at[j].set(pv).at[k].set(pw + eps))
+        moved = {i: pu + eps, j: pv, k: pw + eps}  # θ rebuilt from its entries: no scatter under vmap
+        projected = jnp.stack([moved[m] if m in moved else theta[m] for m in range(theta.shape[-1])])
+        return jnp.where(inside, theta, projected)

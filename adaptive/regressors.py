@@ -47,6 +47,7 @@ from jax import Array
 
 from manus.plants.effects import Model
 from manus.plants.errors import ModelError
+from manus.plants.structures import Manus2
 
 FORMS = ("slotine-li", "thesis")
 DEFAULT_BOUNDARY = 0.01  # φ [rad/s]: under 1 % of the complex trajectory's peak speed
@@ -105,6 +106,23 @@ class Regressor(eqx.Module):
         return total
 
     def __call__(self, q, qd, qd_r, qdd_r) -> Array:
-        """Y, shape (n, P): ∂(Y θ)/∂θ, exact because every column is linear in θ."""
+        """Y, shape (n, P): ∂(Y θ)/∂θ, exact because every column is linear in θ. MANUS-2's rigid
+        columns in the Slotine–Li form are written out (the matrix in the module docstring: per-joint
+        scalars, no 2×2 products, which under `vmap` become a tiny matrix product per trial)."""
         theta0 = jnp.zeros(len(self.names), jnp.result_type(qd_r, float))
-        return jax.jacfwd(lambda th: self.torque(q, qd, qd_r, qdd_r, th))(theta0)
+        s = self.model.structure
+        if not (self.form == "slotine-li" and isinstance(s, Manus2)):
+            return jax.jacfwd(lambda th: self.torque(q, qd, qd_r, qdd_r, th))(theta0)
+        c, sn = s.pose(q)
+        zero = 0.0 * c
+        columns = {"a1": (qdd_r[0], zero), "a2": (c * qdd_r[1] - sn * qd[1] * qd_r[1], c * qdd_r[0] + sn * qd[0] * qd_r[0]),
+                   "a3": (zero, qdd_r[1])}
+        if len(self.model.effects) > 1:  # the other effects' columns (elementwise in the joints)
+            def rest(th):
+                p = self.model.unvector(th)
+                return sum(e.torque(s, q, qd_r, qdd_r, p, self.boundary) for e in self.model.effects
+                           if e.name != "rigid")
+
+            Yo = jax.jacfwd(rest)(theta0)
+            columns.update({k: (Yo[0, i], Yo[1, i]) for i, k in enumerate(self.names) if k not in columns})
+        return jnp.stack([jnp.stack(columns[k]) for k in self.names], axis=1)

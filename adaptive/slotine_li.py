@@ -244,8 +244,10 @@ class SlotineLi(Controller):
         qd_d = ref.qd + self.lead * (ref.qdd + 0.5 * self.lead * jerk)
         qdd_d = ref.qdd + self.lead * jerk
         Y = self.regressor(q + self.lead * v, v, qd_d - self.lam * q_err, qdd_d - self.lam * v_err)
-        tau = jnp.clip(Y @ theta - self.kd * s, -self.limit, self.limit)
-        grad, comp, metric = Y.T @ s, state.composite, self.gamma
+        # Y θ and Yᵀ s as sums of products, not matrix products: under vmap a (2, P) product per
+        # trial is a tiny batched matmul, these fuse into the elementwise code
+        tau = jnp.clip(jnp.sum(Y * theta, axis=1) - self.kd * s, -self.limit, self.limit)
+        grad, comp, metric = jnp.sum(Y * s[:, None], axis=0), state.composite, self.gamma
         if self.composite is None:
             direction = self.gamma * grad
         else:
@@ -307,17 +309,80 @@ def rollout(plant: Plant, controller: SlotineLi, reference: Reference, steps: in
     return jax.tree.map(lambda x: x.reshape((steps,) + x.shape[2:]), log), grams
 
 
-@eqx.filter_jit
-def rollout_batch(plant: Plant, controller: SlotineLi, reference: Reference, per_trial: tuple, keys: Array,
-                  steps: int, every: int = 50) -> tuple[Log, Array]:
-    """Many `rollout`s at once (vmapped, jitted once per kind of plant, controller, reference and
-    length): trial i runs `controller` with per_trial = (â(0), Γ, Λ, K_D), each with a leading
-    trial axis, and the plant's noise key keys[i] -> (Log, G) with a leading trial axis."""
-    def one(arrays, key):
-        c = eqx.tree_at(lambda c: (c.theta0, c.gamma, c.lam, c.kd), controller, arrays)
-        return rollout(plant, c, reference, steps, key, every)
+class BatchLog(NamedTuple):
+    """What `rollout_batch` records: numpy arrays with a leading trial axis B (views of arrays
+    stored batch-last, as the compiled batch writes them)."""
 
-    return jax.vmap(one)(per_trial, keys)
+    t: np.ndarray  # (T,)
+    q_err: np.ndarray  # q − q_d (B, T, n)
+    tau: np.ndarray  # commands (B, T, n)
+    theta: np.ndarray  # estimates â after each tick (B, T, P)
+    stopped: np.ndarray  # the controller stopped itself by the end (B,)
+    grams: np.ndarray  # ∫₀ᵗ YᵀY dt at every `every`-th tick (B, T // every, P, P)
+
+
+def rollout_batch(plant: Plant, controller: SlotineLi, reference: Reference, per_trial: tuple, keys: Array,
+                  steps: int, every: int = 50) -> BatchLog:
+    """Many `rollout`s at once: trial i runs `controller` with per_trial = (â(0), Γ, Λ, K_D), each
+    with a leading trial axis, and the plant's noise key keys[i]. Compiled once per kind of plant,
+    controller, reference and length.
+
+    As `manus.plants.closed_loop.simulate_batch` does: the trials are vmapped inside the time scan
+    (every per-trial scalar a batch vector), the record is written batch-last (each tick writes
+    whole rows), and when the number of trials divides the number of devices they are split over
+    them (`shard_map`; one device per CPU core, see `manus.runs.cli`)."""
+    if steps % every:
+        raise ManusError(f"rollout: {steps} steps is not a multiple of every={every}")
+    t, q_err, tau, theta, stopped, grams = _batch(plant, controller, reference, tuple(per_trial), keys, int(steps),
+                                                  int(every))
+    return BatchLog(np.asarray(t), *(np.moveaxis(np.asarray(x), -1, 0) for x in (q_err, tau, theta, stopped, grams)))
+
+
+@eqx.filter_jit
+def _batch(plant, controller, reference, per_trial, keys, steps: int, every: int):
+    P = len(controller.names)
+
+    def run(plant, controller, reference, per_trial, keys):
+        def start(arrays, key):  # the controller of one trial (its own â(0), Γ, Λ, K_D) and its carry
+            c = eqx.tree_at(lambda c: (c.theta0, c.gamma, c.lam, c.kd), controller, arrays)
+            pstate, q = plant.reset(key, q0=reference(0.0).q)
+            return c, (pstate, c.init(q), q, jnp.zeros((P, P), q.dtype))
+
+        def tick(c, carry, k):
+            pstate, cstate, q, gram = carry
+            ref = reference(k * plant.dt)
+            cstate, u = c.step(cstate, q, ref)
+            pstate, q_next = plant.step(pstate, u)
+            Y = cstate.Y  # ∫YᵀY as a sum of products (a (P, 2) × (2, P) product per trial is tiny)
+            gram = gram + plant.dt * jnp.sum(Y[:, :, None] * Y[:, None, :], axis=0)
+            return (pstate, cstate, q_next, gram), (q - ref.q, u, cstate.theta)
+
+        # the whole controller per trial (measured: faster than sharing its constant arrays, whose
+        # small products with per-trial vectors then become matrix-library calls)
+        ticks = jax.vmap(tick, in_axes=(0, 0, None), out_axes=(0, -1))
+        cs, carry = jax.vmap(start)(per_trial, keys)
+
+        def chunk(carry, ks):
+            carry, rows = jax.lax.scan(lambda carry, k: ticks(cs, carry, k), carry, ks)
+            return carry, (rows, jnp.moveaxis(carry[3], 0, -1))
+
+        ks = jnp.arange(steps).reshape(steps // every, every)
+        carry, (rows, grams) = jax.lax.scan(chunk, carry, ks)
+        rows = jax.tree.map(lambda x: x.reshape((steps,) + x.shape[2:]), rows)
+        return (*rows, carry[1].stopped, grams)  # batch-last
+
+    devices = jax.devices()
+    t = jnp.arange(steps) * plant.dt
+    if len(devices) < 2 or keys.shape[0] % len(devices):
+        return (t, *run(plant, controller, reference, per_trial, keys))
+    Ps = jax.sharding.PartitionSpec
+    arrays, rest = eqx.partition((plant, controller, reference), eqx.is_array)
+    out = (Ps(None, None, "trials"),) * 3 + (Ps("trials"), Ps(None, None, None, "trials"))
+    # no collectives inside: every device runs its own trials
+    local = jax.shard_map(lambda arrays, per_trial, keys: run(*eqx.combine(arrays, rest), per_trial, keys),
+                          mesh=jax.sharding.Mesh(np.array(devices), ("trials",)),
+                          in_specs=(Ps(), Ps("trials"), Ps("trials")), out_specs=out, check_vma=False)
+    return (t, *local(arrays, per_trial, keys))
 
 
 def replay(controller: Controller, q: Array, refs: RefSample) -> tuple[Any, Array]:

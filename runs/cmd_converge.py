@@ -121,12 +121,11 @@ def run_trials(plant, controller, reference, trials: int, seconds: float, init_s
     arrays = (jnp.asarray(theta0), *(jnp.asarray(np.asarray(x) * np.exp(rng.uniform(-g, g, (trials,) + x.shape)))
                                      for x in (controller.gamma, controller.lam, controller.kd)))
     keys = jax.random.split(jax.random.PRNGKey(seed), trials)
-    log, grams = rollout_batch(plant, controller, reference, arrays, keys, steps, EVERY)
-    lam_min = np.linalg.eigvalsh(np.asarray(grams))[..., 0]
+    log = rollout_batch(plant, controller, reference, arrays, keys, steps, EVERY)
+    lam_min = np.linalg.eigvalsh(log.grams)[..., 0]
     truth = np.array([float(plant.params.get(k, 0.0)) for k in controller.names])
-    t = np.asarray(log.t[0])
-    return Trials(t, np.asarray(log.q - log.q_ref), np.asarray(log.tau), np.asarray(log.theta), t[EVERY - 1::EVERY] + plant.dt,
-                  np.asarray(lam_min), np.asarray(log.stopped[:, -1]), tuple(controller.names), truth)
+    return Trials(log.t, log.q_err, log.tau, log.theta, log.t[EVERY - 1::EVERY] + plant.dt,
+                  lam_min, log.stopped, tuple(controller.names), truth)
 
 
 def settle_times(t: np.ndarray, theta: np.ndarray, truth: float, tol: float = 0.05) -> np.ndarray:
