@@ -241,7 +241,8 @@ def summarize(results: list[dict]) -> dict:
     return {"false_alarm": alarms(nulls), "false_alarm_verdicts": _counts(r.get("verdict") for r in nulls
                                                                           if r["outcome"] == "false alarm"),
             "detection": detections(hidden), "per_effect": per_effect, "per_condition": per_condition,
-            "errors": sum(r["outcome"] == "error" for r in results), "crashes": sum(r["outcome"] == "crash" for r in results),
+            "errors": sum(r["outcome"] == "error" for r in results),
+            "null_errors": sum(r["outcome"] == "error" for r in nulls), "crashes": sum(r["outcome"] == "crash" for r in results),
             "diagnose_s_per_recording": {"mean": float(np.mean(times)) if times else None,
                                          "median": float(np.median(times)) if times else None,
                                          "max": float(np.max(times)) if times else None},
@@ -312,8 +313,9 @@ def render_calibration(r: dict) -> str:
     s = r["calibration"]
     lines = [f"calibration: {r['recordings']} recordings per row, seed {r['seed']}, hidden at "
              f"{100 * r['amplitude']:g} % of the torque RMS; rates with Wilson 95 % intervals",
-             f"  false alarms (verdict on nothing missing): {_pct(s['false_alarm'])}"
-             + (f"  verdicts: {s['false_alarm_verdicts']}" if s["false_alarm_verdicts"] else ""),
+             f"  false alarms (verdict on nothing missing):  {_pct(s['false_alarm'])}"
+             + (f"  verdicts: {s['false_alarm_verdicts']}" if s["false_alarm_verdicts"] else "")
+             + (f"  (and {s['null_errors']} refused with a ManusError)" if s.get("null_errors") else ""),
              f"  detection (verdict = hidden effect):       {_pct(s['detection']['named'])}",
              f"  ... and with the right joint:              {_pct(s['detection']['right_joint'])}",
              "",
