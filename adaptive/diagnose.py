@@ -1,38 +1,39 @@
 """Where does a model fail, and which physical effect is missing? (`manus diagnose`)
 
-Every effect of the vocabulary not yet in the model is a candidate. For each, the model plus the
-candidate is fitted (its non-linear parameter searched) and judged three ways:
+Every effect of the vocabulary that the model lacks is a candidate (and one it holds that can
+grow: a cogging of one more order), as the effect itself allows: one that does not apply to
+these joints (gravity on a prismatic axis), or that is offered only on top of another the model
+lacks (Stribeck without Coulomb), is not tried and the notes say so; one that brings another
+with it (a spring's preload is an offset) is tried with it. Each candidate is judged on held-out
+blocks, honestly:
 
-- `error_reduction`: the fraction of the current error (rel_error) that adding it removes;
-- held-out blocks: the recording is cut into `blocks` contiguous pieces; each is predicted by a
-  fit on the others (leaving out a guard of one filter length at the seams). The 1 kHz residual
-  is strongly autocorrelated, so a naive F-test over 20 000 samples calls everything
-  significant; the blocks are long enough to be nearly independent, and a one-sided t-test on
-  the per-block improvements is honest;
-- relevance: an effect must remove at least `min_reduction` of the current error to be proposed
-  (a real but negligible improvement is reported, not proposed).
+- the recording's used rows are cut into contiguous blocks (a guard of one filter length at the
+  seams left out of training: the filtered residual is correlated over about that long);
+- for each block, the candidate's non-linear parameter (a cogging order, a delay, a Stribeck
+  velocity) is searched on the *other* blocks only, the model fitted there, and the block
+  predicted: the search never sees the data it is judged on, and its freedom costs it there;
+- the per-block improvement is tested as the log ratio of squared errors, one-sided t-test over
+  the blocks, at `alpha` divided by the number of candidates of the step (Bonferroni);
+- relevance: a candidate must explain at least `min_share` of the recorded torque (RMS: the
+  torque it accounts for, √(e_before² − e_after²) in rel_error units). A share of the torque, not
+  of the current error: on a noisy recording the error is mostly noise, and a real effect removes
+  a small part of it.
 
-The verdict is chosen in three steps:
+A candidate is proposed only when it is also physical: its fitted parameters obey its effect's
+rules (friction b, Fc ≥ 0, Fs ≥ Fc, a spring k ≥ 0), its searched value does not sit on the edge
+of its search range, and the recording can identify it (columns not already explained by the
+model's own). Otherwise it is reported with the reason, not proposed. Where two candidates are
+readings of the same columns on this recording (motion in one direction: a Coulomb level and an
+offset are one constant), the verdict names both readings and proposes the one with fewer
+physical assumptions once.
 
-1. the significant candidate with the lowest held-out error;
-2. the one-standard-error rule: a simpler candidate (fewer parameters) whose held-out error is
-   within one standard error of it (over the blocks) is preferred: an offset and a gravity term
-   on a small swing fit alike, and the offset is the simpler story;
-3. the nested rule (docs/effects.md: effects overlap, and where one contains another the simpler
-   explanation comes first): when the base model plus the chosen effect reproduces a simpler
-   significant candidate's columns exactly (relative residual under `NESTED_RTOL` on the rows
-   used), that candidate is proposed instead, even when the bigger one fits better; the bigger
-   one is tested again at the next step, on top of the simpler one, where only what it adds
-   counts. The case in point: asymmetry's direction-dependent Coulomb term dFc |sgn q̇| is a
-   constant wherever the joint moves (standstill rows are left out), so with coulomb it is the
-   offset; asymmetry = offset + a direction-dependent viscous term. On EMPS asymmetry's held-out
-   error is 23.5 % below the offset's, but the offset is proposed first and asymmetry follows
-   (its viscous part is significant on its own). Approximate containment does not count: a
-   tilted plane's cos/sin reproduce an offset only to O(swing²), and there the one-standard-error
-   rule decides on the evidence. Both candidates say so in their `note` (`nested_in` on the verdict).
+The verdict is the significant, proposable candidate with the lowest held-out error; a simpler
+one (fewer parameters, searched ones counted) within one standard error of it is preferred.
 
-Candidates that explain the same thing as the verdict are marked `overlaps` (with the verdict
-added, they remove little more), with a note saying which fits better and by how much.
+After the verdict, the residual (of the model plus the verdict) is tested for structure no
+effect of the vocabulary explains (`unexplained`): a smooth function of each joint's position,
+velocity, position by direction of motion, of time, and a sinusoid at the residual's spectral
+peak, each fitted on the other blocks and judged on the held-out one as above.
 
 `compliance` is judged in the frequency band where it lives (see `manus.adaptive.modes`).
 """
@@ -45,16 +46,19 @@ import numpy as np
 from scipy import stats
 
 from manus.adaptive import fit as fitting
-from manus.adaptive import modes
-from manus.plants.effects import ORDER, VOCABULARY, Model
+from manus.adaptive import lsq, modes
+from manus.plants.effects import ORDER, VOCABULARY, Effect, Model
 from manus.plants.errors import ModelError
 from manus.plants.recording import Recording
 
-BLOCKS = 10
+BLOCKS = 20
+MIN_BLOCKS = 5
 ALPHA = 0.01
-MIN_REDUCTION = 0.05
+MODE_MIN_REDUCTION = 0.05  # a mode must remove this share of the frequency response's misfit
+MIN_SHARE = 0.01  # a candidate must explain at least this share of the recorded torque (RMS)
 MIN_ROWS_PER_BLOCK = 10
-NESTED_RTOL = 1e-4  # a candidate whose columns the verdict's model reproduces this closely is nested in it
+UNEXPLAINED_MIN = 0.10  # a smooth function must remove this share of the remaining error
+KNOTS = 10  # hat functions per smooth function of position or velocity
 
 
 @dataclass
@@ -73,16 +77,24 @@ class Candidate:
     mode: modes.Mode | None = None
     overlaps: str | None = None
     note: str = ""
-    nested_in: str | None = None  # the verdict was chosen before this bigger candidate that contains it
+    problems: list[str] = field(default_factory=list)  # why it is not proposed although significant
+    aliases: list[str] = field(default_factory=list)  # candidates that are the same columns here
+
+    @property
+    def proposable(self) -> bool:
+        return self.significant and not self.problems
 
     def report(self) -> dict:
-        out = {"effect": self.effect, "joint": self.joint, "error_reduction": round(self.error_reduction, 4),
-               "significant": self.significant, "detail": self.detail,
-               "cv_error_reduction": round(self.cv_error_reduction, 4), "p_value": float(f"{self.p_value:.3g}")}
+        out = {"effect": self.effect, "spec": self.spec, "joint": self.joint,
+               "error_reduction": round(self.error_reduction, 4), "significant": self.significant,
+               "detail": self.detail, "cv_error_reduction": round(self.cv_error_reduction, 4),
+               "p_value": float(f"{self.p_value:.3g}"), "n_params": self.n_params}
+        if self.problems:
+            out["not_proposed"] = self.problems
+        if self.aliases:
+            out["same_as"] = self.aliases
         if self.overlaps:
             out["overlaps"] = self.overlaps
-        if self.nested_in:
-            out["nested_in"] = self.nested_in
         if self.note:
             out["note"] = self.note
         return out
@@ -95,211 +107,384 @@ class Diagnosis:
     verdict: Candidate | None
     base_cv_sse: np.ndarray
     notes: list[str] = field(default_factory=list)
+    unexplained: dict = field(default_factory=dict)
+    alpha: float = ALPHA
 
     def report(self) -> dict:
         return {"model": self.base.model.effect_names, "spec": self.base.model.spec,
                 "rel_error": self.base.rel_error, "cutoff_hz": self.base.data.cutoff_hz,
+                "cutoff_note": self.base.data.cutoff_note, "hold": self.base.data.hold,
+                "method": self.base.method, "method_why": self.base.why,
                 "candidates": [c.report() for c in self.candidates],
                 "verdict": self.verdict.effect if self.verdict else None,
-                "verdict_spec": self.verdict.spec if self.verdict else None, "notes": self.notes}
+                "verdict_spec": self.verdict.spec if self.verdict else None,
+                "unexplained": self.unexplained, "violations": self.base.violations(), "notes": self.notes}
 
 
-def _blocks(data: fitting.Data, k: int):
-    """Held-out folds over the used rows: (train mask, test mask) per block."""
-    t = data.rows
-    edges = np.linspace(t[0], t[-1] + 1, k + 1)
-    guard = int(np.ceil(1.0 / (data.cutoff_hz * data.dt)))
-    folds = []
-    for a, b in zip(edges[:-1], edges[1:]):
-        test = (t >= a) & (t < b)
-        train = (t < a - guard) | (t >= b + guard)
-        folds.append((train, test))
-    return folds
-
-
-def held_out_sse(Y: np.ndarray, tau: np.ndarray, folds) -> np.ndarray:
-    """Per block, the squared error of a least-squares fit on the other blocks."""
-    rows, n, P = Y.shape
-    out = np.zeros(len(folds))
-    # normal equations on the scaled columns, solved by SVD (rank-deficient models keep their
-    # minimum-norm solution); einsum, not BLAS, for the tall products (see search.Projection)
-    scale = np.sqrt(np.einsum("rnp,rnp->p", Y, Y) / (rows * n)) + 1e-300
-    Ys = Y / scale
-    for k, (train, test) in enumerate(folds):
-        G = np.einsum("rnp,rnq->pq", Ys[train], Ys[train])
-        b = np.einsum("rnp,rn->p", Ys[train], tau[train])
-        coef = np.linalg.lstsq(G, b, rcond=1e-12)[0]
-        e = tau[test] - np.einsum("rnp,p->rn", Ys[test], coef)
-        out[k] = np.einsum("rn,rn->", e, e)
-    return out
-
-
-def _one_sided_p(gain: np.ndarray) -> float:
-    """p of 'the mean per-block improvement is positive' (t-test over blocks)."""
-    if np.allclose(gain, 0):
+def one_sided_p(base_sse: np.ndarray, sse: np.ndarray) -> float:
+    """p of 'the candidate predicts the held-out blocks better': a one-sided t-test over blocks
+    on the log ratio of squared errors (scale-free: a loud block does not dominate)."""
+    ok = (base_sse > 0) & (sse > 0)
+    if ok.sum() < 3:
         return 1.0
-    sd = gain.std(ddof=1)
-    if sd == 0:
-        return 0.0 if gain.mean() > 0 else 1.0
-    return float(stats.t.sf(gain.mean() / (sd / np.sqrt(gain.size)), gain.size - 1))
+    d = np.log(base_sse[ok] / sse[ok])
+    sd = d.std(ddof=1)
+    if not sd > 0:
+        return 0.0 if d.mean() > 0 else 1.0
+    return float(stats.t.sf(d.mean() / (sd / np.sqrt(d.size)), d.size - 1))
 
 
-def _n_params(model_effect, structure) -> int:
-    return len(model_effect.names(structure)) + len(model_effect.describe())
+def held_out(st: lsq.Stats, folds) -> np.ndarray:
+    """Per block, the squared error of the fit on the other blocks."""
+    return np.array([st.sse(st.coef(train), test).sum() for train, test in folds])
+
+
+def _blocks_for(data: fitting.Data, blocks: int) -> int:
+    if blocks < 3:
+        raise ModelError(f"blocks must be at least 3 for a held-out test (got {blocks})")
+    fit_in = data.rows.size // MIN_ROWS_PER_BLOCK
+    if fit_in < min(blocks, MIN_BLOCKS):
+        raise ModelError(f"{data.rec.path}: too short to diagnose: {data.rows.size} usable rows, where "
+                         f"{min(blocks, MIN_BLOCKS)} held-out blocks need at least "
+                         f"{MIN_ROWS_PER_BLOCK * min(blocks, MIN_BLOCKS)} "
+                         f"({len(data.rec) * data.dt:.3g} s recorded at a {data.cutoff_hz:.3g} Hz cut-off); "
+                         "no effect can be judged: record longer")
+    return min(blocks, fit_in)
 
 
 def diagnose(rec: Recording | fitting.Data, model: Model | str, cutoff_hz: float | None = None,
-             blocks: int = BLOCKS, alpha: float = ALPHA, min_reduction: float = MIN_REDUCTION,
-             columns: fitting.Columns | None = None) -> Diagnosis:
+             blocks: int = BLOCKS, alpha: float = ALPHA, min_share: float = MIN_SHARE,
+             columns: fitting.Columns | None = None, method: str = "auto") -> Diagnosis:
     """Fit `model` to the recording, then try every effect it lacks (see the module docstring).
     A loop over one prepared recording can pass its `columns` (a `fitting.Columns` of the same
     data) so that each effect's columns are computed once for every step."""
     structure = (rec.rec if isinstance(rec, fitting.Data) else rec).structure
-    # the text is checked before any work (unknown names, a full model); fit gets it as given, as
-    # text fixes the non-linear parameters written with an argument (cogging:39)
-    parsed = Model(structure, model) if isinstance(model, str) else model
-    if not [name for name in ORDER if not parsed.has(name)]:
+    parsed = Model(structure, model) if isinstance(model, str) else model  # checked before any work
+    if not [n for n in ORDER if not parsed.has(n)]:
         raise ModelError(f"the model {parsed.spec} already holds every effect of the vocabulary: "
                          "nothing is left to propose")
     data = rec if isinstance(rec, fitting.Data) else fitting.prepare(rec, cutoff_hz)
     if columns is not None and columns.data is not data:
         raise ModelError("diagnose: the columns given were computed on other data")
     cols = columns or fitting.Columns(data)
-    base = fitting.fit(data, model, columns=cols)
-    present = set(base.model.effect_names)
-    missing = [name for name in ORDER if name not in present]
-    if blocks < 3:
-        raise ModelError(f"blocks must be at least 3 for a held-out test (got {blocks})")
-    if data.rows.size < MIN_ROWS_PER_BLOCK * blocks:
-        raise ModelError(f"{data.rec.path}: too short to diagnose: {data.rows.size} usable rows, where {blocks} "
-                         f"held-out blocks need at least {MIN_ROWS_PER_BLOCK * blocks} "
-                         f"({len(data.rec) * data.dt:.3g} s recorded at a {data.cutoff_hz:.3g} Hz cut-off)")
-    folds = _blocks(data, blocks)
-    s = base.model.structure
-    base_sse = held_out_sse(cols.model(base.model), data.tau(base.delay), folds)
-    base_joint = np.sum(base.residual**2, axis=0)
-    cands: list[Candidate] = []
+    span = data.span()
+    base = fitting.fit(data, model, columns=cols, method=method)
+    icols = base.instruments if base.method == "iv" else None
+    k = _blocks_for(data, blocks)
+    guard = int(np.ceil(1.0 / (data.cutoff_hz * data.dt)))
+    starts, folds = lsq.folds(data.rows, k, guard)
+    if any(not train.any() or not test.any() for train, test in folds):
+        raise ModelError(f"{data.rec.path}: too short to diagnose: the held-out blocks leave nothing to train on")
+    whole = np.ones(starts.size, bool)
+    Y0 = cols.model(base.model)
+    base_st = lsq.Stats(Y0, data.tau(base.delay), starts, None if icols is None else icols.model(base.model))
+    base_sse = held_out(base_st, folds)
     notes: list[str] = []
-    for name in missing:
-        if name == "compliance":
-            c = _compliance(data, base, blocks, alpha, min_reduction)
+    if base.violations():
+        notes.append("the model's own fit breaks physics: " + "; ".join(base.violations()))
+    tried = _candidates(base.model, span, data.rec.prismatic, notes)
+    m = max(1, len(tried))
+    cands: list[Candidate] = []
+    for e0, values, brought in tried:
+        if e0.kind == "mode":
+            c = _compliance(data, base, k, alpha / m, min_share)
             if c is None:
                 notes.append("compliance: the recording cannot show a structural mode (sampled too slowly or too short)")
             else:
                 cands.append(c)
             continue
-        effect = VOCABULARY[name]()
-        f = fitting.fit(data, base.model.with_effect(effect), columns=cols, fixed=present)
-        sse = held_out_sse(cols.model(f.model), data.tau(f.delay), folds)
-        reduction = 1 - f.rel_error / base.rel_error if base.rel_error > 0 else 0.0
-        cv_red = 1 - float(np.sqrt(sse.sum() / base_sse.sum()))
-        p = _one_sided_p(base_sse - sse)
-        joint = int(np.argmax(base_joint - np.sum(f.residual**2, axis=0))) + 1
-        e = f.model.get(name)
-        detail = {k: round(v, 6) for k, v in f.params.items() if k in e.names(s)}
-        detail.update(e.describe())
-        detail["per_joint_error_reduction"] = [
-            round(1 - float(np.sqrt(np.sum(f.residual[:, i] ** 2) / base_joint[i])), 4) if base_joint[i] > 0 else 0.0
-            for i in range(data.n_joints)]
-        cands.append(Candidate(name, e.spec, reduction, cv_red, p, bool(p < alpha and reduction >= min_reduction),
-                               joint, detail, _n_params(e, s), sse, fit=f))
+        cands.append(_judge(data, cols, icols, base, base_sse, starts, folds, whole, e0, values, brought,
+                            alpha / m, min_share, span))
     cands.sort(key=lambda c: -c.cv_error_reduction)
-    verdict = _choose(cands, base_sse)
+    _aliases(cols, base, cands)
+    verdict = _choose(cands, alpha / m)
     if verdict is not None:
-        verdict = _nested_first(cols, base, verdict, cands)
-        _mark_overlaps(data, cols, base, verdict, cands, folds, min_reduction)
+        _mark_overlaps(data, cols, icols, verdict, cands, min_share)
         cands.sort(key=lambda c: (c is not verdict, c.overlaps is not None, -c.cv_error_reduction))
-    return Diagnosis(base, cands, verdict, base_sse, notes)
+    after = verdict.fit if verdict is not None and verdict.fit is not None else base
+    unexplained = residual_structure(data, cols, icols, after, starts, folds, alpha)
+    return Diagnosis(base, cands, verdict, base_sse, notes, unexplained, alpha)
 
 
-def _compliance(data, base, blocks, alpha, min_reduction) -> Candidate | None:
+def _candidates(model: Model, span, prismatic, notes) -> list[tuple[Effect, tuple, tuple]]:
+    """(effect, its grid values, the effects it brings) for every candidate this model allows."""
+    s = model.structure
+    out = []
+    for name in ORDER:
+        held = model.get(name)
+        e0 = held if held is not None else VOCABULARY[name]()
+        if held is not None:
+            values = held.grow(span)
+            if not values:
+                continue
+            e0 = values[0]
+        else:
+            values = e0.space(span) if e0.kind != "mode" else ()
+            if e0.kind not in ("mode", "timing") and not values and type(e0).space is not Effect.space:
+                notes.append(f"{name}: the recording spans too little to search its parameter (travel or speed too small)")
+                continue
+            values = values or (e0,)
+        why = e0.applies(s, prismatic)
+        if why:
+            notes.append(f"{name}: not tried: {why}")
+            continue
+        lacking = [r for r in e0.requires if not model.has(r)]
+        if lacking:
+            notes.append(f"{name}: offered only on top of {', '.join(lacking)} (otherwise it would be "
+                         f"{', '.join(lacking)} under another name)")
+            continue
+        brought = tuple(VOCABULARY[b]() for b in e0.brings if not model.has(b))
+        out.append((e0, tuple(values), brought))
+    return out
+
+
+def _judge(data, cols, icols, base, base_sse, starts, folds, whole, e0, values, brought, alpha, min_share, span):
+    s = base.model.structure
+    rest = base.model
+    for b in brought:
+        rest = rest.with_effect(b)
+    g = fitting.grid(data, cols, rest.without(e0.name) if base.model.has(e0.name) else rest, e0, starts, values, icols)
+    sse = np.zeros(len(folds))
+    for j, (train, test) in enumerate(folds):  # the search inside each fold
+        i, _ = g.choose(train)
+        st = g.exact(i)
+        sse[j] = st.sse(st.coef(train), test).sum()
+    best, errs = g.choose(whole)
+    chosen = g.values[best]
+    full = (rest.without(e0.name) if base.model.has(e0.name) else rest).with_effect(chosen)
+    f = fitting._solve(data, cols, full, {}, icols)
+    if len(values) > 1:
+        yy = float(np.sum(data.tau(fitting.delay_of(rest)) ** 2)) or 1.0
+        f.search[e0.name] = ([v.describe() for v in values], np.sqrt(np.maximum(errs, 0) / yy))
+    reduction = 1 - f.rel_error / base.rel_error if base.rel_error > 0 else 0.0
+    cv_red = 1 - float(np.sqrt(sse.sum() / base_sse.sum())) if base_sse.sum() > 0 else 0.0
+    p = one_sided_p(base_sse, sse)
+    own = [chosen, *brought]
+    names = [n for e in own for n in e.names(s)]
+    n_params = len(names) + (1 if len(values) > 1 else 0)
+    base_joint = np.sum(base.residual**2, axis=0)
+    per_joint = [round(1 - float(np.sqrt(np.sum(f.residual[:, i] ** 2) / base_joint[i])), 4) if base_joint[i] > 0
+                 else 0.0 for i in range(data.n_joints)]
+    detail = {k: round(v, 6) for k, v in f.params.items() if k in names}
+    detail.update(chosen.describe())
+    detail["per_joint_error_reduction"] = per_joint
+    if brought:
+        detail["brings"] = [b.name for b in brought]
+    explained = float(np.sqrt(max(base.rel_error**2 - f.rel_error**2, 0.0)))
+    detail["explains"] = round(explained, 5)  # share of the recorded torque (RMS) it accounts for
+    significant = bool(p < alpha and explained >= min_share and cv_red > 0)
+    problems = [v for e in own for v in e.violations(s, f.params, f.stds)]
+    edge = chosen.edge(span) if len(values) > 1 else None
+    if edge:
+        problems.append(edge)
+    lost = [n for n in names if n in f.redundant]
+    if lost:
+        problems.append(f"not identifiable from this recording: {', '.join(lost)} "
+                        f"{'is' if len(lost) == 1 else 'are'} explained by the model's own columns on these rows")
+    spec = ",".join(e.spec for e in (*brought, chosen))
+    return Candidate(e0.name, chosen.spec if not brought else spec, reduction, cv_red, p, significant,
+                     int(np.argmax(per_joint)) + 1, detail, n_params, sse, fit=f, problems=problems)
+
+
+def _compliance(data, base, blocks, alpha, min_share) -> Candidate | None:
     q = data.rec.q
-    tau = fitting.align(data.rec.tau, base.delay / data.dt + (0.5 if data.rec.meta.get("command_hold") == "zoh" else 0))
+    tau = fitting.align(data.rec.tau, base.delay / data.dt)  # (the hold is part of `modes.sampling`)
     mode = modes.detect(q, tau, data.dt, blocks)
     if mode is None:
         return None
-    p = _one_sided_p(mode.err_rigid - mode.err_mode)
-    significant = bool(mode.resonant and p < alpha and mode.reduction >= min_reduction)
+    p = one_sided_p(mode.err_rigid, mode.err_mode)
+    significant = bool(mode.resonant and p < alpha and mode.reduction >= MODE_MIN_REDUCTION)
     detail = {"f_hz": round(mode.f_hz, 1), "zeta": mode.zeta, "motor_fraction": round(mode.motor_fraction, 3),
-              "measured_in": f"frequency response {modes.BAND[0]:g}-{min(modes.BAND[1], 0.45 / data.dt):g} Hz",
+              "measured_in": "frequency response {:g}-{:g} Hz".format(*modes.band(1 / data.dt)),
               "resonance_peak": mode.resonant}
     note = "" if mode.resonant else "no resonance peak in the measured response: no evidence of a mode"
-    return Candidate("compliance", mode.effect().spec, mode.reduction, mode.reduction, p, significant,
+    return Candidate(mode.effect().name, mode.effect().spec, mode.reduction, mode.reduction, p, significant,
                      mode.joint + 1, detail, 2, mode.err_mode, mode=mode, note=note)
 
 
-def _choose(cands: list[Candidate], base_sse) -> Candidate | None:
-    """Best held-out error among the significant; a simpler one within one standard error wins.
-    (Compliance is measured in its own band, so it only wins when nothing else is significant.)"""
-    sig = [c for c in cands if c.significant and c.effect != "compliance"]
-    if not sig:
-        comp = [c for c in cands if c.significant]
-        return comp[0] if comp else None
-    best = min(sig, key=lambda c: c.cv_sse.sum())
-    for c in sorted(sig, key=lambda c: (c.n_params, c.cv_sse.sum())):
+def _bounded(c: Candidate, s) -> int:
+    """How many physical assumptions (bounded parameters) a candidate makes."""
+    e = c.fit.model.get(c.effect) if c.fit is not None else None
+    return 0 if e is None else sum(np.isfinite(lo) for lo in e.lower_bounds(s))
+
+
+def _aliases(cols, base, cands: list[Candidate]) -> None:
+    """Pairs of candidates whose columns are the same on this recording (each in the span of
+    the model plus the other): the recording cannot tell the two readings apart."""
+    fitted = [c for c in cands if c.fit is not None and c.significant]
+    for i, a in enumerate(fitted):
+        for b in fitted[i + 1:]:
+            ea, eb = a.fit.model.get(a.effect), b.fit.model.get(b.effect)
+            Ya, Yb, Y0 = cols.effect(ea), cols.effect(eb), cols.model(base.model)
+            ab = lsq.unidentifiable(np.concatenate([Y0, Yb, Ya], 2), 1e-5)
+            ba = lsq.unidentifiable(np.concatenate([Y0, Ya, Yb], 2), 1e-5)
+            p0, pa, pb = Y0.shape[2], Ya.shape[2], Yb.shape[2]
+            if any(j >= p0 + pb for j in ab) and any(j >= p0 + pa for j in ba):
+                a.aliases.append(b.effect)
+                b.aliases.append(a.effect)
+
+
+def _choose(cands: list[Candidate], alpha: float) -> Candidate | None:
+    """Best held-out error among the proposable; a simpler one within one standard error wins;
+    a candidate that brings another (a spring its offset) must beat that one alone; of readings
+    the recording cannot tell apart, the one with fewer physical assumptions, once. A structural
+    mode is measured in its own band: it wins when nothing else is proposable, or over a timing
+    effect (a delay only mimics a mode's high-frequency residual)."""
+    ok = [c for c in cands if c.proposable and c.mode is None]
+    modes_ = [c for c in cands if c.proposable and c.mode is not None]
+    if not ok:
+        return modes_[0] if modes_ else None
+    best = min(ok, key=lambda c: c.cv_sse.sum())
+    for c in sorted(ok, key=lambda c: (c.n_params, c.cv_sse.sum())):
         diff = c.cv_sse - best.cv_sse
         se = np.sqrt(diff.size) * diff.std(ddof=1) if diff.size > 1 else 0.0
         if c.n_params < best.n_params and diff.sum() <= se:
-            return c
+            best = c
+            break
+    for name in best.detail.get("brings", []):
+        alone = next((c for c in ok if c.effect == name), None)
+        if alone is not None and one_sided_p(alone.cv_sse, best.cv_sse) >= alpha:
+            alone.note = (f"{best.effect} (which brings {name}) does not predict the held-out blocks significantly "
+                          f"better than {name} alone: {name} is proposed")
+            best = alone
+    if best.aliases:
+        group = [best] + [c for c in ok if c.effect in best.aliases]
+        s = best.fit.model.structure
+        pick = min(group, key=lambda c: (_bounded(c, s), c.n_params, c.cv_sse.sum()))
+        others = [c.effect for c in group if c is not pick]
+        pick.note = (f"this recording cannot tell {pick.effect} from {', '.join(others)} (their columns are the same "
+                     f"here, e.g. motion in one direction: a Coulomb level and an offset are one constant): both "
+                     f"readings fit alike; {pick.effect} is proposed, with fewer physical assumptions. Record motion "
+                     "in both directions to tell them apart")
+        best = pick
+    timing = best.fit is not None and best.fit.model.get(best.effect).kind == "timing"
+    if timing and modes_:
+        mode = modes_[0]
+        mode.note = (f"a structural mode with a resonance peak in the frequency response explains the high-frequency "
+                     f"residual that {best.spec} only mimics: the mode is proposed")
+        return mode
     return best
 
 
-def nested_in(cols: fitting.Columns, base_model: Model, outer: Candidate, inner: Candidate) -> float:
-    """How far `inner`'s columns lie outside the span of the base model plus `outer` on these rows:
-    the largest relative norm of a column's part orthogonal to that span (0: nested exactly)."""
-    big = cols.model(base_model.with_effect(outer.fit.model.get(outer.effect)))
-    small = cols.effect(inner.fit.model.get(inner.effect))
-    rows, n, P = big.shape
-    X, Z = big.reshape(rows * n, P), small.reshape(rows * n, -1)
-    keep = np.sqrt(np.mean(X**2, axis=0)) > 0
-    Q = np.linalg.qr(X[:, keep] / np.sqrt(np.mean(X[:, keep] ** 2, axis=0)))[0]
-    norm = np.linalg.norm(Z, axis=0)
-    out = np.linalg.norm(Z - Q @ (Q.T @ Z), axis=0)
-    return float(np.max(np.where(norm > 0, out / np.where(norm > 0, norm, 1), 0.0)))
-
-
-def _nested_first(cols, base, verdict: Candidate, cands: list[Candidate]) -> Candidate:
-    """The nested rule: when the verdict contains a simpler significant candidate (the base model
-    plus the verdict reproduces that candidate's columns exactly on these rows), the simpler one
-    is proposed first; what the verdict adds beyond it is tested at the next step."""
-    if verdict.fit is None:
-        return verdict
-    inner = [c for c in cands if c is not verdict and c.significant and c.fit is not None
-             and c.n_params < verdict.n_params and nested_in(cols, base.model, verdict, c) < NESTED_RTOL]
-    if not inner:
-        return verdict
-    simpler = min(inner, key=lambda c: (c.n_params, c.cv_sse.sum()))
-    gap = 100 * abs(1 - np.sqrt(verdict.cv_sse.sum() / simpler.cv_sse.sum()))
-    verdict.note = (f"contains {simpler.effect} (with the model's effects it reproduces {simpler.effect}'s columns "
-                    f"exactly): the simpler {simpler.effect} ({simpler.n_params} parameters against "
-                    f"{verdict.n_params}) is proposed first, although {verdict.effect}'s held-out error is "
-                    f"{gap:.1f}% lower; what {verdict.effect} adds beyond it is tested at the next step")
-    simpler.nested_in = verdict.effect
-    simpler.note = (f"nested in {verdict.effect}, which fits {gap:.1f}% better held out: proposed first as the "
-                    f"simpler explanation")
-    return simpler
-
-
-def _mark_overlaps(data, cols, base, verdict, cands, folds, min_reduction) -> None:
+def _mark_overlaps(data, cols, icols, verdict, cands, min_share) -> None:
     """Other significant candidates that the verdict already accounts for."""
     if verdict.fit is None:
         return
     with_v = verdict.fit
     for c in cands:
-        if c is verdict or not c.significant or c.fit is None:
+        if c is verdict or not c.significant or c.fit is None or c.effect in verdict.aliases:
             continue
-        both = fitting.fit(data, with_v.model.with_effect(c.fit.model.get(c.effect)), columns=cols,
-                           fixed=set(with_v.model.effect_names) | {c.effect})
-        extra = 1 - both.rel_error / with_v.rel_error if with_v.rel_error > 0 else 0.0
-        if extra < min_reduction:
+        e = c.fit.model.get(c.effect)
+        if with_v.model.has(c.effect):
+            continue
+        both = fitting._solve(data, cols, with_v.model.with_effect(e), {}, icols)
+        extra = float(np.sqrt(max(with_v.rel_error**2 - both.rel_error**2, 0.0)))  # share of the torque it adds
+        if extra < min_share:
             c.overlaps = verdict.effect
-            gap = 100 * abs(1 - np.sqrt(verdict.cv_sse.sum() / c.cv_sse.sum()))
-            head = (f"explains the same as {verdict.effect}: with {verdict.effect} in the model it removes only "
-                    f"{100 * max(extra, 0):.1f}% more of the error; ")
-            if verdict.nested_in == c.effect:
-                c.note = head + c.note
-            elif verdict.cv_sse.sum() <= c.cv_sse.sum():
-                c.note = head + f"{verdict.effect} fits better (held-out error {gap:.1f}% lower)"
-            else:
-                c.note = head + (f"{c.effect} fits {gap:.1f}% better held out, within one standard error, so the "
-                                 f"simpler {verdict.effect} ({verdict.n_params} parameters against {c.n_params}) is proposed")
+            gap = 100 * abs(1 - np.sqrt(verdict.cv_sse.sum() / c.cv_sse.sum())) if c.cv_sse.sum() > 0 else 0.0
+            better = verdict.effect if verdict.cv_sse.sum() <= c.cv_sse.sum() else c.effect
+            c.note = (f"explains the same as {verdict.effect}: with {verdict.effect} in the model it accounts for only "
+                      f"{100 * extra:.2f}% more of the torque; {better} fits better held out ({gap:.1f}%)")
+            if better == c.effect:
+                c.note += f", within one standard error, so the simpler {verdict.effect} is proposed"
+
+
+# -- what is left ------------------------------------------------------------------------------
+
+def _hats(x: np.ndarray, knots: np.ndarray) -> np.ndarray:
+    """Piecewise-linear hat functions of x on `knots` (a smooth function's basis), (rows, m)."""
+    x = np.clip(x, knots[0], knots[-1])
+    out = np.zeros((x.size, knots.size))
+    i = np.clip(np.searchsorted(knots, x, side="right") - 1, 0, knots.size - 2)
+    w = (x - knots[i]) / np.maximum(knots[i + 1] - knots[i], 1e-300)
+    out[np.arange(x.size), i] = 1 - w
+    out[np.arange(x.size), i + 1] = w
+    return out
+
+
+def _smooth_basis(x: np.ndarray, m: int = KNOTS) -> np.ndarray | None:
+    knots = np.unique(np.quantile(x, np.linspace(0, 1, m)))
+    return _hats(x, knots) if knots.size >= 3 else None
+
+
+def _bases(data: fitting.Data, resid_train: np.ndarray, train_rows: np.ndarray) -> dict:
+    """Candidate smooth structures of the residual: name -> basis (rows, m)."""
+    rows = data.rows
+    out = {}
+    n = data.n_joints
+    for i in range(n):
+        q, qd = data.q[rows, i], data.qd[rows, i]
+        for what, x in (("position", q), ("velocity", qd)):
+            B = _smooth_basis(x)
+            if B is not None:
+                out[(what, i)] = B
+        B = _smooth_basis(q, KNOTS // 2)
+        if B is not None:
+            up = (qd > 0)[:, None]
+            out[("position x direction", i)] = np.concatenate([B * up, B * ~up], 1)
+    t = data.rec.t[rows]
+    out[("time", None)] = _hats(t, np.linspace(t[0], t[-1], KNOTS))
+    return out
+
+
+def residual_structure(data, cols, icols, f: fitting.Fit, starts, folds, alpha) -> dict:
+    """Structure left in the residual of `f` that a smooth function of one variable removes on
+    held-out blocks (see the module docstring): the JSON `unexplained`."""
+    Y = cols.model(f.model)
+    tau = data.tau(f.delay)
+    st = lsq.Stats(Y, tau, starts, None if icols is None else icols.model(f.model))
+    seg_of_row = np.searchsorted(starts, np.arange(data.rows.size), side="right") - 1
+    resid = []
+    for train, test in folds:
+        theta = st.theta(st.coef(train))
+        resid.append((tau - Y @ theta, train[seg_of_row], test[seg_of_row]))
+    tests = []
+    bases = _bases(data, None, None)
+    t = data.rec.t[data.rows]
+    for j in range(data.n_joints):
+        for (what, i), B in list(bases.items()) + [(("frequency", None), None)]:
+            with_, without = np.zeros(len(folds)), np.zeros(len(folds))
+            for k, (r, tr, te) in enumerate(resid):
+                Bk = B if B is not None else _sinusoid(t, r[tr, j], tr)
+                if Bk is None:
+                    continue
+                c = np.linalg.lstsq(Bk[tr], r[tr, j], rcond=1e-10)[0]
+                e = r[te, j] - Bk[te] @ c
+                with_[k], without[k] = e @ e, r[te, j] @ r[te, j]
+            if not without.sum() > 0:
+                continue
+            frac = 1 - float(np.sqrt(with_.sum() / without.sum()))
+            tests.append({"joint": j + 1, "against": what if i is None or i == j else f"{what} of joint {i + 1}",
+                          "variable": what, "of_joint": None if i is None else i + 1,
+                          "fraction": round(frac, 4), "p_value": one_sided_p(without, with_)})
+    if not tests:
+        return {"significant": False, "joint": None, "against": None, "fraction": 0.0, "p_value": 1.0}
+    m = len(tests)
+    for x in tests:
+        x["significant"] = bool(x["p_value"] < alpha / m and x["fraction"] >= UNEXPLAINED_MIN)
+    best = max(tests, key=lambda x: (x["significant"], x["fraction"]))
+    out = {"significant": best["significant"], "joint": best["joint"], "against": best["against"],
+           "fraction": best["fraction"], "p_value": float(f"{best['p_value']:.3g}"), "tests": m,
+           "variable": best["variable"], "of_joint": best["of_joint"]}
+    sig = [x for x in tests if x["significant"]]
+    if sig:
+        out["also"] = [{k: x[k] for k in ("joint", "against", "fraction")} for x in sig if x is not best][:6]
+    return out
+
+
+def _sinusoid(t: np.ndarray, r_train: np.ndarray, train: np.ndarray) -> np.ndarray | None:
+    """sin/cos at the training residual's spectral peak (a periodic disturbance not tied to a
+    joint's position), evaluated on every row."""
+    tt = t[train]
+    if tt.size < 16:
+        return None
+    dt = float(np.median(np.diff(t)))
+    f = np.fft.rfftfreq(8 * tt.size, dt)
+    grid = np.interp(np.arange(tt[0], tt[-1], dt), tt, r_train)
+    spec = np.abs(np.fft.rfft(grid - grid.mean(), 8 * tt.size))
+    lo = max(1, int(np.ceil(3 / (tt[-1] - tt[0]) / (f[1] - f[0]))))  # at least three periods in the record
+    if spec.size <= lo + 1:
+        return None
+    f0 = f[lo + int(np.argmax(spec[lo:]))]
+    w = 2 * np.pi * f0 * t
+    return np.stack([np.sin(w), np.cos(w)], 1)

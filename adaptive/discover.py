@@ -64,6 +64,12 @@ class Discovery:
     notes: list[str] = field(default_factory=list)
 
     @property
+    def unexplained(self) -> dict:
+        """What the last diagnosis found left in the residual that no effect explains."""
+        last = self.final or (self.steps[-1].diagnosis if self.steps else None)
+        return last.unexplained if last is not None else {}
+
+    @property
     def model(self) -> str:
         return self.steps[-1].model if self.steps else self.start.model.spec
 
@@ -80,8 +86,9 @@ class Discovery:
         return {"start": {"model": self.start.model.spec, "rel_error": self.start.rel_error},
                 "steps": [s.report() for s in self.steps], "model": self.model, "rel_error": self.rel_error,
                 "stopped": self.stopped, "samples": int(self.start.data.rows.size),
-                "cutoff_hz": self.start.data.cutoff_hz, "params": self.final_fit.report()["params"],
-                "notes": self.notes}
+                "cutoff_hz": self.start.data.cutoff_hz, "hold": self.start.data.hold,
+                "method": self.final_fit.method, "method_why": self.final_fit.why,
+                "params": self.final_fit.report()["params"], "unexplained": self.unexplained, "notes": self.notes}
 
 
 def effect_params(f: fitting.Fit, effect: str) -> dict:
@@ -90,20 +97,24 @@ def effect_params(f: fitting.Fit, effect: str) -> dict:
     e = f.model.get(effect)
     report = f.report()["params"]
     out = {k: report[k] for k in e.names(f.model.structure)}
+    for b in e.brings:  # what it brought with it (a spring's preload: the offset)
+        if f.model.has(b):
+            out.update({k: report[k] for k in f.model.get(b).names(f.model.structure)})
     out.update(e.describe())
     return out
 
 
 def discover(rec: Recording | fitting.Data, model: str, cutoff_hz: float | None = None,
-             max_steps: int = MAX_STEPS, progress: Callable[[str], None] | None = None, **diagnose_options) -> Discovery:
+             max_steps: int = MAX_STEPS, progress: Callable[[str], None] | None = None, method: str = "auto",
+             **diagnose_options) -> Discovery:
     """Run the loop from `model` (text, e.g. "rigid,viscous,coulomb"). `progress` receives a line
-    per step; `diagnose_options` go to `manus.adaptive.diagnose.diagnose` (blocks, alpha, min_reduction)."""
+    per step; `diagnose_options` go to `manus.adaptive.diagnose.diagnose` (blocks, alpha, min_share)."""
     if max_steps < 1:
         raise ModelError(f"max_steps must be at least 1 (got {max_steps})")
     say = progress or (lambda line: None)
     data = rec if isinstance(rec, fitting.Data) else fitting.prepare(rec, cutoff_hz)
     cols = fitting.Columns(data)
-    start = fitting.fit(data, model, columns=cols)
+    start = fitting.fit(data, model, columns=cols, method=method)
     current = start
     spec = start.model.spec
     steps: list[Step] = []
@@ -111,7 +122,7 @@ def discover(rec: Recording | fitting.Data, model: str, cutoff_hz: float | None 
     say(f"start: {spec}, rel_error {100 * start.rel_error:.2f} %")
     while True:
         try:
-            d = diagnose(data, spec, **diagnose_options)
+            d = diagnose(data, spec, columns=cols, method=method, **diagnose_options)
         except ModelError as e:
             if steps and "already holds every effect" in str(e):
                 notes.append(str(e))
@@ -126,15 +137,15 @@ def discover(rec: Recording | fitting.Data, model: str, cutoff_hz: float | None 
             return Discovery(start, steps, d, "step cap", notes)
         v = d.verdict
         before = current.rel_error
-        if v.effect == "compliance":
+        if v.mode is not None:  # a structural mode: measured in its own band, no columns
             params = dict(v.detail)
             steps.append(Step(len(steps) + 1, v.effect, v.spec, params, before, before, f"{spec},{v.spec}", d, None,
                               "a structural mode found in the frequency response above the identification band; "
                               "it has no inverse-dynamics columns, so the torque error is unchanged"))
             say(f"step {len(steps)}: + {v.spec} (frequency response; not refitted)")
             return Discovery(start, steps, None, "compliance (not refitted)", notes)
-        spec = f"{spec},{v.spec}"
-        current = fitting.fit(data, spec, columns=cols)
+        spec = v.fit.model.spec  # the model with the verdict's effect as found (its search fixed)
+        current = fitting.fit(data, spec, columns=cols, method=method)
         spec = current.model.spec
         steps.append(Step(len(steps) + 1, v.effect, v.spec, effect_params(current, v.effect), before,
                           current.rel_error, spec, d, current))

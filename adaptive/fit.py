@@ -3,10 +3,16 @@
 The recorded commands and positions are prepared once (`prepare`):
 
 - the command u_k arrives `d` seconds late (the `delay` effect), so the torque acting at t_k is
-  u read at fractional index k − d/T (linear interpolation). When the recording says its command
-  was held over each period (metadata `command_hold: zoh`, as manus's simulator and hardware loop
-  write), u_k acts on [t_k, t_k + T): half a period more. A file that does not say is read as
-  the EMPS reference reads its data, u_k acting at t_k;
+  u read at fractional index k − d/T (linear interpolation). A digital controller holds each
+  command over its period (zero-order hold: u_k acts on [t_k, t_k + T)), which looks like half a
+  period of delay: that is sampling, not a physical effect. So the hold is the default
+  (`command_hold: zoh`, also when the file does not say; `command_hold: none` reads u_k as acting
+  at t_k), and every report says which was used (`hold`);
+- the identification band (`auto_cutoff`) comes from the motion and the encoder, never from the
+  torque: the band where the velocity's power lies (after the encoder's quantization noise is
+  taken out of its spectrum), widened to let the friction steps through, and capped where the
+  quantization noise in q̈ would exceed a small share of the motion's acceleration (noise in the
+  regressor biases least squares toward zero: errors in variables). A cap is said in the report;
 - parallel filtering (Gautier's procedure, as in the EMPS reference): the regressor columns are
   evaluated on kinematics from the zero-phase differentiator at a wider band (`KINEMATIC_BAND`
   times the cut-off), then each column and the torque are low-passed alike at the cut-off. For a
@@ -22,7 +28,15 @@ candidate models share the columns computed once (`Columns`). The least-squares 
 redundant parameters (a column that the earlier ones already explain) instead of failing, and
 reports each parameter's standard deviation from a heteroscedasticity- and
 autocorrelation-consistent (Newey–West) covariance. Non-linear parameters (the cogging order, the
-Stribeck velocity, the delay) are found by search when the model does not fix them.
+Stribeck velocity, the delay) are found by search over the space each effect derives from the
+recording (`Effect.space`) when the model does not fix them.
+
+Two estimators share the least-squares core (`manus.adaptive.lsq`): inverse-dynamics least
+squares (IDIM-LS) and instrumental variables (IDIM-IV, Janot, Gautier et al.: instruments are the
+regressor evaluated on the motion simulated by the current model from the recorded command,
+`manus.adaptive.instruments`, iterated). `method="auto"` fits both and keeps IV where the two
+disagree beyond their standard deviations (noise in the differentiated regressor has biased
+least squares), LS otherwise; the report says which and why.
 """
 
 from __future__ import annotations
@@ -34,13 +48,18 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from manus.adaptive.search import search as search_parameter
+from manus.adaptive import lsq
+from manus.adaptive.lsq import unidentifiable
 from manus.estimators.offline import differentiate, edge, lowpass
-from manus.plants.effects import Effect, Model
+from manus.plants.effects import Effect, Model, Span
 from manus.plants.errors import ModelError
 from manus.plants.recording import Recording
 
-MIN_CUTOFF_HZ = 10.0
+MIN_CUTOFF_HZ = 2.0
+MOTION_POWER = 0.99  # the motion band holds this share of the velocity's power
+BAND_FACTOR = 4.0  # the cut-off is this multiple of the motion band (friction steps are broadband)
+NOISE_BUDGET = 0.05  # quantization noise in q̈ at most this share of the motion's q̈ (RMS)
+METHODS = ("auto", "ls", "iv")
 STANDSTILL_S = 0.005  # longer under two counts per band period than a zero crossing takes: at rest
 KINEMATIC_BAND = 4.0  # kinematics for the columns are filtered at this multiple of the cut-off
 MIN_SAMPLES = 8  # below this the recording cannot even be differentiated
@@ -60,7 +79,19 @@ class Data:
     step: float  # the encoder grid (estimated when the file does not say)
     standstill: float  # fraction of the samples left out around standstill
     window: np.ndarray | None = None  # the samples inside the filter's start-up edges (before standstill and decimation)
+    cutoff_note: str = ""  # how the cut-off was chosen (and what limited it)
     _tau: dict = field(default_factory=dict)
+
+    @property
+    def hold(self) -> str:
+        return self.rec.hold
+
+    def span(self) -> Span:
+        """What the effects' search spaces are derived from (see `manus.plants.effects.Span`)."""
+        q = self.q[self.rows] if self.rows.size else self.q
+        qd = self.qd[self.rows] if self.rows.size else self.qd
+        return Span(self.dt, len(self.rec) * self.dt, np.ptp(q, axis=0), self.step,
+                    np.percentile(np.abs(qd), 95, axis=0), self.rec.prismatic, self.step * self.cutoff_hz)
 
     @property
     def dt(self) -> float:
@@ -85,7 +116,7 @@ class Data:
         the torque is filtered once and shifted per delay.)"""
         if "filtered" not in self._tau:
             self._tau["filtered"] = self.filtered(self.rec.tau)
-        hold = 0.5 if self.rec.meta.get("command_hold") == "zoh" else 0.0
+        hold = 0.5 if self.hold == "zoh" else 0.0
         out = align(self._tau["filtered"], delay / self.dt + hold)
         return out if full else out[self.rows]
 
@@ -125,19 +156,43 @@ def _long_runs(mask: np.ndarray, longer_than: int) -> np.ndarray:
     return out
 
 
-def auto_cutoff(rec: Recording) -> float:
-    """The identification bandwidth the data call for: three times the frequency below which
-    99.5 % of the torque's power lies, at least `MIN_CUTOFF_HZ`, below Nyquist. Encoder
-    quantization puts noise into q̈ that grows as the 2.5th power of the cut-off, so the cut-off
-    should not reach far past where the excitation lives (the arm under a 3 Hz multi-sine: ~13 Hz;
-    the EMPS axis: ~80 Hz)."""
+def auto_cutoff(rec: Recording, step: float | None = None) -> tuple[float, str]:
+    """The identification band the motion calls for, and how it was chosen.
+
+    The motion band f_m is where `MOTION_POWER` of the velocity's power lies, once the encoder's
+    quantization noise (white, Δ²/12, through the first difference) is taken out of the
+    velocity's spectrum; the cut-off is `BAND_FACTOR` f_m (friction steps and reversals are
+    broadband), at least `MIN_CUTOFF_HZ`, below Nyquist, and capped where the quantization noise
+    in q̈ (σ² = Δ²/12 · 2T · (2π)⁴ f⁵ / 5 below f) reaches `NOISE_BUDGET` of the motion's own q̈
+    RMS in that band. The torque's spectrum plays no part: a noisy torque sensor must not widen
+    the band (the noise would follow it up to Nyquist)."""
     from scipy import signal
 
-    tau = rec.tau - rec.tau.mean(axis=0)
-    f, p = signal.welch(tau, fs=rec.sample_rate_hz, nperseg=min(2048, len(rec)), axis=0)
-    power = np.cumsum(p.sum(axis=1))
-    f995 = f[min(np.searchsorted(power, 0.995 * power[-1]), len(f) - 1)]
-    return float(np.clip(3 * f995, MIN_CUTOFF_HZ, 0.45 * rec.sample_rate_hz))
+    dt, n = rec.dt, len(rec)
+    nyq = 0.5 / dt
+    step = encoder_step(rec) if step is None else step
+    v = np.diff(rec.q, axis=0) / dt
+    v = v - v.mean(axis=0)
+    f, p = signal.welch(v, fs=1 / dt, nperseg=min(4096, max(16, n // 4)), axis=0)
+    noise = (step**2 / 12) * 2 * dt * (2 * np.sin(np.pi * f * dt) / dt) ** 2  # one-sided PSD of the difference
+    clean = np.clip(p.sum(axis=1) - rec.n_joints * noise, 0, None)
+    total = np.cumsum(clean)
+    if not total[-1] > 0:
+        return float(min(10.0, 0.45 / dt)), "no motion above the encoder's noise: cut-off 10 Hz by default"
+    f_m = float(f[min(np.searchsorted(total, MOTION_POWER * total[-1]), len(f) - 1)])
+    want = max(BAND_FACTOR * f_m, MIN_CUTOFF_HZ)
+    top = 0.45 / dt
+    # the motion's q̈ power below each frequency, against the quantization noise's
+    acc = np.cumsum(clean * (2 * np.pi * f) ** 2) * (f[1] - f[0])
+    acc_noise = (step**2 / 12) * 2 * dt * (2 * np.pi) ** 4 * f**5 / 5 * rec.n_joints
+    ok = acc_noise <= NOISE_BUDGET**2 * np.maximum(acc, 1e-300)
+    cap = float(f[np.flatnonzero(ok)[-1]]) if ok.any() and step > 0 else top
+    cut = min(want, top, max(cap, MIN_CUTOFF_HZ))
+    note = f"motion band {f_m:.3g} Hz (99 % of the velocity's power)"
+    if cut < min(want, top) - 1e-9:
+        note += (f"; limited to {cut:.3g} Hz (not {min(want, top):.3g}) by the encoder's quantization noise in the "
+                 f"acceleration (step {step:.3g})")
+    return float(cut), note
 
 
 def prepare(rec: Recording, cutoff_hz: float | None = None, decimate: int | None = None,
@@ -157,13 +212,16 @@ def prepare(rec: Recording, cutoff_hz: float | None = None, decimate: int | None
         raise ModelError(f"{rec.path}: recording too short: {len(rec)} samples (at least {MIN_SAMPLES} are needed "
                          "to differentiate the positions; no parameter is identifiable)")
     dt = rec.dt
-    cutoff_hz = auto_cutoff(rec) if cutoff_hz is None else cutoff_hz
-    if cutoff_hz <= 0:
+    step = encoder_step(rec)
+    if cutoff_hz is None:
+        cutoff_hz, note = auto_cutoff(rec, step)
+    else:
+        note = "cut-off given"
+    if not cutoff_hz > 0:
         raise ModelError(f"cut-off frequency must be positive (got {cutoff_hz})")
     cutoff_hz = min(cutoff_hz, 0.45 / dt)
     band = min(KINEMATIC_BAND * cutoff_hz, 0.45 / dt)
     q, qd, qdd = differentiate(rec.q, dt, band)
-    step = encoder_step(rec)
     cut = edge(dt, cutoff_hz)
     keep = np.zeros(len(rec), bool)
     keep[cut:len(rec) - cut] = True
@@ -172,13 +230,13 @@ def prepare(rec: Recording, cutoff_hz: float | None = None, decimate: int | None
         slow = np.abs(qd) < 2 * step * band
         still = np.any([_long_runs(slow[:, j], int(round(STANDSTILL_S / dt))) for j in range(rec.n_joints)], axis=0)
         w = int(np.ceil(0.5 / (cutoff_hz * dt)))
-        near = np.convolve(still.astype(float), np.ones(2 * w + 1), mode="same") > 0
+        near = np.convolve(still.astype(float), np.ones(2 * w + 1))[w:w + len(rec)] > 0  # dilated by w
         keep &= ~near
     if decimate is None:
         decimate = max(1, int(0.25 / (cutoff_hz * dt)))
     rows = np.flatnonzero(keep)[::decimate]
     window = np.arange(cut, max(cut, len(rec) - cut))[::decimate]
-    return Data(rec, cutoff_hz, q, qd, qdd, rows, step, float(1 - keep.sum() / max(usable, 1)), window)
+    return Data(rec, cutoff_hz, q, qd, qdd, rows, step, float(1 - keep.sum() / max(usable, 1)), window, note)
 
 
 # -- regressor columns, computed once per effect ------------------------------------------
@@ -190,13 +248,17 @@ def _effect_columns(effect: Effect, structure, q, qd, qdd):
 
 
 class Columns:
-    """Regressor columns of effects on prepared data, cached by effect spec."""
+    """Regressor columns of effects on prepared data, cached by effect spec. `kinematics` (q, q̇,
+    q̈ at full rate) replaces the measured ones: the instruments of IDIM-IV are the same columns
+    on the simulated motion."""
 
-    def __init__(self, data: Data, rows: np.ndarray | None = None):
+    def __init__(self, data: Data, rows: np.ndarray | None = None, kinematics: tuple | None = None):
         self.data = data
         self.rows = data.rows if rows is None else rows
         self._cache: dict[str, np.ndarray] = {}
-        self._args = tuple(jnp.asarray(x) for x in (data.q, data.qd, data.qdd))
+        kin = kinematics if kinematics is not None else (data.q, data.qd, data.qdd)
+        self._kin = tuple(np.asarray(x) for x in kin)
+        self._args = tuple(jnp.asarray(x) for x in kin)
 
     def effect(self, e: Effect) -> np.ndarray:
         """(rows, n, p) columns of one linear effect, low-passed like the torque."""
@@ -206,6 +268,12 @@ class Columns:
             self._cache[e.spec] = lowpass(full, d.dt, d.cutoff_hz)[self.rows]
         return self._cache[e.spec]
 
+    def screen(self, e: Effect) -> np.ndarray:
+        """The columns of `e` on the used rows without the low-pass: a cheap stand-in to rank
+        the many values of a grid search before the best few are evaluated exactly."""
+        args = tuple(jnp.asarray(x[self.rows]) for x in self._kin)
+        return np.asarray(_effect_columns(e, self.data.rec.structure, *args))
+
     def model(self, model: Model) -> np.ndarray:
         """(rows, n, P): the model's regressor, its effects' columns side by side."""
         blocks = [self.effect(e) for e in model.effects if e.linear]
@@ -213,51 +281,65 @@ class Columns:
         return np.concatenate(blocks, axis=2) if blocks else np.zeros((self.rows.size, n, 0))
 
 
-# -- least squares --------------------------------------------------------------------------
+def delay_of(model: Model) -> float:
+    """The command delay a model assumes [s] (its timing effect's, 0 without one)."""
+    return sum(float(getattr(e, "seconds", 0.0)) for e in model.effects if e.kind == "timing")
+
+
+# -- the search of a non-linear parameter --------------------------------------------------------
+
+SCREEN_ABOVE = 24  # grids longer than this are ranked on unfiltered columns first
+SCREEN_KEEP = 3  # ... and this many best are evaluated exactly
+
 
 @dataclass
-class Solution:
-    theta: np.ndarray  # (P,)
-    std: np.ndarray  # (P,)
-    redundant: list[int]  # columns the others already explain (their θ is 0)
-    residual: np.ndarray  # (rows, n)
-    rel_error: float
+class Grid:
+    """One effect's non-linear parameter searched over its space, every grid value's statistics
+    on the same segments (so a fold can choose its own value on its training segments)."""
+
+    values: list  # the effect at each grid value
+    stats: list  # lsq.Stats of the rest of the model plus that value (exact columns), or None until needed
+    screen: list | None  # lsq.Stats on unfiltered columns (long grids), else None
+    build: object  # value index -> exact lsq.Stats
+
+    def exact(self, i: int) -> lsq.Stats:
+        if self.stats[i] is None:
+            self.stats[i] = self.build(i)
+        return self.stats[i]
+
+    def choose(self, use: np.ndarray) -> tuple[int, np.ndarray]:
+        """The value with the least squared error on the segments `use` (those a fit sees), and
+        every value's error there (inf where not evaluated exactly)."""
+        errs = np.full(len(self.values), np.inf)
+        if self.screen is not None:
+            rough = np.array([st.sse(st.coef(use), use).sum() for st in self.screen])
+            idx = np.argsort(rough)[:SCREEN_KEEP]
+        else:
+            idx = range(len(self.values))
+        for i in idx:
+            st = self.exact(i)
+            errs[i] = st.sse(st.coef(use), use).sum()
+        return int(np.argmin(errs)), errs
 
 
-def solve(Y: np.ndarray, tau: np.ndarray, rtol: float = 1e-7, hac_lags: int = 5) -> Solution:
-    """Least squares τ ≈ Y θ over all rows and joints. Y (rows, n, P), tau (rows, n)."""
-    rows, n, P = Y.shape
-    X = Y.reshape(rows * n, P)
-    y = tau.reshape(rows * n)
-    scale = np.sqrt(np.mean(X**2, axis=0))
-    # Gram–Schmidt order: a column is redundant when the earlier ones explain it
-    redundant = unidentifiable(Y, rtol)
-    keep = [j for j in range(P) if j not in redundant]
-    theta = np.zeros(P)
-    std = np.full(P, np.nan)
-    if keep:
-        Xk = X[:, keep] / scale[keep]
-        coef, *_ = np.linalg.lstsq(Xk, y, rcond=None)
-        theta[keep] = coef / scale[keep]
-        e = y - Xk @ coef
-        cov = _newey_west(Xk, e, n, hac_lags)
-        std[keep] = np.sqrt(np.maximum(np.diag(cov), 0)) / scale[keep]
-    resid = (y - X @ theta).reshape(rows, n)
-    denom = np.linalg.norm(y)
-    return Solution(theta, std, sorted(redundant), resid, float(np.linalg.norm(resid) / denom) if denom else np.inf)
-
-
-def _newey_west(X: np.ndarray, e: np.ndarray, n: int, lags: int) -> np.ndarray:
-    """Covariance of the LS estimate robust to unequal noise per joint and to residual
-    autocorrelation over `lags` rows (Bartlett weights). Rows are interleaved by joint."""
-    XtX_inv = np.linalg.pinv(X.T @ X)
-    g = X * e[:, None]  # score per row
-    meat = g.T @ g
-    for lag in range(1, lags + 1):
-        w = 1 - lag / (lags + 1)
-        a, b = g[lag * n:], g[:-lag * n]  # the same joint, `lag` rows apart
-        meat += w * (a.T @ b + b.T @ a)
-    return XtX_inv @ meat @ XtX_inv
+def grid(data: Data, cols: Columns, rest: Model, effect: Effect, starts: np.ndarray,
+         values: tuple | None = None, icols: Columns | None = None) -> Grid:
+    """The grid search of `effect`'s non-linear parameter on top of `rest` (see `Grid`): a linear
+    effect changes the columns, a timing effect the torque. `icols`: instruments (IV)."""
+    values = list(values if values is not None else effect.space(data.span()))
+    delay = delay_of(rest)
+    Y = cols.model(rest)
+    Z = icols.model(rest) if icols is not None else None
+    base = lsq.Stats(Y, data.tau(delay), starts, Z)
+    if effect.kind == "timing":
+        build = lambda i: lsq.Stats(Y, data.tau(delay + values[i].seconds), starts, Z)
+        return Grid(values, [None] * len(values), None, build)
+    build = lambda i: base.extend(cols.effect(values[i]), icols.effect(values[i]) if icols is not None else None)
+    screen = None
+    if len(values) > SCREEN_ABOVE:
+        rough = lsq.Stats(Y, data.tau(delay), starts)
+        screen = [rough.extend(cols.screen(v)) for v in values]
+    return Grid(values, [None] * len(values), screen, build)
 
 
 # -- fitting a model -------------------------------------------------------------------------
@@ -273,14 +355,26 @@ class Fit:
     residual: np.ndarray  # (rows, n)
     data: Data
     delay: float
-    search: dict = field(default_factory=dict)  # the search curves: name -> (grid, rel_errors)
+    search: dict = field(default_factory=dict)  # the search curves: name -> (grid values, rel_errors)
+    method: str = "ls"  # "ls" or "iv"
+    why: str = ""  # why that method
+    instruments: "Columns | None" = None  # the IV instruments' columns (method "iv")
 
     @property
     def params(self) -> dict[str, float]:
         return dict(zip(self.names, self.theta.tolist()))
 
+    @property
+    def stds(self) -> dict[str, float]:
+        return dict(zip(self.names, self.std.tolist()))
+
     def predicted(self) -> np.ndarray:
         return self.data.tau(self.delay) - self.residual
+
+    def violations(self) -> list[str]:
+        """The physical rules the fitted parameters break (each effect's own rules)."""
+        s = self.model.structure
+        return [v for e in self.model.effects for v in e.violations(s, self.params, self.stds)]
 
     def report(self) -> dict:
         """The JSON contract of `manus fit` (docs/cli.md)."""
@@ -289,11 +383,16 @@ class Fit:
         nonlinear = {k: v for e in self.model.effects for k, v in e.describe().items()}
         out = {"model": self.model.effect_names, "spec": self.model.spec, "params": params,
                "rel_error": self.rel_error, "samples": int(self.data.rows.size),
-               "cutoff_hz": self.data.cutoff_hz, "standstill_excluded": self.data.standstill}
+               "cutoff_hz": self.data.cutoff_hz, "cutoff_note": self.data.cutoff_note,
+               "standstill_excluded": self.data.standstill, "hold": self.data.hold,
+               "method": self.method, "method_why": self.why}
         if nonlinear:
             out["nonlinear"] = nonlinear
         if self.redundant:
             out["redundant"] = self.redundant
+        bad = self.violations()
+        if bad:
+            out["violations"] = bad
         return out
 
     def evaluate(self, rec: Recording | Data) -> "Fit":
@@ -314,50 +413,77 @@ class Fit:
         denom = np.linalg.norm(tau)
         rel = float(np.linalg.norm(resid) / denom) if denom else np.inf
         return Fit(self.model, list(self.names), self.theta, self.std, list(self.redundant), rel, resid, data,
-                   self.delay, {})
+                   self.delay, {}, self.method, self.why)
 
     def rel_error_on(self, rec: Recording | Data) -> float:
         """`rel_error` of these parameters on another recording (see `evaluate`)."""
         return self.evaluate(rec).rel_error
 
 
-SEARCHABLE = ("cogging", "stribeck", "delay")
-
-
 def _model_from(model: Model | str, structure) -> tuple[Model, set[str]]:
     """A Model from text; effects given with an argument (cogging:39) are fixed, not searched."""
     if isinstance(model, Model):
         return model, set()
-    fixed = {t.split(":")[0].strip() for t in model.split(",") if ":" in t}
+    fixed = {t.split(":")[0].strip().lower() for t in model.split(",") if ":" in t}
     return Model(structure, model), fixed
 
 
+def _search_all(data: Data, cols: Columns, model: Model, fixed: set[str], icols=None) -> tuple[Model, dict]:
+    """Each effect's non-linear parameter not fixed, searched on all rows, the others held."""
+    curves: dict = {}
+    span = data.span()
+    everything = None
+    for e in model.effects:
+        if e.name in fixed or not e.space(span):
+            continue
+        g = grid(data, cols, model.without(e.name), e, np.array([0]), icols=icols)
+        everything = np.ones(1, bool)
+        best, errs = g.choose(everything)
+        yy = float(np.sum(data.tau(delay_of(model.without(e.name))) ** 2))
+        model = model.with_effect(g.values[best])
+        curves[e.name] = ([v.describe() for v in g.values], np.sqrt(np.maximum(errs, 0) / yy) if yy else errs)
+    return model, curves
+
+
 def fit(rec: Recording | Data, model: Model | str, cutoff_hz: float | None = None,
-        fixed: set[str] | None = None, columns: Columns | None = None) -> Fit:
+        fixed: set[str] | None = None, columns: Columns | None = None, method: str = "auto") -> Fit:
     """Identify `model`'s parameters from `rec`. Non-linear parameters of effects not in
-    `fixed` are searched (a model given as text fixes those written with an argument)."""
+    `fixed` are searched (a model given as text fixes those written with an argument).
+    `method`: "ls" (IDIM-LS), "iv" (IDIM-IV) or "auto" (IV where LS is biased, see the module
+    docstring)."""
+    if method not in METHODS:
+        raise ModelError(f"unknown method {method!r}: expected one of {', '.join(METHODS)}")
     data = rec if isinstance(rec, Data) else prepare(rec, cutoff_hz)
     model, fixed_text = _model_from(model, data.rec.structure)
     fixed = fixed_text | (fixed or set())
     if model.n_joints != data.n_joints:
         raise ModelError(f"the model has {model.n_joints} joints, the recording {data.n_joints}")
-    if model.has("compliance"):
-        raise ModelError("compliance is a structural mode above the identification bandwidth: "
-                         "`manus diagnose` detects it from the spectrum; it has no inverse-dynamics columns")
+    for e in model.effects:
+        if e.kind == "mode":
+            raise ModelError(f"{e.name} is a structural mode above the identification bandwidth: "
+                             "`manus diagnose` detects it from the spectrum; it has no inverse-dynamics columns")
+        why = e.applies(model.structure, data.rec.prismatic)
+        if why:
+            raise ModelError(f"{e.name}: {why}")
     cols = columns or Columns(data)
     _check_rows(data, model)
     _check_motion(data, model)
-    search: dict = {}
-    for name in SEARCHABLE:
-        e = model.get(name)
-        if e is not None and name not in fixed:
-            model, curve = search_parameter(data, cols, model, e)
-            search[name] = curve
-    delay = model.get("delay").seconds if model.has("delay") else 0.0
-    sol = solve(cols.model(model), data.tau(delay))
+    model, search = _search_all(data, cols, model, fixed)
+    ls = _solve(data, cols, model, search)
+    if method == "ls":
+        ls.why = "least squares (asked for)"
+        return ls
+    from manus.adaptive.instruments import iv_fit
+
+    return iv_fit(data, cols, ls, fixed, method)
+
+
+def _solve(data: Data, cols: Columns, model: Model, search: dict, icols: Columns | None = None) -> Fit:
+    delay = delay_of(model)
+    sol = lsq.solve(cols.model(model), data.tau(delay), None if icols is None else icols.model(model))
     names = list(model.names)
     return Fit(model, names, sol.theta, sol.std, [names[j] for j in sol.redundant], sol.rel_error,
-               sol.residual, data, delay, search)
+               sol.residual, data, delay, search, "ls" if icols is None else "iv", "", icols)
 
 
 def _check_rows(data: Data, model: Model) -> None:
@@ -385,32 +511,14 @@ def _check_rows(data: Data, model: Model) -> None:
                      "with the joints moving (e.g. a multi-sine reference)")
 
 
-def unidentifiable(Y: np.ndarray, rtol: float = 1e-7) -> list[int]:
-    """Columns of Y (rows, n, P) that are zero or that the earlier ones explain (the regressor's
-    rank deficiency, in column order); every column when there are fewer equations than the rank
-    would need."""
-    rows, n, P = Y.shape
-    if rows * n == 0:
-        return list(range(P))
-    X = Y.reshape(rows * n, P)
-    scale = np.sqrt(np.mean(X**2, axis=0))
-    out = [j for j in range(P) if not scale[j] > 0]
-    keep = [j for j in range(P) if scale[j] > 0]
-    if keep:
-        r = np.abs(np.diag(np.linalg.qr(X[:, keep] / scale[keep], mode="r")))
-        r = np.r_[r, np.zeros(len(keep) - r.size)]  # fewer equations than columns: the rest are lost
-        out += [keep[j] for j in np.flatnonzero(r < rtol * max(r.max(initial=0), 1e-300) * np.sqrt(rows * n))]
-    return sorted(out)
-
-
 def _check_motion(data: Data, model: Model) -> None:
     """A joint that does not move identifies none of its velocity- or inertia-driven terms."""
     still = [i for i, f in enumerate(data.moving()) if f < 0.02]
     if not still:
         return
-    lost = [k for e in model.effects if e.name not in ("offset", "gravity", "cogging")
+    lost = [k for e in model.effects if e.evidence in ("velocity", "acceleration")
             for k in e.names(model.structure)
-            if any(k.endswith(str(i + 1)) for i in still) or (e.name == "rigid" and model.n_joints == 2)]
+            if any(k.endswith(str(i + 1)) for i in still) or (e.kind == "inertial" and model.n_joints == 2)]
     joints = ", ".join(f"joint {i + 1}" for i in still)
     raise ModelError(f"{data.rec.path}: no motion on {joints}: parameters {', '.join(lost)} are not "
-                     "identifiable (record the joints moving, e.g. with a multi-sine reference)")
+                     "identifiable (record the joints moving, e.g. a multi-sine reference)")

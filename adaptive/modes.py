@@ -3,7 +3,8 @@
 A shaft mode at ~200 Hz lies far above the band where inverse dynamics identifies a model (a
 few tens of Hz: encoder quantization puts noise into q̈ that grows with the band), so it leaves
 nothing in the identification residual. Its evidence is in the frequency response from the
-torque to the measured (motor) acceleration between `BAND` Hz and Nyquist. A rigid joint has a
+torque to the measured (motor) acceleration between `band(fs)` (40 Hz, or a tenth of the sample
+rate, to 0.4 fs). A rigid joint has a
 flat apparent inertia Z(ω) = τ/θ̈ = J; a motor driving its link through a spring and damper has
 
     Z(ω) = α + β G(ω),   G(s) = (2ζω_z s + ω_z²) / (s² + 2ζω_z s + ω_z²)
@@ -18,7 +19,9 @@ resolved). Closed-loop data can otherwise dress the controller's response to enc
 (|θ̈/τ| rising steadily with frequency) up as a "mode" near the top of the band. The misfit is the coherence-weighted
 relative error of Z over the band, and the error reduction the fraction of the rigid model's
 misfit the mode removes. Frequency responses are estimated with the H1 estimator (cross-spectrum
-over input spectrum, unbiased by noise on the measured position) per joint.
+over input spectrum, unbiased by noise on the measured position) per joint, corrected for what
+sampling does to a rigid joint's response (`sampling`: the held command and the differentiated
+position), which otherwise looks like a mode near Nyquist at low sample rates.
 
 Only a recording that excites the mode says anything: the thesis's open-loop square-wave test
 (Figs. 4-12 to 4-14), or closed-loop runs with enough damping gain to ring it (the Type 2
@@ -36,7 +39,14 @@ from scipy import signal
 
 from manus.plants.effects import Compliance
 
-BAND = (40.0, 450.0)  # Hz
+BAND = (40.0, 450.0)  # Hz, at 1 kHz and above
+
+
+def band(fs: float) -> tuple[float, float]:
+    """Where the frequency response is fitted at sample rate `fs`: from `BAND[0]` (or a tenth of
+    the rate, when that is lower) to `BAND[1]` or 0.4 fs (near Nyquist the sampling correction is
+    ill-conditioned)."""
+    return min(BAND[0], 0.1 * fs), min(BAND[1], 0.4 * fs)
 MIN_COHERENCE = 0.5  # bins below this carry no usable frequency response
 ZETAS = (0.005, 0.01, 0.02, 0.05)  # a structural mode is lightly damped
 SHARE = (0.02, 0.9)  # a plausible motor share of the inertia; outside it the "mode" is not one
@@ -69,12 +79,28 @@ def link_response(freq: np.ndarray, wz: float, zeta: float) -> np.ndarray:
     return (2 * zeta * wz * s + wz**2) / (s**2 + 2 * zeta * wz * s + wz**2)
 
 
+def sampling(f: np.ndarray, fs: float) -> np.ndarray:
+    """What sampling does to θ̈/τ of a rigid joint: the command held over each period (zero-order
+    hold: Q/U = T²(z+1)/(2J(z−1)²)) and θ̈ taken by central differences twice (D² = −sin²(ωT)/T²)
+    give θ̈/τ = K(ω)/J with K = −sin²(ωT)(z+1)/(2(z−1)²), z = e^{jωT}: 1 at low frequency, a
+    phase lag and a fall toward Nyquist that a continuous-time model would read as a mode."""
+    w = 2 * np.pi * np.asarray(f) / fs
+    z = np.exp(1j * w)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        k = -np.sin(w) ** 2 * (z + 1) / (2 * (z - 1) ** 2)
+    return np.where(w > 0, k, 1.0 + 0j)
+
+
 def _spectra(tau, acc, fs, nperseg):
-    """Cross and auto spectra per joint: f (F,), sxy, sxx, syy (F, n)."""
+    """Cross and auto spectra per joint, θ̈ corrected for sampling (`sampling`): f (F,), sxy,
+    sxx, syy (F, n)."""
     f, sxy = signal.csd(tau, acc, fs=fs, nperseg=nperseg, axis=0)
     _, sxx = signal.welch(tau, fs=fs, nperseg=nperseg, axis=0)
     _, syy = signal.welch(acc, fs=fs, nperseg=nperseg, axis=0)
-    return f, sxy, sxx, syy
+    k = sampling(f, fs)[:, None]
+    ok = np.abs(k) > 1e-3
+    k = np.where(ok, k, 1.0)
+    return f, np.where(ok, sxy / k, 0), sxx, np.where(ok, syy / np.abs(k) ** 2, 0)
 
 
 def _frf(sxy, sxx, syy):
@@ -86,8 +112,9 @@ def _frf(sxy, sxx, syy):
     return h, z, coh
 
 
-def _weights(f, coh):
-    inband = (f >= BAND[0]) & (f <= BAND[1])
+def _weights(f, coh, fs):
+    lo, hi = band(fs)
+    inband = (f >= lo) & (f <= hi)
     c = np.clip(coh, 0, 0.999)
     return np.where(inband[:, None] & (c >= MIN_COHERENCE), c / (1 - c), 0.0)  # ∝ 1/variance of H
 
@@ -116,7 +143,8 @@ def detect(q: np.ndarray, tau: np.ndarray, dt: float, blocks: int = 8) -> Mode |
     fs = 1 / dt
     T, n = q.shape
     nper = int(2 ** np.floor(np.log2(max(T / blocks / 4, 64))))
-    if 0.5 * fs <= BAND[0] * 2 or T < blocks * nper:
+    lo, hi = band(fs)
+    if T < blocks * nper:
         return None
     acc = np.gradient(np.gradient(q, dt, axis=0), dt, axis=0)
     edges = np.linspace(0, T, blocks + 1).astype(int)
@@ -124,12 +152,12 @@ def detect(q: np.ndarray, tau: np.ndarray, dt: float, blocks: int = 8) -> Mode |
     f = parts[0][0]
     total = [sum(p[j] for p in parts) for j in (1, 2, 3)]
     h, z, coh = _frf(*total)
-    w = _weights(f, coh)
+    w = _weights(f, coh, fs)
     if not np.any(w > 0):
         return None
     best = None
     one = _columns(f, 1.0, 0.1)[0]
-    for fz in np.geomspace(BAND[0] / 4, BAND[1], 60):
+    for fz in np.geomspace(lo / 4, hi, 60):
         for zeta in ZETAS:
             g = _columns(f, fz, zeta)[1]
             fits = [_fit(z[:, i], w[:, i], g) for i in range(n)]
@@ -149,9 +177,9 @@ def detect(q: np.ndarray, tau: np.ndarray, dt: float, blocks: int = 8) -> Mode |
     err_rigid, err_mode = np.zeros(blocks), np.zeros(blocks)
     for k, part in enumerate(parts):
         _, zk, ck = _frf(*part[1:])
-        wk = _weights(f, ck)
+        wk = _weights(f, ck, fs)
         _, zo, co = _frf(*[total[j] - part[j + 1] for j in range(3)])
-        wo = _weights(f, co)
+        wo = _weights(f, co, fs)
         for i in range(n):
             for cols, err in ((one, err_rigid), (g, err_mode)):
                 coef, _ = _fit(zo[:, i], wo[:, i], cols)
@@ -161,13 +189,13 @@ def detect(q: np.ndarray, tau: np.ndarray, dt: float, blocks: int = 8) -> Mode |
     rigid = np.stack([mag(i, one) for i in range(n)], 1)
     fitted = np.stack([mag(i, g) for i in range(n)], 1)
     f_mode = float(fz / np.sqrt(r))
-    return Mode(f_mode, float(zeta), r, joint, _peaks(f, np.abs(h[:, joint]), f_mode), err_rigid, err_mode,
+    return Mode(f_mode, float(zeta), r, joint, _peaks(f, np.abs(h[:, joint]), f_mode, hi), err_rigid, err_mode,
                 f, np.abs(h), rigid, fitted)
 
 
-def _peaks(f, mag, f_mode) -> bool:
+def _peaks(f, mag, f_mode, top) -> bool:
     near = (f >= 0.9 * f_mode) & (f <= 1.1 * f_mode)
-    flank = (f >= 1.3 * f_mode) & (f <= 1.6 * f_mode) & (f <= BAND[1])
+    flank = (f >= 1.3 * f_mode) & (f <= 1.6 * f_mode) & (f <= top)
     if not near.any() or flank.sum() < 2:
         return False
     return bool(mag[near].max() > 2 * np.median(mag[flank]))

@@ -6,8 +6,9 @@ The admissible set Θ:
   H(q) = [[a1, a2 c], [a2 c, a3]] with |c| ≤ 1, this holds for all q exactly when the 2×2 matrix
   M = [[a1, a2], [a2, a3]] satisfies M ⪰ ε I (the worst case is c² = 1): a convex cone, shifted.
   For single axes, M_i ≥ ε.
-- friction coefficients are non-negative: b (viscous), Fc (coulomb), dFs (stribeck). The other
-  parameters (asymmetry, offset, gravity, cogging) are signed and left free.
+- each effect's own lower bounds (`Effect.lower_bounds`): friction coefficients b (viscous), Fc
+  (coulomb), dFs (stribeck) and a spring's k are non-negative; the other parameters (asymmetry,
+  offset, gravity, cogging) are signed and left free.
 
 After each gradient step the estimate is projected onto Θ in the metric of Γ⁻¹,
 ‖x‖² = Σ x_i² / γ_i. That metric matters: for a convex Θ holding the truth a, the projection P
@@ -45,12 +46,10 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from manus.adaptive.regressors import owners
 from manus.plants.effects import Model
 from manus.plants.errors import ModelError
 from manus.plants.structures import Axis, Manus2
 
-NONNEGATIVE = ("viscous", "coulomb", "stribeck")
 NEWTON_STEPS = 10
 _SQRT_HALF = math.sqrt(0.5)
 
@@ -105,9 +104,10 @@ class Projection(eqx.Module):
     def __init__(self, model: Model, min_inertia: float = 1e-3):
         if not min_inertia >= 0:
             raise ModelError(f"min_inertia must be >= 0 kg m², got {min_inertia}")
-        s, names, who = model.structure, model.names, owners(model)
+        s, names = model.structure, model.names
         lower = np.full(len(names), -np.inf)
-        lower[[i for i, e in enumerate(who) if e in NONNEGATIVE]] = 0.0
+        bounds = [lo for e in model.effects if e.kind != "inertial" for lo in e.lower_bounds(s)]
+        lower[[i for i, k in enumerate(names) if k not in s.rigid_names]] = bounds  # each effect's own rules
         self.cone = None
         if isinstance(s, Manus2):
             self.cone = tuple(names.index(k) for k in s.rigid_names)

@@ -53,11 +53,6 @@ FORMS = ("slotine-li", "thesis")
 DEFAULT_BOUNDARY = 0.01  # φ [rad/s]: under 1 % of the complex trajectory's peak speed
 
 
-def owners(model: Model) -> tuple[str, ...]:
-    """The effect each parameter belongs to, in regressor column order."""
-    return tuple(e.name for e in model.effects for _ in e.names(model.structure))
-
-
 class Regressor(eqx.Module):
     """Y(q, q̇, q̇_r, q̈_r) of shape (n, P) for `model`; P = len(model.names).
 
@@ -99,7 +94,7 @@ class Regressor(eqx.Module):
         s, p = self.model.structure, self.model.unvector(theta)
         total = jnp.zeros(s.n_joints, jnp.result_type(qd_r, theta))
         for e in self.model.effects:
-            if e.name == "rigid" and self.form == "slotine-li":
+            if e.kind == "inertial" and self.form == "slotine-li":
                 total = total + s.inertia(q, p) @ qdd_r + s.coriolis(q, qd, p) @ qd_r
             else:
                 total = total + e.torque(s, q, qd_r, qdd_r, p, self.boundary)
@@ -121,7 +116,7 @@ class Regressor(eqx.Module):
             def rest(th):
                 p = self.model.unvector(th)
                 return sum(e.torque(s, q, qd_r, qdd_r, p, self.boundary) for e in self.model.effects
-                           if e.name != "rigid")
+                           if e.kind != "inertial")
 
             Yo = jax.jacfwd(rest)(theta0)
             columns.update({k: (Yo[0, i], Yo[1, i]) for i, k in enumerate(self.names) if k not in columns})

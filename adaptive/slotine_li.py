@@ -16,7 +16,7 @@ updated. Signs: positive torque accelerates the joint positively; q̃ > 0 means 
 reference.
 
 Defaults are the thesis's (App. C): Γ = diag(0.2, 0.2, 0.5) for a1, a2, a3, Λ = 5 /s,
-K_D = 5 N·m·s/rad. Gains of the other parameters (`GAINS`) were chosen like the thesis chose Γ,
+K_D = 5 N·m·s/rad. Gains of the other parameters (each effect's `gain`) were chosen like the thesis chose Γ,
 for the fastest convergence on the complex trajectory (C.13–C.14): the adaptation rate of a
 parameter scales with γ_i times the mean square of its column, and the friction columns
 (|sgn| = 1, |q̇_r| ≈ 1 rad/s) are about ten times smaller than the acceleration columns
@@ -60,7 +60,7 @@ from jax import Array
 
 from manus.adaptive.composite import Composite, CompositeState
 from manus.adaptive.projection import Projection
-from manus.adaptive.regressors import DEFAULT_BOUNDARY, Regressor, owners
+from manus.adaptive.regressors import DEFAULT_BOUNDARY, Regressor
 from manus import estimators
 from manus.estimators.base import Estimator, run
 from manus.plants.effects import Model
@@ -68,9 +68,6 @@ from manus.plants.errors import ManusError
 from manus.plants.stepper import Controller, Plant, Reference, RefSample
 from manus.plants.structures import Manus2
 
-# Γ per effect [units of the parameter² per (N·m·rad)]; rigid of MANUS-2 from the thesis.
-GAINS = {"rigid": 0.2, "viscous": 5.0, "coulomb": 5.0, "stribeck": 5.0, "asymmetry": 5.0,
-         "offset": 5.0, "gravity": 5.0, "cogging": 5.0}
 THESIS_RIGID_GAINS = (0.2, 0.2, 0.5)  # Γ1, Γ2, Γ3 for a1, a2, a3 (thesis App. C)
 LAMBDA, KD = 5.0, 5.0  # Λ [1/s], K_D [N·m·s/rad] (thesis App. C)
 DEFAULT_ESTIMATOR = "kalman_cv"  # see the module docstring
@@ -91,8 +88,9 @@ class SlotineLiState(NamedTuple):
 
 
 def default_gains(model: Model) -> np.ndarray:
-    """Γ (P,): the thesis's for MANUS-2's a1, a2, a3, `GAINS` per effect otherwise."""
-    gamma = np.array([GAINS[e] for e in owners(model)], float)
+    """Γ (P,): the thesis's for MANUS-2's a1, a2, a3, each effect's own `gain` otherwise
+    [units of the parameter² per (N·m·rad)]."""
+    gamma = np.array([e.gain for e in model.effects for _ in e.names(model.structure)], float)
     if isinstance(model.structure, Manus2) and model.has("rigid"):
         for name, g in zip(model.structure.rigid_names, THESIS_RIGID_GAINS):
             gamma[model.names.index(name)] = g

@@ -15,15 +15,26 @@ and the diagnosis (what a missing effect leaves in a residual).
 | viscous | b_i q̇_i | b_i | |
 | coulomb | Fc_i sgn(q̇_i) | Fc_i | |
 | stribeck | dFs_i exp(−(q̇_i/vs)²) sgn(q̇_i), dFs_i = Fs_i − Fc_i | dFs_i | vs |
-| asymmetry | dFc_i |sgn(q̇_i)| + db_i |q̇_i| | dFc_i, db_i | |
+| asymmetry | db_i |q̇_i| | db_i | |
 | offset | off_i | off_i | |
 | gravity | gc_i cos(q_i) + gs_i sin(q_i) | gc_i, gs_i | |
-| cogging | A_i sin(N q_i) + B_i cos(N q_i) | A_i, B_i | N [cycles/rev] |
+| cogging | Σ_N A_i sin(N q_i) + B_i cos(N q_i) | A_i, B_i per order | N [cycles/rev] (one or more) |
 | delay | the commanded torque arrives d seconds late | | d [s] |
 | compliance | a shaft spring between motor and link | | f [Hz], ζ, motor fraction |
+| spring | k_i q_i (its preload is `offset`'s constant) | k_i | |
 
-`asymmetry` makes the Coulomb and viscous levels direction dependent: Fc⁺ = Fc + dFc,
-Fc⁻ = Fc − dFc, b⁺ = b + db, b⁻ = b − db.
+No effect's columns lie in the span of another's. `asymmetry` is the viscous coefficient that
+differs by direction (b⁺ = b + db, b⁻ = b − db); a Coulomb level that differs by direction is
+`coulomb` plus `offset` already (Fc⁺ = Fc + off, Fc⁻ = Fc − off while moving), so asymmetry has
+no Coulomb column of its own. `stribeck` is offered only on top of `coulomb` (`requires`), with
+a velocity scale from the data, so that it cannot be Coulomb under another name. A spring's
+preload is a constant torque: `spring` brings `offset` with it (`brings`) when the model lacks it.
+
+Each effect owns everything about itself (one definition, no tables keyed by effect name
+elsewhere): its columns (`names`, `torque`), the search space of its non-linear parameter
+derived from the recording (`space`, from a `Span`), its physical rules (`lower_bounds`,
+`violations`), which joints it applies to (`applies`), what its evidence is plotted against
+(`evidence`) and its adaptation gain (`gain`).
 
 Friction effects (coulomb, stribeck, asymmetry) are set-valued at q̇ = 0: the simulator treats
 them implicitly (stiction: a joint at rest stays at rest while the other torques stay inside the
@@ -37,8 +48,11 @@ and say so.
 
 from __future__ import annotations
 
+import math
 import re
-from typing import ClassVar
+from typing import ClassVar, NamedTuple
+
+import numpy as np
 
 import equinox as eqx
 import jax
@@ -65,6 +79,19 @@ def stack(p: dict, names: tuple[str, ...]) -> Array:
     return jnp.stack([jnp.asarray(p[k]) for k in names])
 
 
+class Span(NamedTuple):
+    """What the search space of an effect's non-linear parameter is derived from: the recording's
+    timing, the positions it covers and how fast it moves. Arrays are per joint."""
+
+    dt: float  # sample period [s]
+    duration: float  # [s]
+    travel: np.ndarray  # (n,) range of positions covered [rad or m]
+    step: float  # the encoder grid [rad or m] (0: unknown)
+    speed: np.ndarray  # (n,) a high speed of the motion (95th percentile of |q̇|)
+    prismatic: tuple[bool, ...]  # per joint: a linear axis (positions in metres)
+    resolution: float = 0.0  # the smallest speed the data resolve (an encoder count per filter time)
+
+
 class Effect(eqx.Module):
     """One physical effect. Configuration only (its non-linear parameters); no state."""
 
@@ -75,6 +102,10 @@ class Effect(eqx.Module):
     # Which side of a compliant shaft it acts on: the motor (friction, cogging, offset) or
     # the link (inertia, gravity).
     side: ClassVar[str] = "motor"
+    requires: ClassVar[tuple[str, ...]] = ()  # offered only on top of these effects
+    brings: ClassVar[tuple[str, ...]] = ()  # added with it when the model lacks them
+    evidence: ClassVar[str] = "velocity"  # what a residual is plotted against to show it
+    gain: ClassVar[float] = 5.0  # the Slotine–Li adaptation gain of its parameters (thesis: Γ = 5)
 
     def names(self, s: Structure) -> tuple[str, ...]:
         """Linear parameter names, in regressor column order."""
@@ -100,6 +131,49 @@ class Effect(eqx.Module):
         """Non-linear parameters, for reports."""
         return {}
 
+    # -- what the effect knows about identification ---------------------------------------
+    def applies(self, s: Structure, prismatic: tuple[bool, ...] = ()) -> str | None:
+        """None when the effect can act on these joints, else why not."""
+        return None
+
+    def space(self, span: Span) -> tuple["Effect", ...]:
+        """The values of its non-linear parameter worth trying on a recording (in order, for a
+        grid search); () when it has none to search."""
+        return ()
+
+    def grow(self, span: Span) -> tuple["Effect", ...]:
+        """For an effect already in the model: larger versions of it worth trying (cogging: one
+        more order); () for most."""
+        return ()
+
+    def edge(self, span: Span) -> str | None:
+        """When this (searched) value lies on the edge of `space(span)`: what that means."""
+        grid = self.space(span)
+        if len(grid) < 3:
+            return None
+        if self.spec == grid[-1].spec:
+            return f"{self.spec} lies on the upper edge of its search range ({grid[0].spec} to {grid[-1].spec})"
+        if self.spec == grid[0].spec:
+            return f"{self.spec} lies on the lower edge of its search range ({grid[0].spec} to {grid[-1].spec})"
+        return None
+
+    def lower_bounds(self, s: Structure) -> tuple[float, ...]:
+        """The physical lower bound of each linear parameter (−inf: signed)."""
+        return (-math.inf,) * len(self.names(s))
+
+    def violations(self, s: Structure, params: dict, std: dict | None = None) -> list[str]:
+        """The physical rules the fitted parameters break (beyond two standard deviations)."""
+        std = std or {}
+        out = []
+        for k, lo in zip(self.names(s), self.lower_bounds(s)):
+            v, sd = params.get(k), std.get(k)
+            sd = sd if sd is not None and np.isfinite(sd) else 0.0
+            if v is not None and np.isfinite(lo) and v + 2 * sd < lo:
+                out.append(f"{k} = {v:.4g} ± {sd:.2g} < {lo:g}: {self.name} {self.rule}")
+        return out
+
+    rule: ClassVar[str] = ""  # what the lower bounds mean, for `violations`
+
 
 def _two(s: Structure, manus2: tuple[float, float], axis: float) -> tuple[float, ...]:
     return manus2 if isinstance(s, Manus2) else (axis,) * s.n_joints
@@ -118,8 +192,14 @@ class Rigid(Effect):
     def defaults(self, s):
         return s.rigid_defaults
 
+    gain: ClassVar[float] = 0.2  # thesis App. C: Γ = 0.2 for the inertias
+    evidence: ClassVar[str] = "acceleration"
+
     def torque(self, s, q, qd, qdd, p, boundary=0.0):
         return s.rigid_torque(q, qd, qdd, p)
+
+    def violations(self, s, params, std=None):
+        return s.violations(params)
 
 
 class Viscous(Effect):
@@ -131,8 +211,13 @@ class Viscous(Effect):
     def names(self, s):
         return per_joint("b", s)
 
+    rule: ClassVar[str] = "friction dissipates: b ≥ 0"
+
     def defaults(self, s):
         return _two(s, (0.222, 0.181), 1.5)  # axis: b = 1.5 N·s/m, thesis eq. 4.1
+
+    def lower_bounds(self, s):
+        return (0.0,) * s.n_joints
 
     def torque(self, s, q, qd, qdd, p, boundary=0.0):
         return stack(p, self.names(s)) * qd
@@ -147,8 +232,13 @@ class Coulomb(Effect):
     def names(self, s):
         return per_joint("Fc", s)
 
+    rule: ClassVar[str] = "friction opposes motion: Fc ≥ 0"
+
     def defaults(self, s):
         return _two(s, (0.099, 0.139), 0.5)
+
+    def lower_bounds(self, s):
+        return (0.0,) * s.n_joints
 
     def torque(self, s, q, qd, qdd, p, boundary=0.0):
         return stack(p, self.names(s)) * sign(qd, boundary)
@@ -164,9 +254,25 @@ class Stribeck(Effect):
     name: ClassVar[str] = "stribeck"
     kind: ClassVar[str] = "friction"
     vs: Array = eqx.field(default=0.05, converter=jnp.asarray)  # Stribeck velocity [rad/s or m/s]
+    requires: ClassVar[tuple[str, ...]] = ("coulomb",)
+    rule: ClassVar[str] = "static friction is at least the Coulomb level: Fs ≥ Fc"
+    GRID: ClassVar[int] = 24
 
     def names(self, s):
         return per_joint("dFs", s)
+
+    def lower_bounds(self, s):
+        return (0.0,) * s.n_joints
+
+    def space(self, span):
+        """vs from twice the smallest speed the data resolve up to a quarter of the motion's high
+        speed: a larger vs makes exp(−(q̇/vs)²) nearly constant over the motion, which is Coulomb
+        friction under another name."""
+        top = 0.25 * float(np.max(span.speed))
+        low = max(top * 2e-3, 2 * span.resolution, 1e-12)
+        if not top > 2 * low:
+            return ()
+        return tuple(Stribeck(vs=float(v)) for v in np.geomspace(low, top, self.GRID))
 
     def defaults(self, s):
         return _two(s, (0.05, 0.07), 0.25)
@@ -176,28 +282,30 @@ class Stribeck(Effect):
 
     @property
     def spec(self):
-        return f"stribeck:{float(self.vs):g}"
+        return f"stribeck:{float(self.vs):.4g}"
 
     def describe(self):
         return {"vs": float(self.vs)}
 
 
 class Asymmetry(Effect):
-    """Direction-dependent friction: dFc_i |sgn(q̇_i)| + db_i |q̇_i| (illustrative defaults)."""
+    """A viscous coefficient that differs by direction: db_i |q̇_i| (b⁺ = b + db, b⁻ = b − db).
+
+    A Coulomb level that differs by direction needs no column here: `coulomb` plus `offset`
+    already give Fc ± off while the joint moves. Illustrative defaults.
+    """
 
     name: ClassVar[str] = "asymmetry"
-    kind: ClassVar[str] = "friction"
+    kind: ClassVar[str] = "load"  # smooth in q̇: |q̇| is continuous, nothing set-valued at rest
 
     def names(self, s):
-        return per_joint("dFc", s) + per_joint("db", s)
+        return per_joint("db", s)
 
     def defaults(self, s):
-        return _two(s, (0.03, 0.04), 0.1) + _two(s, (0.05, 0.04), 0.3)
+        return _two(s, (0.05, 0.04), 0.3)
 
     def torque(self, s, q, qd, qdd, p, boundary=0.0):
-        n = s.n_joints
-        th = stack(p, self.names(s))
-        return th[:n] * jnp.abs(sign(qd, boundary)) + th[n:] * jnp.abs(qd)
+        return stack(p, self.names(s)) * jnp.abs(qd)
 
 
 class Offset(Effect):
@@ -211,6 +319,8 @@ class Offset(Effect):
 
     def defaults(self, s):
         return _two(s, (0.05, -0.04), 0.2)
+
+    evidence: ClassVar[str] = "time"
 
     def torque(self, s, q, qd, qdd, p, boundary=0.0):
         return stack(p, self.names(s)) + 0 * qd
@@ -232,40 +342,105 @@ class Gravity(Effect):
     def defaults(self, s):
         return _two(s, (0.07, 0.05), 0.2) + _two(s, (0.02, -0.02), 0.0)
 
+    evidence: ClassVar[str] = "position"
+
     def torque(self, s, q, qd, qdd, p, boundary=0.0):
         n = s.n_joints
         th = stack(p, self.names(s))
         return th[:n] * fastmath.cos(q) + th[n:] * fastmath.sin(q)
 
+    def applies(self, s, prismatic=()):
+        if any(prismatic):
+            return "gravity is a cos/sin of a joint angle: it does not apply to a prismatic axis (a constant load there is an offset)"
+        return None
+
 
 class Cogging(Effect):
-    """Position-periodic torque A_i sin(N q_i) + B_i cos(N q_i), N cycles per revolution.
+    """Position-periodic torque Σ_N A_i sin(N q_i) + B_i cos(N q_i), N cycles per revolution
+    (for a prismatic axis N is in radians per metre: the period is 2π/N metres).
 
     Thesis App. A: the MANUS-2 motors show 39/rev cogging (39 cogs), 6/rev torque ripple and a
-    1/rev position-dependent friction; the order N selects which. Amplitudes illustrative.
+    1/rev position-dependent friction; the order N selects which, and one effect can hold
+    several orders at once (`cogging:39+6`): the first order's parameters are A_i, B_i, a later
+    order N's A_i_N, B_i_N. Amplitudes illustrative.
     """
 
     name: ClassVar[str] = "cogging"
     kind: ClassVar[str] = "load"
+    evidence: ClassVar[str] = "position"
     order: Array = eqx.field(default=39.0, converter=jnp.asarray)  # cycles per revolution
+    more: tuple[float, ...] = eqx.field(default=(), static=True)  # further orders, held at once
+    MAX_ORDER: ClassVar[int] = 200  # rotary orders searched: 2 periods over the travel .. this
+    MIN_COUNTS: ClassVar[int] = 16  # a period spans at least this many encoder counts
+    PERIODS: ClassVar[float] = 1.5  # a period repeats at least this often over the travel
+
+    @property
+    def orders(self) -> tuple:
+        return (self.order, *self.more)
 
     def names(self, s):
-        return per_joint("A", s) + per_joint("B", s)
+        out = per_joint("A", s) + per_joint("B", s)
+        for N in self.more:
+            out += tuple(f"A{i + 1}_{N:g}" for i in range(s.n_joints)) + tuple(f"B{i + 1}_{N:g}" for i in range(s.n_joints))
+        return out
 
     def defaults(self, s):
-        return _two(s, (0.02, 0.015), 0.2) + _two(s, (0.01, -0.01), 0.1)
+        first = _two(s, (0.02, 0.015), 0.2) + _two(s, (0.01, -0.01), 0.1)
+        return first + (0.0,) * (2 * s.n_joints * len(self.more))
 
     def torque(self, s, q, qd, qdd, p, boundary=0.0):
         n = s.n_joints
         th = stack(p, self.names(s))
-        return th[:n] * fastmath.sin(self.order * q) + th[n:] * fastmath.cos(self.order * q)
+        total = 0 * q
+        for k, N in enumerate(self.orders):
+            a, b = th[2 * n * k:2 * n * k + n], th[2 * n * k + n:2 * n * (k + 1)]
+            total = total + a * fastmath.sin(N * q) + b * fastmath.cos(N * q)
+        return total
 
     @property
     def spec(self):
-        return f"cogging:{float(self.order):g}"
+        return "cogging:" + "+".join(f"{float(N):.6g}" for N in self.orders)
 
     def describe(self):
-        return {"order": float(self.order)}
+        out = {"order": float(self.order)}
+        if self.more:
+            out["orders"] = [float(N) for N in self.orders]
+        return out
+
+    def _grid(self, span: Span) -> np.ndarray:
+        """Orders worth trying: a period shorter than half the largest travel (so that a
+        cogging is not a smooth function of position over the stroke) and longer than
+        `MIN_COUNTS` encoder counts; rotary joints: integers up to `MAX_ORDER` cycles/rev."""
+        travel = float(np.max(span.travel))
+        if not travel > 0:
+            return np.zeros(0)
+        longest = travel / self.PERIODS
+        shortest = self.MIN_COUNTS * span.step if span.step else travel / 2000
+        if any(span.prismatic):
+            if not longest > 2 * shortest:
+                return np.zeros(0)
+            return 2 * np.pi / np.geomspace(longest, shortest, 160)
+        lo = max(2, int(np.ceil(2 * np.pi / longest)))
+        hi = min(self.MAX_ORDER, int(2 * np.pi / shortest))
+        return np.arange(lo, hi + 1, dtype=float)
+
+    def space(self, span):
+        return tuple(Cogging(order=float(N)) for N in self._grid(span))
+
+    def grow(self, span: Span) -> tuple["Effect", ...]:
+        """This cogging plus one more order (several at once: the 39/rev cogging and the 6/rev
+        ripple), orders it already holds left out."""
+        held = [float(N) for N in self.orders]
+        return tuple(Cogging(order=self.order, more=(*self.more, float(N))) for N in self._grid(span)
+                     if min(abs(float(N) - h) for h in held) > 0.5 * min(1.0, float(N) * 1e-3 + 0.5))
+
+    def edge(self, span):
+        grid = self._grid(span)
+        N = float(self.orders[-1])
+        if grid.size >= 3 and (np.isclose(N, grid[0]) or np.isclose(N, grid[-1])):
+            return (f"order {N:.6g} lies on the edge of its search range ({grid[0]:.6g} to {grid[-1]:.6g}): "
+                    "a period as long as half the travel or as short as a few encoder counts")
+        return None
 
 
 class Delay(Effect):
@@ -273,14 +448,49 @@ class Delay(Effect):
 
     name: ClassVar[str] = "delay"
     kind: ClassVar[str] = "timing"
+    evidence: ClassVar[str] = "shift"
     seconds: float = eqx.field(default=0.001, static=True)
 
     @property
     def spec(self):
-        return f"delay:{self.seconds * 1e3:g}ms"
+        return f"delay:{self.seconds * 1e3:.4g}ms"
 
     def describe(self):
         return {"delay_ms": self.seconds * 1e3}
+
+    def space(self, span):
+        """0 to a sensible fraction of the record (2 %, at most 100 ms, at least ten samples):
+        tenths of a sample up to five samples, then a geometric grid."""
+        top = max(10 * span.dt, min(0.02 * span.duration, 0.1))
+        fine = np.arange(0.0, min(5 * span.dt, top), span.dt / 10)
+        coarse = np.geomspace(5 * span.dt, top, 30) if top > 5 * span.dt else np.zeros(0)
+        grid = np.unique(np.round(np.r_[fine, coarse], 9))
+        return tuple(Delay(seconds=float(d)) for d in grid)
+
+
+class Spring(Effect):
+    """A spring: k_i q_i (a return spring, a cable, a gravity compensator). Its preload is a
+    constant torque, `offset`'s column, so a spring brings `offset` with it. k ≥ 0: it pulls
+    back toward its rest position. Illustrative defaults."""
+
+    name: ClassVar[str] = "spring"
+    kind: ClassVar[str] = "load"
+    side: ClassVar[str] = "link"
+    brings: ClassVar[tuple[str, ...]] = ("offset",)
+    evidence: ClassVar[str] = "position"
+    rule: ClassVar[str] = "a spring pulls back toward its rest position: k ≥ 0"
+
+    def names(self, s):
+        return per_joint("k", s)
+
+    def defaults(self, s):
+        return _two(s, (0.2, 0.15), 20.0)
+
+    def lower_bounds(self, s):
+        return (0.0,) * s.n_joints
+
+    def torque(self, s, q, qd, qdd, p, boundary=0.0):
+        return stack(p, self.names(s)) * q
 
 
 class Compliance(Effect):
@@ -295,6 +505,7 @@ class Compliance(Effect):
 
     name: ClassVar[str] = "compliance"
     kind: ClassVar[str] = "mode"
+    evidence: ClassVar[str] = "frequency"
     f_hz: Array = eqx.field(default=218.7, converter=jnp.asarray)
     zeta: Array = eqx.field(default=0.0081, converter=jnp.asarray)
     motor_fraction: float = eqx.field(default=0.1, static=True)
@@ -315,7 +526,7 @@ class Compliance(Effect):
 
 VOCABULARY: dict[str, type[Effect]] = {
     cls.name: cls
-    for cls in (Rigid, Viscous, Coulomb, Stribeck, Asymmetry, Offset, Gravity, Cogging, Delay, Compliance)
+    for cls in (Rigid, Viscous, Coulomb, Stribeck, Asymmetry, Offset, Gravity, Spring, Cogging, Delay, Compliance)
 }
 ORDER = tuple(VOCABULARY)
 
@@ -338,7 +549,8 @@ def parse_effect(text: str) -> Effect:
     if not arg:
         return cls()
     if cls is Cogging:
-        return Cogging(order=_number(arg, "cogging order"))
+        orders = [_number(x, "cogging order") for x in arg.split("+")]
+        return Cogging(order=orders[0], more=tuple(orders[1:]))
     if cls is Stribeck:
         return Stribeck(vs=_number(arg, "Stribeck velocity"))
     if cls is Compliance:

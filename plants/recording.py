@@ -73,6 +73,20 @@ class Recording:
         return 2 * math.pi / c if c else None
 
     @property
+    def prismatic(self) -> tuple[bool, ...]:
+        """Per joint: a linear axis (metadata `joints`: `prismatic` or `revolute`, one for all or
+        one per joint; default revolute)."""
+        kinds = [k.strip().lower() for k in self.meta.get("joints", "revolute").split(",")]
+        kinds = kinds * self.n_joints if len(kinds) == 1 else kinds
+        return tuple(k == "prismatic" for k in kinds[:self.n_joints])
+
+    @property
+    def hold(self) -> str:
+        """How each command was held: `zoh` (over its period, as a digital controller does: the
+        default when the file does not say) or `none` (acting at its sample instant only)."""
+        return self.meta.get("command_hold", "zoh").strip().lower()
+
+    @property
     def structure_name(self) -> str:
         return self.meta.get("structure") or ("manus2" if self.n_joints == 2 else "axis")
 
@@ -272,6 +286,14 @@ def _check_meta(path, meta, n, t):
             _fail(path, None, f"metadata structure: {structure!r} is not one of {', '.join(STRUCTURES)}")
         if structure == "manus2" and n != 2:
             _fail(path, None, f"metadata structure: manus2 has 2 joints, the file has {n}")
+    if "joints" in meta:
+        kinds = [k.strip().lower() for k in meta["joints"].split(",")]
+        if any(k not in ("revolute", "prismatic") for k in kinds) or len(kinds) not in (1, n):
+            _fail(path, None, f"metadata joints: {meta['joints']!r} must be 'revolute' or 'prismatic', one for every "
+                              f"joint or one per joint ({n})")
+    if "command_hold" in meta and meta["command_hold"].strip().lower() not in ("zoh", "none"):
+        _fail(path, None, f"metadata command_hold: {meta['command_hold']!r} must be 'zoh' (held over the period) "
+                          "or 'none' (acting at its sample instant)")
     if "sample_rate_hz" in meta:
         rate = float(meta["sample_rate_hz"])
         step = float(np.median(np.diff(t)))
@@ -323,7 +345,9 @@ def _read_mat(path: Path) -> Recording:
     for k in ("qg", "vir", "pulses_N"):
         if k in m:
             cols[k] = col(k)
-    meta = {"structure": "axis", "source": "EMPS benchmark (Janot, Gautier, Brunot 2019)"}
+    # the reference identification (and the benchmark's own simulator) read vir(k) as acting at t_k
+    meta = {"structure": "axis", "joints": "prismatic", "command_hold": "none",
+            "source": "EMPS benchmark (Janot, Gautier, Brunot 2019)"}
     for k in ("gtau", "kp", "kv"):
         if k in m:
             meta[k] = repr(float(col(k)[0]))

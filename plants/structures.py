@@ -193,6 +193,10 @@ class Structure(eqx.Module):
         n = self.n_joints
         return jnp.stack(self._closed_form(H).friction(joints(vstar, n), joints(lo, n), joints(hi, n), dt))
 
+    def violations(self, p: dict) -> list[str]:
+        """The rules of physics the rigid parameters `p` break (H(q) positive definite)."""
+        return []
+
     def rigid_torque(self, q: Array, qd: Array, qdd: Array, p: dict) -> Array:
         """H(q) q̈ + C(q, q̇) q̇."""
         return self.inertia(q, p) @ qdd + self.coriolis(q, qd, p) @ qd
@@ -239,6 +243,13 @@ class Manus2(Structure):
     def _closed_form(self, H):
         return Sym2(H[0, 0], H[0, 1], H[1, 1])
 
+    def violations(self, p):
+        a1, a2, a3 = (float(p[k]) for k in self.rigid_names)
+        if a1 > 0 and a3 > 0 and a1 * a3 > a2 * a2:
+            return []
+        return [f"a1 = {a1:.4g}, a2 = {a2:.4g}, a3 = {a3:.4g}: H(q) is not positive definite for every q "
+                "(a1 > 0, a3 > 0, a1 a3 > a2² needed)"]
+
 
 class Axis(Structure):
     """`n_joints` independent single axes (rotary or prismatic), one inertia M_i each."""
@@ -274,6 +285,9 @@ class Axis(Structure):
 
     def _closed_form(self, H):
         return Diagonal(joints(jnp.diagonal(H), self.n_joints))
+
+    def violations(self, p):
+        return [f"{k} = {float(p[k]):.4g}: an inertia must be positive" for k in self.rigid_names if not float(p[k]) > 0]
 
 
 def structure_named(name: str, n_joints: int) -> Structure:

@@ -20,10 +20,11 @@ def add_arguments(p) -> None:
 
 
 def figures(d, out: Path, stem: str) -> dict:
-    from manus.runs.diagnose_figures import evidence_figures, resid_figure
+    from manus.runs.diagnose_figures import evidence_figures, resid_figure, unexplained_figure
 
     return {"resid": resid_figure(d, out, f"{stem}_resid.png"),
-            "evidence": evidence_figures(d, out, prefix=f"{stem}_")}
+            "evidence": evidence_figures(d, out, prefix=f"{stem}_"),
+            "unexplained": unexplained_figure(d, out, f"{stem}_unexplained.png")}
 
 
 def run(args) -> dict:
@@ -31,7 +32,7 @@ def run(args) -> dict:
 
     rec = load(args, proposing=True)
     note(f"diagnosing {args.model}: fitting it with each missing effect in turn ...")
-    d = diagnose(rec, args.model, cutoff_hz=args.cutoff)
+    d = diagnose(rec, args.model, cutoff_hz=args.cutoff, method=args.method)
     out = d.report()
     if not args.no_figures:
         stem = f"diagnose_{Path(rec.path).stem}"
@@ -44,7 +45,8 @@ def candidate_rows(candidates: list[dict], verdict: str | None) -> list[list]:
     for c in candidates:
         detail = {k: v for k, v in c["detail"].items() if k != "per_joint_error_reduction"}
         text = ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in detail.items())
-        flag = "<- verdict" if c["effect"] == verdict else (f"overlaps {c['overlaps']}" if c.get("overlaps") else "")
+        flag = ("<- verdict" if c["effect"] == verdict else f"overlaps {c['overlaps']}" if c.get("overlaps")
+                else "not proposed" if c.get("not_proposed") else "")
         rows.append([c["effect"], f"{100 * c['error_reduction']:.1f}", f"{100 * c['cv_error_reduction']:.1f}",
                      f"{c['p_value']:.2g}", "yes" if c["significant"] else "no", c["joint"], text, flag])
     return rows
@@ -53,13 +55,17 @@ def candidate_rows(candidates: list[dict], verdict: str | None) -> list[list]:
 def render(r: dict) -> str:
     from manus.runs.report import left
 
-    lines = [f"model {r['spec']}: rel_error {100 * r['rel_error']:.2f} % (torque low-passed at {r['cutoff_hz']:.1f} Hz)",
+    lines = [f"model {r['spec']}: rel_error {100 * r['rel_error']:.2f} % (torque low-passed at {r['cutoff_hz']:.1f} Hz; "
+             f"{r['method']}; command hold {r['hold']})",
              table(left([row[:6] + row[7:] + row[6:7] for row in candidate_rows(r["candidates"], r["verdict"])], (6, 7)),
                    ["candidate", "removes %", "held out %", "p", "significant", "joint", "", "detail"])]
     notes = [f"  {c['effect']}: {c['note']}" for c in r["candidates"] if c.get("note")] + [f"  {x}" for x in r["notes"]]
+    notes += [f"  {c['effect']}: not proposed: {'; '.join(c['not_proposed'])}" for c in r["candidates"]
+              if c.get("not_proposed") and c["significant"]]
     if notes:
         lines += ["notes:"] + notes
     lines.append(f"verdict: {r['verdict_spec'] or 'null (nothing significant is missing)'}")
+    lines.append(unexplained_line(r.get("unexplained") or {}))
     if "figures" in r:
         lines.append(f"residual figure: {r['figures']['resid']}")
         ev = r["figures"]["evidence"]
@@ -67,3 +73,15 @@ def render(r: dict) -> str:
             lines.append(f"evidence figures ({len(ev)}): {Path(next(iter(ev.values()))).parent}/"
                          f"{Path(next(iter(ev.values()))).name.rsplit('evidence_', 1)[0]}evidence_<effect>.png")
     return "\n".join(line.rstrip() for text in lines for line in text.splitlines())
+
+
+def unexplained_line(u: dict) -> str:
+    """One line on the structure left in the residual that no effect of the vocabulary explains."""
+    if not u:
+        return "left in the residual: not tested"
+    if u.get("significant"):
+        return (f"left in the residual: something no effect of the vocabulary explains: a smooth function of "
+                f"{u['against']} removes {100 * u['fraction']:.0f} % of joint {u['joint']}'s remaining error held out "
+                f"(p = {u['p_value']:.2g})")
+    return (f"left in the residual: no structure beyond noise (best: {u.get('against')} on joint {u.get('joint')}, "
+            f"{100 * u.get('fraction', 0):.0f} %, p = {u.get('p_value', 1):.2g})")

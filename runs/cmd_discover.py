@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from manus.runs.cmd_diagnose import unexplained_line
 from manus.runs.cmd_fit import add_model_options, load
 from manus.runs.common import add_common, note, table
 
@@ -21,12 +22,13 @@ def add_arguments(p) -> None:
 
 
 def discover_section(rec, model: str, out: Path, prefix: str, title: str, intro: str = "", cutoff_hz=None,
-                     max_steps: int = 6, figures: bool = True):
+                     max_steps: int = 6, figures: bool = True, method: str = "auto"):
     """Run the loop on `rec` and make its report section (figures drawn into `out`)."""
     from manus.adaptive.discover import discover
     from manus.runs.report import Section, make_figures
 
-    disc = discover(rec, model, cutoff_hz=cutoff_hz, max_steps=max_steps, progress=lambda line: note("  " + line))
+    disc = discover(rec, model, cutoff_hz=cutoff_hz, max_steps=max_steps, method=method,
+                    progress=lambda line: note("  " + line))
     section = Section(title, str(rec.path), disc, intro=intro)
     if figures:
         note("  figures ...")
@@ -56,7 +58,8 @@ def run(args) -> dict:
     stem = Path(rec.path).stem
     note(f"discovering from {args.model} ...")
     sec = discover_section(rec, args.model, args.out, f"discover_{stem}_", f"{Path(rec.path).name} from `{args.model}`",
-                           cutoff_hz=args.cutoff, max_steps=args.max_steps, figures=not args.no_figures)
+                           cutoff_hz=args.cutoff, max_steps=args.max_steps, figures=not args.no_figures,
+                           method=args.method)
     r = result(sec)
     if not args.no_figures:
         r["report"] = report.write([sec], Path(args.out) / f"discover_{stem}.md", f"manus discover: {Path(rec.path).name}")
@@ -71,6 +74,8 @@ def render(r: dict) -> str:
     lines = [table(left(rows, (1, 2)), ["step", "effect added", "parameters (value±std)", "rel_error %"]),
              f"stopped: {r['stopped']}; final model {r['model']}, rel_error {100 * r['rel_error']:.2f} %"]
     lines += [f"  {n}" for n in r["notes"]]
+    lines.append(f"  fitted by {r['method']}: {r['method_why']}")
+    lines.append("  " + unexplained_line(r.get("unexplained") or {}))
     if "report" in r:
         lines.append(f"report: {r['report']}")
     return "\n".join(lines)

@@ -20,7 +20,14 @@ def add_model_options(p, required: bool = True) -> None:
                    help="effects of the model, e.g. rigid,viscous,coulomb (an argument fixes a non-linear "
                         "parameter: cogging:39, delay:1ms; without one it is searched)")
     p.add_argument("--cutoff", type=float, metavar="HZ",
-                   help="identification bandwidth (default: from the torque's spectrum)")
+                   help="identification bandwidth (default: from the motion's band and the encoder's "
+                        "quantization-noise budget)")
+    p.add_argument("--method", choices=("auto", "ls", "iv"), default="auto",
+                   help="least squares (IDIM-LS), instrumental variables (IDIM-IV, instruments from a simulation "
+                        "of the model driven by the recorded command), or auto (IV where LS is biased; default)")
+    p.add_argument("--hold", choices=("zoh", "none"),
+                   help="how the recorded command was held (default: the file's command_hold, else zoh: a digital "
+                        "controller holds each command over its period)")
 
 
 def add_arguments(p) -> None:
@@ -45,6 +52,8 @@ def load(args, proposing: bool = False):
     if proposing and len(effects) == len(ORDER):
         raise ManusError(f"the model {args.model} already holds every effect of the vocabulary: nothing is left to propose")
     rec = recording.read(args.recording)
+    if getattr(args, "hold", None):
+        rec.meta["command_hold"] = args.hold
     note(f"{rec.path}: {len(rec)} samples of {rec.n_joints} joint(s) at {rec.sample_rate_hz:g} Hz ({rec.structure_name})")
     return rec
 
@@ -66,7 +75,7 @@ def run(args) -> dict:
     from manus.runs.freerun import nrmse_fit
 
     rec = load(args)
-    f = fit(rec, args.model, cutoff_hz=args.cutoff)
+    f = fit(rec, args.model, cutoff_hz=args.cutoff, method=args.method)
     out = f.report()
     out["fit_percent"] = {"torque": nrmse_fit(f.data.tau(f.delay), f.predicted()).tolist()}
     if not args.no_figures:
@@ -93,9 +102,13 @@ def render(r: dict) -> str:
         rows.append([k, f"{p['value']:.6g}", "-" if std is None else f"{std:.3g}", rel])
     lines = [f"model {r['spec']}: rel_error {100 * r['rel_error']:.2f} % on {r['samples']} rows "
              f"(torque low-passed at {r['cutoff_hz']:.1f} Hz, {100 * r['standstill_excluded']:.1f} % left out at standstill)",
+             f"  method {r['method']}: {r['method_why']}",
+             f"  cut-off: {r['cutoff_note']}; command hold: {r['hold']}",
              table(rows, ["parameter", "value", "std", "std %"])]
     for k, v in r.get("nonlinear", {}).items():
         lines.append(f"  {k} = {v:.6g} (searched or fixed)")
+    for v in r.get("violations", []):
+        lines.append(f"  breaks physics: {v}")
     if r.get("redundant"):
         lines.append(f"  redundant (explained by the others, set to 0): {', '.join(r['redundant'])}")
     fits = r["fit_percent"]

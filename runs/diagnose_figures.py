@@ -117,28 +117,21 @@ def resid_figure(d, out: Path, name: str = "resid.png", title: str = "") -> str:
 
 # -- evidence per candidate -----------------------------------------------------------------
 
-def _term(c, q, qd, i: int) -> np.ndarray:
-    """The candidate's fitted torque on joint i (numpy, unfiltered), for drawing over the residual."""
-    p = c.fit.params
-    j = str(i + 1)
-    e = c.fit.model.get(c.effect)
-    sgn = np.sign(qd)
-    if c.effect == "viscous":
-        return p["b" + j] * qd
-    if c.effect == "coulomb":
-        return p["Fc" + j] * sgn
-    if c.effect == "stribeck":
-        return p["dFs" + j] * np.exp(-(qd / float(e.vs)) ** 2) * sgn
-    if c.effect == "asymmetry":
-        return p["dFc" + j] * np.abs(sgn) + p["db" + j] * np.abs(qd)
-    if c.effect == "offset":
-        return p["off" + j] + 0 * q
-    if c.effect == "gravity":
-        return p["gc" + j] * np.cos(q) + p["gs" + j] * np.sin(q)
-    if c.effect == "cogging":
-        N = float(e.order)
-        return p["A" + j] * np.sin(N * q) + p["B" + j] * np.cos(N * q)
-    return 0 * q
+def _term(c, data) -> np.ndarray:
+    """The candidate's fitted torque (its own effect and what it brought) on the used rows,
+    unfiltered, (rows, n): drawn over the residual it should explain."""
+    import jax
+    import jax.numpy as jnp
+
+    from manus.plants.effects import Model
+
+    m = c.fit.model
+    own = [m.get(c.effect)] + [m.get(b) for b in m.get(c.effect).brings if m.has(b)]
+    model = Model(m.structure, tuple(e for e in own if e is not None and e.linear))
+    p = {k: jnp.asarray(v) for k, v in c.fit.params.items() if k in model.names}
+    rows = data.rows
+    args = (jnp.asarray(data.q[rows]), jnp.asarray(data.qd[rows]), jnp.asarray(data.qdd[rows]))
+    return np.asarray(jax.vmap(lambda q, qd, qdd: model.torque(q, qd, qdd, p))(*args))
 
 
 def _headline(c, verdict) -> str:
@@ -149,64 +142,66 @@ def _headline(c, verdict) -> str:
             f"({100 * c.cv_error_reduction:.1f} % held out, p = {c.p_value:.2g})")
 
 
-def _search_panel(ax, c, key: str, scale: float, xlabel: str, logx=False):
-    grid, errs = c.fit.search[key]
-    (ax.semilogx if logx else ax.plot)(np.asarray(grid) * scale, 100 * np.asarray(errs), color="C0", lw=0.9)
-    best = int(np.argmin(errs))
-    ax.plot(grid[best] * scale, 100 * errs[best], "o", color="C3", ms=4)
-    ax.set_xlabel(xlabel)
+def _search_panel(ax, c):
+    values, errs = c.fit.search[c.effect]
+    key = next(iter(values[0]))  # the searched parameter (order, vs, delay_ms)
+    x = np.array([v[key] if not isinstance(v[key], list) else v[key][-1] for v in values], float)
+    errs = np.asarray(errs, float)
+    ok = np.isfinite(errs)
+    logx = key == "vs"
+    (ax.semilogx if logx else ax.plot)(x[ok], 100 * errs[ok], ".-", color="C0", lw=0.9, ms=2)
+    best = int(np.nanargmin(np.where(ok, errs, np.nan)))
+    ax.plot(x[best], 100 * errs[best], "o", color="C3", ms=4)
+    ax.set_xlabel(f"{key} searched (only the best few evaluated exactly)" if (~ok).any() else f"{key} searched")
     ax.set_ylabel("rel_error [%]")
-    ax.set_title(f"search: best {grid[best] * scale:.4g}", fontsize=9, loc="left")
+    ax.set_title(f"search over the whole record: best {x[best]:.4g}", fontsize=9, loc="left")
+
+
+HOW = {"velocity": "residual binned against velocity: friction is a function of q̇ (a sign step, a slope, a V)",
+       "position": "residual against position: a load that depends on where the joint is",
+       "time": "residual against time: a constant or slowly varying torque",
+       "shift": "a late torque leaves residual ≈ delay × dτ/dt",
+       "acceleration": "residual against acceleration: inertia"}
 
 
 def evidence_figure(d, c, out: Path, name: str, title: str = "") -> str:
-    """Why candidate `c` is (or is not) missing, per joint, plus its parameter search when it has one."""
+    """Why candidate `c` is (or is not) missing, per joint, plus its parameter search when it has
+    one. What the residual is plotted against is the effect's own `evidence`."""
     plt = pyplot()
     data = d.base.data
     n = data.n_joints
     rows = data.rows
     q, qd, e = data.q[rows], data.qd[rows], d.base.residual
-    search = {"cogging": ("cogging", 1.0, "order N [cycles/rev or 1/m]", False),
-              "stribeck": ("stribeck", 1.0, "Stribeck velocity vs", True),
-              "delay": ("delay", 1e3, "assumed delay [ms]", False)}.get(c.effect)
-    has_search = search is not None and c.fit is not None and search[0] in c.fit.search
-    cols = n + int(has_search)
-    fig, axes = plt.subplots(1, cols, figsize=(5.2 * cols, 3.9), squeeze=False)
+    has_search = c.fit is not None and c.effect in c.fit.search
+    ncols = n + int(has_search)
+    fig, axes = plt.subplots(1, ncols, figsize=(5.2 * ncols, 3.9), squeeze=False)
     axes = axes[0]
+    effect = c.fit.model.get(c.effect) if c.fit is not None else None
+    term = _term(c, data) if effect is not None and effect.linear else None
     for i in range(n):
         ax = axes[i]
-        if c.effect == "compliance":
+        if c.mode is not None:
             _compliance_panel(ax, c, i)
             continue
-        if c.effect == "delay":
-            tau_full = data.tau(d.base.delay, full=True)
-            x = np.gradient(tau_full[:, i], data.dt)[rows]
-            xl, curve = f"dτ{i + 1}/dt (torque rate)", lambda x: float(c.fit.delay - d.base.delay) * x
-            how = "a late torque leaves residual ≈ delay × dτ/dt"
-        elif c.effect == "cogging":
-            N = float(c.fit.model.get("cogging").order)
-            x = np.mod(N * q[:, i], 2 * np.pi)
-            xl, how = f"phase N·q{i + 1} mod 2π (N = {N:g})", "residual against position modulo the cogging period"
-            curve = lambda x: _term(c, x / N, np.ones_like(x), i)
-        elif c.effect in ("offset", "gravity"):
-            x = q[:, i]
-            xl, how = f"q{i + 1}", "residual against position"
-            curve = lambda x: _term(c, x, np.ones_like(x), i)
-        else:  # friction: viscous, coulomb, stribeck, asymmetry
-            x = qd[:, i]
-            xl = f"q̇{i + 1}"
-            how = "residual binned against velocity: " + {
-                "coulomb": "a Coulomb term is a sign step at q̇ = 0", "viscous": "a viscous term is a slope",
-                "stribeck": "a Stribeck term is a spike either side of q̇ = 0, fading with speed",
-                "asymmetry": "an asymmetry is even in q̇: a V (|q̇|) and a level off zero"}[c.effect]
-            curve = lambda x: _term(c, np.zeros_like(x), x, i)
+        how = HOW.get(effect.evidence, "")
+        if effect.evidence == "shift":
+            x = np.gradient(data.tau(d.base.delay, full=True)[:, i], data.dt)[rows]
+            xl, y = f"dτ{i + 1}/dt (torque rate)", (c.fit.delay - d.base.delay) * x
+        elif effect.evidence == "position" and "order" in effect.describe():
+            N = float(effect.describe().get("orders", [effect.describe()["order"]])[-1])
+            x, xl = np.mod(N * q[:, i], 2 * np.pi), f"phase N·q{i + 1} mod 2π (N = {N:g})"
+            how = "residual against position modulo the period"
+            y = term[:, i]
+        else:
+            x, xl = {"velocity": (qd[:, i], f"q̇{i + 1}"), "position": (q[:, i], f"q{i + 1}"),
+                     "time": (data.rec.t[rows], "t [s]"),
+                     "acceleration": (data.qdd[rows, i], f"q̈{i + 1}")}[effect.evidence]
+            y = term[:, i]
         ax.plot(x, e[:, i], ".", ms=1.5, color="0.65", alpha=0.45, rasterized=True)
         bc, bm, bse = _binned(x, e[:, i])
         ax.errorbar(bc, bm, yerr=2 * bse, fmt="o-", ms=2.5, color="C3", lw=1.0, label="residual, binned mean ± 2 se")
-        xs = np.linspace(*np.percentile(x, [0.5, 99.5]), 400)
-        if c.effect in ("coulomb", "stribeck", "asymmetry", "viscous"):
-            xs = np.sort(np.r_[xs, -1e-12, 1e-12])
-        ax.plot(xs, curve(xs), color="C0", lw=1.6, label=f"fitted {c.effect} term")
+        tc, tm, _ = _binned(x, y - np.mean(y) + np.mean(e[:, i]) if effect.evidence == "time" else y)
+        ax.plot(tc, tm, color="C0", lw=1.6, label=f"fitted {c.effect} term (binned)")
         ax.axhline(0, color="k", lw=0.6)
         lim = np.percentile(np.abs(e[:, i]), 99.5) * 1.1
         ax.set_ylim(-lim, lim)
@@ -217,10 +212,12 @@ def evidence_figure(d, c, out: Path, name: str, title: str = "") -> str:
         ax.legend(fontsize=7, loc="upper right")
         axes[0].text(0.01, 0.02, how, transform=axes[0].transAxes, fontsize=7, color="0.3")
     if has_search:
-        _search_panel(axes[-1], c, *search)
+        _search_panel(axes[-1], c)
     text = _headline(c, d.verdict)
     if c.note:
         text += "\n" + c.note
+    if c.problems:
+        text += "\nnot proposed: " + "; ".join(c.problems)
     fig.suptitle(f"{title or Path(data.rec.path).name}, model {d.base.model.spec} + {c.effect}: {text}", fontsize=9)
     fig.tight_layout()
     return save(fig, out, name)
@@ -231,10 +228,11 @@ def _compliance_panel(ax, c, i: int):
     ax.loglog(m.freq[1:], m.measured[1:, i], color="k", lw=0.7, label="measured |θ̈/τ| (H1)")
     ax.loglog(m.freq[1:], m.rigid[1:, i], color="C0", lw=1.0, label="rigid fit")
     ax.loglog(m.freq[1:], m.fitted[1:, i], color="C3", lw=1.0, label=f"with a mode at {m.f_hz:.0f} Hz, ζ = {m.zeta:g}")
-    from manus.adaptive.modes import BAND
+    from manus.adaptive.modes import band
 
     ax.axvline(m.f_hz, color="C3", ls=":", lw=0.8)
-    ax.axvspan(BAND[0], min(BAND[1], m.freq[-1]), color="C2", alpha=0.08, lw=0, label="band fitted (coherence-weighted)")
+    lo, hi = band(2 * m.freq[-1])
+    ax.axvspan(lo, hi, color="C2", alpha=0.08, lw=0, label="band fitted (coherence-weighted)")
     ax.set_xlabel("frequency [Hz]")
     ax.set_title(f"joint {i + 1}: frequency response (resonance peak: {'yes' if m.resonant else 'no'})", fontsize=9, loc="left")
     ax.legend(fontsize=7, loc="lower left")
@@ -244,3 +242,40 @@ def evidence_figures(d, out: Path, prefix: str = "", title: str = "") -> dict[st
     """One evidence figure per candidate: {effect: path}."""
     return {c.effect: evidence_figure(d, c, out, f"{prefix}evidence_{c.effect}.png", title)
             for c in d.candidates if c.fit is not None or c.mode is not None}
+
+
+def unexplained_figure(d, out: Path, name: str, title: str = "") -> str | None:
+    """What is left: the residual of the model (plus the verdict) of the joint with the most
+    remaining structure, binned against the variable that explains most of it."""
+    u = d.unexplained or {}
+    if not u.get("joint"):
+        return None
+    plt = pyplot()
+    f = d.verdict.fit if d.verdict is not None and d.verdict.fit is not None else d.base
+    data = f.data
+    rows, j = data.rows, u["joint"] - 1
+    i = (u.get("of_joint") or u["joint"]) - 1
+    e = f.residual[:, j]
+    what = u.get("variable") or "time"
+    x = {"position": data.q[rows, i], "velocity": data.qd[rows, i], "position x direction": data.q[rows, i]}.get(
+        what, data.rec.t[rows])
+    fig, ax = plt.subplots(1, 1, figsize=(7, 4))
+    ax.plot(x, e, ".", ms=1.5, color="0.65", alpha=0.45, rasterized=True)
+    if what == "position x direction":
+        for sel, col, lab in ((data.qd[rows, i] > 0, "C3", "moving +"), (data.qd[rows, i] <= 0, "C0", "moving −")):
+            bc, bm, bse = _binned(x[sel], e[sel])
+            ax.errorbar(bc, bm, yerr=2 * bse, fmt="o-", ms=2.5, color=col, lw=1.0, label=f"residual {lab}, binned ± 2 se")
+    else:
+        bc, bm, bse = _binned(x, e)
+        ax.errorbar(bc, bm, yerr=2 * bse, fmt="o-", ms=2.5, color="C3", lw=1.0, label="residual, binned mean ± 2 se")
+    ax.axhline(0, color="k", lw=0.6)
+    ax.set_xlabel(u["against"] if what != "frequency" else "t [s]")
+    ax.set_ylabel(f"residual, joint {j + 1}")
+    verdict = ("something no effect of the vocabulary explains" if u["significant"]
+               else "no structure beyond noise")
+    ax.set_title(f"{title or Path(data.rec.path).name}: left after {f.model.spec}: {verdict}\n"
+                 f"a smooth function of {u['against']} removes {100 * u['fraction']:.0f} % held out "
+                 f"(p = {u['p_value']:.2g}, {u.get('tests', 0)} variables tested)", fontsize=9)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    return save(fig, out, name)

@@ -57,7 +57,7 @@ def format_params(params: dict) -> str:
 def make_figures(section: Section, out: Path, prefix: str, free_run: bool = True) -> None:
     """Draw the section's figures into `out` (names start with `prefix`)."""
     from manus.runs.cmd_fit import free_run_or_reason
-    from manus.runs.diagnose_figures import evidence_figure, resid_figure
+    from manus.runs.diagnose_figures import evidence_figure, resid_figure, unexplained_figure
     from manus.runs.fit_figures import compare_figure, waterfall_figure
 
     disc = section.discovery
@@ -68,6 +68,9 @@ def make_figures(section: Section, out: Path, prefix: str, free_run: bool = True
         figs["steps"].append((s.spec, path))
     if disc.final is not None:
         figs["resid"] = resid_figure(disc.final, out, f"{prefix}final_resid.png", name)
+        left = unexplained_figure(disc.final, out, f"{prefix}final_unexplained.png", name)
+        if left:
+            figs["unexplained"] = left
     final = disc.final_fit
     run = free_run_or_reason(final) if free_run else "skipped"
     section.free_run = run if isinstance(run, str) else run.how
@@ -113,8 +116,15 @@ def write(sections: list[Section], path: Path, title: str = "manus discover") ->
                    + (f" {s.note}." if s.note else ""), "", f"![{spec}]({_link(fig, base)})", ""]
         if "resid" in f:
             md += ["### What is left: the final model's residual", "",
-                   "Nothing left is significant on held-out blocks; the residual analysis in the spirit of MATLAB "
-                   "`resid` (99 % bands):", "", f"![resid]({_link(f['resid'], base)})", ""]
+                   "No effect of the vocabulary is significant on held-out blocks any more; the residual analysis in "
+                   "the spirit of MATLAB `resid` (99 % bands):", "", f"![resid]({_link(f['resid'], base)})", ""]
+        u = disc.unexplained
+        if u:
+            from manus.runs.cmd_diagnose import unexplained_line
+
+            md += ["### Something left that no effect explains?", "", unexplained_line(u) + ".", ""]
+            if "unexplained" in f:
+                md += [f"![unexplained]({_link(f['unexplained'], base)})", ""]
         if "compare" in f:
             md += ["### The final model against the measurements", "",
                    f"Measured against predicted torque, and a free run of the fitted model in the JAX simulator "

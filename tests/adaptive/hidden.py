@@ -28,7 +28,7 @@ from manus.plants.structures import Manus2
 SECONDS = 20.0  # also the `manus bench diagnose` size: 20 s, 2 joints, 1 kHz
 AMPLITUDE = 0.3  # rad: a swing wide enough that a tilted plane's cos/sin is not a constant
 NOMINAL = ("rigid", "viscous", "coulomb")  # the thesis's model (§3.5)
-ALL_LINEAR = "rigid,viscous,coulomb,stribeck,asymmetry,offset,gravity,cogging"
+ALL_LINEAR = "rigid,viscous,coulomb,stribeck,asymmetry,offset,gravity,spring,cogging"
 STRUCTURE = Manus2()
 
 

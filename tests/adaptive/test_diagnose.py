@@ -16,7 +16,7 @@ from tests.adaptive import hidden
 # per hidden effect: the relative tolerance on its fitted linear parameters against the truth
 # (Stribeck's level trades against its velocity, which is found on a grid)
 SINGLE = {"rigid": 0.02, "viscous": 0.02, "coulomb": 0.02, "offset": 0.05, "gravity": 0.05, "cogging": 0.05,
-          "stribeck": 0.25, "delay": None}
+          "stribeck": 0.25, "delay": None, "asymmetry": 0.1, "spring": 0.05}
 
 
 @pytest.fixture(scope="module")
@@ -27,7 +27,7 @@ def floor():
 
 def _check_truth(effect, detail, tol, hidden_effects):
     truth = hidden.truth_params(hidden_effects)
-    linear = {k: v for k, v in detail.items() if k in truth}
+    linear = {k: v for k, v in detail.items() if k in truth and truth[k] != 0.0}  # (a brought offset's is 0)
     for name, value in linear.items():
         assert value == pytest.approx(truth[name], rel=tol), (effect, name)
 
@@ -40,7 +40,7 @@ def test_a_hidden_effect_is_named_and_adding_it_removes_most_of_the_error(effect
     assert v is not None and v.effect == effect and v.significant and d.candidates[0] is v
     assert v.p_value < 0.01
     after = fit(rec, f"{d.base.model.spec},{v.spec}").rel_error
-    assert v.error_reduction > 0.45
+    assert v.error_reduction > 0.4
     assert after < 1.3 * floor  # what is left is the floor of a recording with nothing hidden
     if SINGLE[effect] is not None:
         _check_truth(effect, v.detail, SINGLE[effect], (effect,))
@@ -53,24 +53,16 @@ def test_a_hidden_effect_is_named_and_adding_it_removes_most_of_the_error(effect
     # (that the next diagnosis then finds nothing more is checked by the discovery tests below)
 
 
-def test_hidden_asymmetry_shows_first_as_the_offset_it_contains_then_itself(floor):
-    """Asymmetry's dFc |sgn q̇| is an offset wherever the joint moves (the standstill rows are left
-    out), so the nested rule proposes the simpler offset first, with asymmetry significant beside
-    it and its containment said; the next step finds what asymmetry adds (db |q̇|)."""
+def test_asymmetry_and_offset_do_not_overlap():
+    """Asymmetry is the viscous coefficient that differs by direction (db |q̇|): it has no Coulomb
+    column, because coulomb plus offset already give a Coulomb level that differs by direction.
+    Hidden asymmetry is named at once (no offset first), and the two effects fit side by side
+    with nothing redundant."""
     rec = hidden.recording(("asymmetry",))
     steps = hidden.discover(rec, "rigid,viscous,coulomb")
-    assert [d.verdict and d.verdict.effect for d in steps] == ["offset", "asymmetry", None]
-    first = steps[0]
-    asym = next(c for c in first.candidates if c.effect == "asymmetry")
-    assert first.verdict.nested_in == "asymmetry" and asym.significant
-    assert asym.cv_error_reduction > first.verdict.cv_error_reduction
-    assert "contains offset" in asym.note and "next step" in asym.note
-    final = steps[-1].base
-    assert final.redundant == ["off1", "off2"]  # asymmetry holds the offset: named, not refused
-    assert final.rel_error < 1.3 * floor
-    truth = hidden.truth_params(("asymmetry",))
-    for name in ("dFc1", "dFc2", "db1", "db2"):
-        assert final.params[name] == pytest.approx(truth[name], rel=0.1), name
+    assert [d.verdict and d.verdict.effect for d in steps] == ["asymmetry", None]
+    both = fit(rec, "rigid,viscous,coulomb,asymmetry,offset")
+    assert both.redundant == []
 
 
 def test_nothing_hidden_gives_a_null_verdict():
@@ -103,9 +95,12 @@ def test_diagnose_report_is_the_json_contract():
     first = r["candidates"][0]
     assert {"effect", "joint", "error_reduction", "significant", "detail"} <= set(first)
     assert first["effect"] == "coulomb" and first["significant"] is True and first["joint"] in (1, 2)
-    # every effect the model lacks is a candidate, exactly once
+    # every effect the model lacks is a candidate, exactly once; Stribeck only on top of Coulomb
     assert sorted(c["effect"] for c in r["candidates"]) == sorted(
-        ["coulomb", "stribeck", "asymmetry", "offset", "gravity", "cogging", "delay", "compliance"])
+        ["coulomb", "asymmetry", "offset", "gravity", "spring", "cogging", "delay", "compliance"])
+    assert any(n.startswith("stribeck: offered only on top of coulomb") for n in r["notes"])
+    assert r["hold"] == "zoh" and r["method"] in ("ls", "iv") and r["method_why"]
+    assert {"significant", "joint", "against", "fraction", "p_value"} <= set(r["unexplained"])
     # coulomb's fitted levels against the truth (thesis §3.5)
     assert first["detail"]["Fc1"] == pytest.approx(0.099, rel=0.02)
     assert first["detail"]["Fc2"] == pytest.approx(0.139, rel=0.02)
@@ -120,39 +115,47 @@ def test_diagnose_is_fast_on_a_20_s_two_joint_recording():
     t0 = time.perf_counter()
     d = diagnose(rec, "rigid")
     seconds = time.perf_counter() - t0
-    assert len(d.candidates) == 9
-    assert seconds < 10.0, seconds
+    assert len(d.candidates) == 9  # stribeck waits for coulomb
+    assert seconds < 20.0, seconds  # a generous bound: `manus bench diagnose` measures it
 
 
 # -- EMPS ----------------------------------------------------------------------------------------
 
-def test_emps_discovery_from_rigid_finds_coulomb_viscous_and_offset_then_stops():
-    """The published model (rigid, viscous, coulomb, offset) comes out first, in some order; the
-    loop then goes on only while the held-out evidence does (what it finds beyond the reference
-    model: asymmetry's direction-dependent viscous term, a sub-millisecond command delay, Stribeck)
-    and ends with a null verdict, each step lowering the error."""
+def test_emps_discovery_from_rigid():
+    """Coulomb and viscous friction come out first; then the direction-dependent viscous term
+    (asymmetry, which on EMPS's trapezoidal strokes also carries the published model's constant
+    offset: |q̇| is nearly constant while the axis cruises, and it fits better held out) and the
+    error falls below the published model's; no gravity (a prismatic axis), no one-period
+    cogging, no wrong-sign Stribeck is proposed; each step lowers the error and the loop ends
+    with a null verdict. The published model itself, fitted on the loop's rows, is within 1 %."""
     rec = hidden.emps()
     steps = hidden.discover(rec, "rigid", max_steps=8)
     found = [d.verdict.effect for d in steps if d.verdict is not None]
-    assert set(found[:3]) == {"coulomb", "viscous", "offset"}
-    assert steps[-1].verdict is None and len(found) <= 7
+    assert set(found[:2]) == {"coulomb", "viscous"} and "asymmetry" in found
+    assert steps[-1].verdict is None and len(found) <= 6
+    assert "gravity" not in found and "stribeck" not in found
     errors = [d.base.rel_error for d in steps]
     assert all(b < a for a, b in zip(errors, errors[1:]))
-    third = steps[3].base  # rigid + the three: the published model
-    assert third.rel_error == pytest.approx(0.0408, abs=0.005)
-    assert third.params["M1"] == pytest.approx(95.1089, rel=0.01)
-    if "asymmetry" in found:  # the nested rule: the offset it contains came first
-        assert found.index("offset") < found.index("asymmetry")
+    assert errors[-1] < 0.0408
+    published = fit(rec, "rigid,viscous,coulomb,offset")  # the same band and rows as the loop
+    for name, value in {"M1": 95.1089, "b1": 203.5034, "Fc1": 20.3935, "off1": -3.1648}.items():
+        assert published.params[name] == pytest.approx(value, rel=0.01), name
+    for d in steps:
+        for c in d.candidates:
+            if c.effect == "cogging" and c.fit is not None:  # at least 1.5 periods over the stroke
+                assert c.detail["order"] * 0.246 / (2 * np.pi) >= 1.5
 
 
-def test_emps_offset_before_asymmetry_is_the_nested_rule_not_a_better_fit():
-    d = diagnose(hidden.emps(), "rigid,viscous,coulomb")
-    asym = next(c for c in d.candidates if c.effect == "asymmetry")
-    assert d.verdict.effect == "offset" and d.verdict.nested_in == "asymmetry"
-    assert d.verdict.detail["off1"] == pytest.approx(-3.1648, rel=0.02)
-    # asymmetry fits better held out, and says why it is not proposed first
-    assert asym.significant and asym.cv_sse.sum() < d.verdict.cv_sse.sum()
-    assert asym.note.startswith("contains offset") or "contains offset" in asym.note
+def test_emps_physics_rules_and_joint_kinds():
+    """From the published model: gravity is not tried on a prismatic axis; a Stribeck term that
+    would make friction fall at low speed (Fs < Fc) is reported, not proposed."""
+    d = diagnose(hidden.emps(), "rigid,viscous,coulomb,offset")
+    assert d.verdict.effect == "asymmetry"
+    assert all(c.effect != "gravity" for c in d.candidates)
+    assert any(n.startswith("gravity: not tried") and "prismatic" in n for n in d.notes)
+    strib = next(c for c in d.candidates if c.effect == "stribeck")
+    assert strib.detail["dFs1"] < 0 and any("Fs ≥ Fc" in p for p in strib.problems)
+    assert not strib.proposable
 
 
 # -- compliance ----------------------------------------------------------------------------------
@@ -174,7 +177,7 @@ def test_compliance_is_found_from_an_open_loop_square_wave():
 # -- bad input -----------------------------------------------------------------------------------
 
 def test_a_model_holding_every_effect_is_refused():
-    full = "rigid,viscous,coulomb,stribeck,asymmetry,offset,gravity,cogging,delay,compliance"
+    full = "rigid,viscous,coulomb,stribeck,asymmetry,offset,gravity,spring,cogging,delay,compliance"
     with pytest.raises(ModelError, match="already holds every effect of the vocabulary"):
         diagnose(hidden.recording(()), full)
 
@@ -183,10 +186,12 @@ def test_unknown_effect_and_short_recordings_are_refused():
     rec = hidden.recording(())
     with pytest.raises(ModelError, match="unknown effect 'gravty'"):
         diagnose(rec, "rigid,gravty")
-    with pytest.raises(ModelError, match="too short or without motion.*not identifiable"):
-        diagnose(rec.window(5000, 5250), "rigid,viscous")
-    with pytest.raises(ModelError, match="too short to diagnose"):
-        diagnose(rec.window(0, 1500), "rigid,viscous")
+    with pytest.raises(ModelError, match="too short or without motion"):
+        diagnose(rec.window(5000, 5150), "rigid,viscous")
+    with pytest.raises(ModelError, match="too short"):
+        diagnose(rec.window(0, 600), "rigid,viscous")
+    short = diagnose(rec.window(0, 3000), "rigid,viscous")  # 3 s: fewer blocks, still a decision
+    assert short.verdict is not None and short.verdict.effect == "coulomb"
 
 
 def test_prepared_data_and_fixed_nonlinear_parameters_are_kept():
@@ -199,4 +204,5 @@ def test_prepared_data_and_fixed_nonlinear_parameters_are_kept():
     d = diagnose(data, "rigid,viscous,coulomb,offset,cogging:20")
     assert d.base.model.get("cogging").describe()["order"] == 20.0
     assert d.base.data is data
-    assert any(c.effect == "cogging" for c in d.candidates) is False
+    # a cogging candidate here is one more order on top of the fixed 20/rev
+    assert all(c.detail["orders"][0] == 20.0 for c in d.candidates if c.effect == "cogging")

@@ -30,7 +30,8 @@ def pulses():
 
 @pytest.fixture(scope="module")
 def emps_fit(emps):
-    return fit(emps, EMPS_MODEL)
+    """The reference procedure: 100 Hz low-pass (the published identification's band)."""
+    return fit(prepare(emps, 100.0), EMPS_MODEL, method="ls")
 
 
 @pytest.fixture(scope="module")
@@ -40,10 +41,15 @@ def nominal():
 
 # -- EMPS: the published reference model ---------------------------------------------------------
 
-def test_emps_fit_gives_the_published_parameters_within_one_percent(emps_fit):
+def test_emps_fit_gives_the_published_parameters_within_one_percent(emps_fit, emps):
     for name, value in PUBLISHED.items():
         assert emps_fit.params[name] == pytest.approx(value, rel=0.01), name
     assert abs(emps_fit.rel_error - PUBLISHED_REL_ERROR) < 0.005
+    # the automatic band (from the motion, not the force) and method agree with the reference too
+    auto = fit(emps, EMPS_MODEL)
+    assert auto.method == "ls" and "agree" in auto.why and auto.data.hold == "none"
+    for name, value in PUBLISHED.items():
+        assert auto.params[name] == pytest.approx(value, rel=0.01), name
 
 
 def test_emps_standard_deviations_match_the_published_ones(emps_fit):
@@ -53,16 +59,16 @@ def test_emps_standard_deviations_match_the_published_ones(emps_fit):
 
 
 def test_the_emps_model_applied_to_the_pulses_file(emps_fit, emps, pulses):
-    """The fitted parameters, unchanged, on the validation file. At the fit's own band (83 Hz,
-    three times where 99.5 % of the force's power lies) the pulses' edges leave more in the
-    residual than in the reference, which decimated its data (its anti-alias filter sits near 40 Hz):
-    7.0 % against 5.98 %. In a band like the reference's (50 Hz) both errors agree within 0.2 point."""
+    """The fitted parameters, unchanged, on the validation file. At the reference's 100 Hz band the
+    pulses' edges leave more in the residual than in the reference, which decimated its data (its
+    anti-alias filter sits near 40 Hz): 7.4 % against 5.98 %. In a band like the reference's
+    (50 Hz) both errors agree within 0.2 point."""
     val = emps_fit.evaluate(pulses)
     assert val.data.cutoff_hz == emps_fit.data.cutoff_hz
     assert val.theta is emps_fit.theta
-    assert emps_fit.rel_error < val.rel_error < PUBLISHED_PULSES_REL_ERROR + 0.0125
+    assert emps_fit.rel_error < val.rel_error < PUBLISHED_PULSES_REL_ERROR + 0.02
     assert emps_fit.rel_error_on(pulses) == val.rel_error
-    narrow = fit(prepare(emps, 50.0), EMPS_MODEL)
+    narrow = fit(prepare(emps, 50.0), EMPS_MODEL, method="ls")
     assert abs(narrow.rel_error - PUBLISHED_REL_ERROR) < 0.002
     assert abs(narrow.rel_error_on(pulses) - PUBLISHED_PULSES_REL_ERROR) < 0.002
     for name, value in PUBLISHED.items():
@@ -73,16 +79,15 @@ def test_evaluate_on_the_recording_it_was_fitted_on_reproduces_its_error(emps_fi
     assert emps_fit.evaluate(emps).rel_error == pytest.approx(emps_fit.rel_error, rel=1e-9)
 
 
-def test_a_nested_effect_is_named_redundant_not_refused(emps, emps_fit):
-    """DESIGN §3: asymmetry's direction-independent part |sgn q̇| is an offset wherever the axis
-    moves, so with asymmetry in the model the offset is redundant: named, θ = 0, and the error is
-    what the independent columns reach."""
-    both = fit(emps, "rigid,viscous,coulomb,asymmetry,offset")
-    alone = fit(emps, "rigid,viscous,coulomb,asymmetry")
-    assert both.redundant == ["off1"] and both.params["off1"] == 0.0
-    assert both.rel_error == pytest.approx(alone.rel_error, rel=1e-9)
-    assert both.rel_error < emps_fit.rel_error
-    assert "redundant" in both.report() and both.report()["params"]["off1"]["std"] is None
+def test_a_redundant_column_is_named_not_refused(emps, emps_fit):
+    """A model whose regressor is rank-deficient on a recording is still fitted: the redundant
+    parameter is named, set to 0, and the error is what the independent columns reach: on a
+    stroke of EMPS that moves one way only, Coulomb friction and an offset are one constant."""
+    one_way = emps.window(300, 3000)  # one stroke, moving one way only
+    assert np.all(np.diff(one_way.q[:, 0]) >= -1e-6) or np.all(np.diff(one_way.q[:, 0]) <= 1e-6)
+    f = fit(prepare(one_way, 30.0), EMPS_MODEL, method="ls")
+    assert f.redundant == ["off1"] and f.params["off1"] == 0.0
+    assert "redundant" in f.report() and f.report()["params"]["off1"]["std"] is None
 
 
 def test_fit_report_is_the_json_contract(emps_fit):
@@ -91,6 +96,7 @@ def test_fit_report_is_the_json_contract(emps_fit):
     assert r["model"] == ["rigid", "viscous", "coulomb", "offset"]
     assert set(r["params"]) == set(PUBLISHED) and set(r["params"]["M1"]) == {"value", "std"}
     assert r["samples"] == emps_fit.data.rows.size and r["rel_error"] == emps_fit.rel_error
+    assert r["hold"] == "none" and r["method"] == "ls" and "violations" not in r
     assert emps_fit.predicted().shape == emps_fit.residual.shape == (emps_fit.data.rows.size, 1)
 
 
@@ -118,7 +124,7 @@ def test_nonlinear_parameters_are_found_by_search():
 # -- bad input (issue 4, item 5) ----------------------------------------------------------------
 
 def test_too_short_names_every_parameter(nominal):
-    short = nominal.window(2000, 2300)
+    short = nominal.window(2000, 2150)
     with pytest.raises(ModelError, match="too short or without motion") as e:
         fit(short, "rigid,viscous,coulomb")
     assert "a1, a2, a3, b1, b2, Fc1, Fc2 are not identifiable" in str(e.value)

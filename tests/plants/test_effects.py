@@ -47,9 +47,41 @@ def test_closed_form_torques_of_friction_effects():
     tau = np.asarray(m.torque(q, qd, np.zeros(2), p, kinds=("friction", "load")))
     expected = (np.array([0.099, -0.139])
                 + np.array([0.05 * np.exp(-36), -0.07 * np.exp(-(0.02 / 0.05) ** 2)])
-                + np.array([0.03 + 0.05 * 0.3, 0.04 + 0.04 * 0.02])
+                + np.array([0.05 * 0.3, 0.04 * 0.02])  # asymmetry: db |q̇|
                 + np.array([0.02 * np.sin(0.6) + 0.01 * np.cos(0.6), 0.015 * np.sin(1.2) - 0.01 * np.cos(1.2)]))
     np.testing.assert_allclose(tau, expected, rtol=1e-12)
+
+
+def test_spring_and_several_cogging_orders():
+    s = Manus2()
+    q, qd = np.array([0.1, 0.2]), np.array([0.3, -0.02])
+    m = Model(s, "spring,cogging:39+6")
+    assert m.names == ("k1", "k2", "A1", "A2", "B1", "B2", "A1_6", "A2_6", "B1_6", "B2_6")
+    p = dict(zip(m.names, np.arange(1.0, 11.0)))
+    tau = np.asarray(m.torque(q, qd, np.zeros(2), p))
+    expected = (np.array([1.0, 2.0]) * q + np.array([3.0, 4.0]) * np.sin(39 * q) + np.array([5.0, 6.0]) * np.cos(39 * q)
+                + np.array([7.0, 8.0]) * np.sin(6 * q) + np.array([9.0, 10.0]) * np.cos(6 * q))
+    np.testing.assert_allclose(tau, expected, rtol=1e-12)
+    assert parse_effects("cogging:39+6")[0].spec == "cogging:39+6"
+
+
+def test_effects_own_their_rules():
+    """Search spaces from the data, physical rules, joint kinds, requirements: each effect's own."""
+    from manus.plants.effects import Cogging, Delay, Gravity, Span, Spring, Stribeck, Viscous
+
+    span = Span(1e-3, 20.0, np.array([0.6, 0.3]), 2 * np.pi / 131072, np.array([1.0, 0.5]), (False, False), 6e-4)
+    orders = [float(e.order) for e in Cogging().space(span)]
+    assert orders[0] == np.ceil(2 * np.pi * 1.5 / 0.6) and orders[-1] == 200  # 1.5 periods over the travel
+    delays = [e.seconds for e in Delay().space(span)]
+    assert delays[0] == 0 and delays[1] == pytest.approx(1e-4) and delays[-1] == pytest.approx(0.1)  # 20 s: 100 ms
+    vs = [float(e.vs) for e in Stribeck().space(span)]
+    assert vs[0] == pytest.approx(1.2e-3) and vs[-1] == pytest.approx(0.25)  # 2x resolution .. a quarter of the speed
+    assert Stribeck.requires == ("coulomb",) and Spring.brings == ("offset",)
+    assert Gravity().applies(Axis(n_joints=1), (True,)) and Gravity().applies(Axis(n_joints=1), (False,)) is None
+    assert Viscous().violations(Axis(n_joints=1), {"b1": -1.0}, {"b1": 0.1})
+    assert not Viscous().violations(Axis(n_joints=1), {"b1": -0.1}, {"b1": 0.1})  # within two std of the bound
+    assert Model(s := Manus2(), "rigid").effects[0].violations(s, {"a1": 0.3, "a2": 0.4, "a3": 0.2})
+    assert Cogging(order=200.0).edge(span) and Cogging(order=39.0).edge(span) is None
 
 
 def test_boundary_layer_replaces_the_sign_by_a_saturated_ramp():
