@@ -20,7 +20,15 @@ symmetric positive definite. The filter starts from the steady-state covariance 
 the discrete algebraic Riccati equation), so there is no start-up transient beyond the one of the
 unknown initial velocity; `steady=True` keeps only the steady-state gain K∞ (no covariance in the
 state: the cheapest filter, identical to the full one once P has converged).
-"""
+
+The step is written per joint on scalars: each estimate and each entry of P is taken out of the
+state as its own array, updated with F's entries as Python constants, and stacked back. Under
+`vmap` each one is a batch vector, where the matrix form's F x, F P Fᵀ and Joseph products become
+tiny batched matrix products (measured, 2 joints vmapped over 200 trials: 155 -> 25 ns CPU per
+trial-step for the constant-velocity filter, 266 -> 56 for constant acceleration; keeping the
+entries apart in the state as well saved another 20 % of that but made the state 5–9 arrays, each
+costing a jitted call from Python its own transfer). It agrees with the matrix form to rounding
+(tested against filterpy and a numpy matrix filter)."""
 
 from __future__ import annotations
 
@@ -84,6 +92,22 @@ def steady_state(order: int, dt: float, q: float, r: float) -> tuple[np.ndarray,
     return r * post / np.outer(s, s), (k[:, 0] / s)
 
 
+def _pairs(order: int) -> tuple[tuple[int, int], ...]:
+    """The upper triangle (i ≤ j) of a d×d covariance, row by row (the entries a step computes)."""
+    return tuple((i, j) for i in range(order) for j in range(i, order))
+
+
+def _combination(terms):
+    """Σ c·v over (c, v) with Python-float c: zeros skipped, ones not multiplied."""
+    out = None
+    for c, v in terms:
+        if c == 0.0:
+            continue
+        term = v if c == 1.0 else c * v
+        out = term if out is None else out + term
+    return out
+
+
 class KalmanState(NamedTuple):
     x: Array  # state estimates (n, d): position, velocity[, acceleration]
     P: Array | None  # posterior covariances (n, d, d); None for the steady-state filter
@@ -95,6 +119,9 @@ class KinematicKalman(Estimator):
     `order` = 2 (constant velocity) or 3 (constant acceleration, which also gives q̈);
     `q` the process noise density (the tuning knob); `r` = Δ²/12 the measurement variance
     (default: the thesis's encoder, Δ = 2π/131072 rad).
+
+    The step works on scalars per joint (see the module docstring); the covariance it stores is
+    exactly symmetric (the upper triangle computed, mirrored).
     """
 
     dt: float = eqx.field(static=True)
@@ -126,18 +153,37 @@ class KinematicKalman(Estimator):
         x = jnp.zeros(q0.shape + (self.order,)).at[..., 0].set(q0)
         return KalmanState(x, None if self.steady else jnp.broadcast_to(self.P0, q0.shape + self.P0.shape))
 
+    def _predict(self, x):
+        """x̄ = F x, F_ij = T^(j−i)/(j−i)! (Python constants)."""
+        F, d = transition(self.order, self.dt), self.order
+        return tuple(_combination((F[i, j], x[j]) for j in range(i, d)) for i in range(d))
+
     def step(self, state, q, tau=None):
-        x = state.x @ self.F.T  # predict: x̄ = F x (per joint)
+        d = self.order
+        x = self._predict(tuple(state.x[..., i] for i in range(d)))  # the estimates and P per entry
         if self.steady:
-            x = x + self.K * (q - x[..., 0])[..., None]
-            return KalmanState(x, None), self._estimate(x)
-        P = self.F @ state.P @ self.F.T + self.q * self.Q1
-        S = P[..., 0, 0] + self.r
-        K = P[..., :, 0] / S[..., None]  # (n, d)
-        x = x + K * (q - x[..., 0])[..., None]
-        IKH = jnp.eye(self.order) - K[..., :, None] * jnp.eye(self.order)[0]  # I − K H, H = e₀ᵀ
-        P = IKH @ P @ jnp.swapaxes(IKH, -1, -2) + self.r * K[..., :, None] * K[..., None, :]
-        return KalmanState(x, P), self._estimate(x)
+            e = q - x[0]
+            x = tuple(x[i] + self.K[i] * e for i in range(d))
+            return KalmanState(jnp.stack(x, -1), None), self._estimate(x)
+        # P̄ = F P Fᵀ + q Q₁, entry by entry: (F P)_ij = Σ_k F_ik P_kj, P̄_ij = Σ_l (F P)_il F_jl
+        F, Q1 = transition(d, self.dt), white_noise_covariance(d, self.dt)
+        P = lambda i, j: state.P[..., min(i, j), max(i, j)]
+        FP = {(i, j): _combination((F[i, k], P(k, j)) for k in range(i, d)) for i in range(d) for j in range(d)}
+        Pb = {(i, j): _combination((F[j, l], FP[i, l]) for l in range(j, d)) + self.q * Q1[i, j] for i, j in _pairs(d)}
+        Pb_ = lambda i, j: Pb[min(i, j), max(i, j)]
+        # gain and update, H = e₀ᵀ: S = P̄₀₀ + r, K = P̄_{·0} / S
+        S = Pb[0, 0] + self.r
+        K = tuple(Pb_(i, 0) / S for i in range(d))
+        e = q - x[0]
+        x = tuple(x[i] + K[i] * e for i in range(d))
+        # Joseph form (I − K H) P̄ (I − K H)ᵀ + r K Kᵀ with I − K H = I − K e₀ᵀ, in two halves as the
+        # matrix product does them: M = (I − K H) P̄, then M (I − K H)ᵀ; the upper triangle only
+        M = {(i, j): (1.0 - K[0]) * Pb_(0, j) if i == 0 else Pb_(i, j) - K[i] * Pb_(0, j)
+             for i in range(d) for j in range(d)}
+        new = {(i, j): (M[i, 0] * (1.0 - K[0]) if j == 0 else M[i, j] - M[i, 0] * K[j]) + self.r * K[i] * K[j]
+               for i, j in _pairs(d)}
+        P = jnp.stack([jnp.stack([new[min(i, j), max(i, j)] for j in range(d)], -1) for i in range(d)], -2)
+        return KalmanState(jnp.stack(x, -1), P), self._estimate(x)
 
     def _estimate(self, x):
-        return Estimate(x[..., 0], x[..., 1], x[..., 2] if self.order == 3 else None)
+        return Estimate(x[0], x[1], x[2] if self.order == 3 else None)

@@ -80,6 +80,54 @@ def test_kinematic_kalman_equals_filterpy(motion, name, order, steady):
     agree(est, q, tau, np.array(refs).T)
 
 
+@pytest.mark.parametrize("order", [2, 3])
+@pytest.mark.parametrize("steady", [False, True])
+def test_kinematic_kalman_equals_a_numpy_matrix_kalman_from_random_states(order, steady):
+    """The per-joint scalar step against the textbook matrix form (predict F x, F P Fᵀ + Q;
+    gain P̄Hᵀ/S; Joseph update), from random estimates and covariances (far from the steady
+    state), random noise densities and random (not quantized) measurements, 3 joints."""
+    from manus.estimators.kalman import KalmanState, KinematicKalman, white_noise_covariance
+
+    rng = np.random.default_rng(order)
+    n, T = 3, 200
+    q_density = 10.0 ** rng.uniform(-2, 4)
+    est = KinematicKalman(DT, order, q=q_density, steady=steady)
+    F, Q, H, r = transition(order, DT), q_density * white_noise_covariance(order, DT), np.eye(1, order), R
+    scale = DT ** -np.arange(order)  # position, velocity, acceleration of comparable size per tick
+    x = rng.normal(size=(n, order)) * 1e-3 * scale
+    A = rng.normal(size=(n, order, order)) * 1e-4 * scale[:, None]
+    P = A @ np.swapaxes(A, 1, 2) + 1e-12 * np.eye(order)  # symmetric positive definite
+    ys = 1e-3 * np.cumsum(rng.normal(size=(T, n)), axis=0)
+    step = estimators.compiled_step(est)
+    state = KalmanState(jnp.asarray(x), None if steady else jnp.asarray(P))
+    for y in ys:
+        state, out = step(state, jnp.asarray(y), jnp.zeros(n))
+        for j in range(n):
+            x[j] = F @ x[j]
+            if steady:
+                K = np.asarray(est.K)
+            else:
+                Pb = F @ P[j] @ F.T + Q
+                K = (Pb @ H.T / (H @ Pb @ H.T + r))[:, 0]
+                IKH = np.eye(order) - np.outer(K, H)
+                P[j] = IKH @ Pb @ IKH.T + r * np.outer(K, K)
+            x[j] = x[j] + K * (y[j] - x[j, 0])
+        xs, Ps = state
+        close(xs, x, axis=0)  # each derivative to 1e-10 of its largest size over the joints
+        close(out.qd, x[:, 1])
+        if order == 3:
+            close(out.qdd, x[:, 2])
+        if steady:
+            assert Ps is None
+        else:
+            close(Ps, P, axis=0)
+
+
+def close(a, b, axis=None, rel=1e-12):
+    scale = np.abs(b).max(axis=axis, keepdims=True)
+    np.testing.assert_allclose(np.asarray(a) / scale, b / scale, rtol=0, atol=rel)
+
+
 def manus2_acceleration(x, tau):
     """q̈ of the thesis's arm (eqs. C.1–C.5) with viscous and Coulomb friction in a boundary layer,
     numpy, complex-step safe."""
