@@ -15,9 +15,9 @@ blocks, honestly:
 - the per-block improvement is tested as the log ratio of squared errors, one-sided t-test over
   the blocks, at `alpha` divided by the number of candidates of the step (Bonferroni);
 - relevance: a candidate must explain at least `min_share` of the recorded torque (RMS: the
-  torque it accounts for, √(e_before² − e_after²) in rel_error units). A share of the torque, not
-  of the current error: on a noisy recording the error is mostly noise, and a real effect removes
-  a small part of it.
+  torque it accounts for, √(e_before² − e_after²) in rel_error units), or remove at least half of
+  the current error. A share of the torque, not only of the current error: on a noisy recording
+  the error is mostly noise, and a real effect removes a small part of it.
 
 A candidate is proposed only when it is also physical: its fitted parameters obey its effect's
 rules (friction b, Fc ≥ 0, Fs ≥ Fc, a spring k ≥ 0), its searched value does not sit on the edge
@@ -55,7 +55,8 @@ BLOCKS = 20
 MIN_BLOCKS = 5
 ALPHA = 0.01
 MODE_MIN_REDUCTION = 0.05  # a mode must remove this share of the frequency response's misfit
-MIN_SHARE = 0.01  # a candidate must explain at least this share of the recorded torque (RMS)
+MIN_SHARE = 0.005  # a candidate must explain at least this share of the recorded torque (RMS) ...
+MOST = 0.5  # ... or remove at least this share of the current error
 MIN_ROWS_PER_BLOCK = 10
 UNEXPLAINED_MIN = 0.10  # a smooth function must remove this share of the remaining error
 KNOTS = 10  # hat functions per smooth function of position or velocity
@@ -239,20 +240,33 @@ def _candidates(model: Model, span, prismatic, notes) -> list[tuple[Effect, tupl
 
 
 def _judge(data, cols, icols, base, base_sse, starts, folds, whole, e0, values, brought, alpha, min_share, span):
+    """One candidate: searched inside each fold, judged on the held-out blocks, fitted on every row.
+    A parameter of its own that breaks its physical bound on some joint (a Stribeck level on a
+    joint without one) is held at the bound and the candidate judged again without it; the
+    candidate breaks physics only when nothing of it is left."""
     s = base.model.structure
     rest = base.model
     for b in brought:
         rest = rest.with_effect(b)
-    g = fitting.grid(data, cols, rest.without(e0.name) if base.model.has(e0.name) else rest, e0, starts, values, icols)
-    sse = np.zeros(len(folds))
-    for j, (train, test) in enumerate(folds):  # the search inside each fold
-        i, _ = g.choose(train)
-        st = g.exact(i)
-        sse[j] = st.sse(st.coef(train), test).sum()
-    best, errs = g.choose(whole)
-    chosen = g.values[best]
-    full = (rest.without(e0.name) if base.model.has(e0.name) else rest).with_effect(chosen)
-    f = fitting._solve(data, cols, full, {}, icols)
+    under = rest.without(e0.name) if base.model.has(e0.name) else rest
+    held: tuple = ()
+    for _ in range(2):
+        keep = np.array([k not in held for k in e0.names(s)]) if held else None
+        g = fitting.grid(data, cols, under, e0, starts, values, icols, keep)
+        sse = np.zeros(len(folds))
+        for j, (train, test) in enumerate(folds):  # the search inside each fold
+            i, _ = g.choose(train)
+            st = g.exact(i)
+            sse[j] = st.sse(st.coef(train), test).sum()
+        best, errs = g.choose(whole)
+        chosen = g.values[best]
+        full = under.with_effect(chosen)
+        f = fitting._solve(data, cols, full, {}, icols, held)
+        own_names = [k for k in chosen.names(s) if k not in held]
+        bad = [k for k in chosen.beyond_bounds(s, f.params, f.stds) if k in own_names]
+        if held or not bad or len(bad) == len(own_names):
+            break
+        held = tuple(bad)
     if len(values) > 1:
         yy = float(np.sum(data.tau(fitting.delay_of(rest)) ** 2)) or 1.0
         f.search[e0.name] = ([v.describe() for v in values], np.sqrt(np.maximum(errs, 0) / yy))
@@ -260,7 +274,7 @@ def _judge(data, cols, icols, base, base_sse, starts, folds, whole, e0, values, 
     cv_red = 1 - float(np.sqrt(sse.sum() / base_sse.sum())) if base_sse.sum() > 0 else 0.0
     p = one_sided_p(base_sse, sse)
     own = [chosen, *brought]
-    names = [n for e in own for n in e.names(s)]
+    names = [n for e in own for n in e.names(s) if n not in held]
     n_params = len(names) + (1 if len(values) > 1 else 0)
     base_joint = np.sum(base.residual**2, axis=0)
     per_joint = [round(1 - float(np.sqrt(np.sum(f.residual[:, i] ** 2) / base_joint[i])), 4) if base_joint[i] > 0
@@ -270,9 +284,11 @@ def _judge(data, cols, icols, base, base_sse, starts, folds, whole, e0, values, 
     detail["per_joint_error_reduction"] = per_joint
     if brought:
         detail["brings"] = [b.name for b in brought]
+    if held:
+        detail["held_at_bound"] = list(held)
     explained = float(np.sqrt(max(base.rel_error**2 - f.rel_error**2, 0.0)))
     detail["explains"] = round(explained, 5)  # share of the recorded torque (RMS) it accounts for
-    significant = bool(p < alpha and explained >= min_share and cv_red > 0)
+    significant = bool(p < alpha and (explained >= min_share or reduction >= MOST) and cv_red > 0)
     problems = [v for e in own for v in e.violations(s, f.params, f.stds)]
     edge = chosen.edge(span) if len(values) > 1 else None
     if edge:
@@ -282,8 +298,10 @@ def _judge(data, cols, icols, base, base_sse, starts, folds, whole, e0, values, 
         problems.append(f"not identifiable from this recording: {', '.join(lost)} "
                         f"{'is' if len(lost) == 1 else 'are'} explained by the model's own columns on these rows")
     spec = ",".join(e.spec for e in (*brought, chosen))
+    note = (f"{', '.join(held)} held at {'its' if len(held) == 1 else 'their'} physical bound (fitted free, "
+            f"{'it breaks' if len(held) == 1 else 'they break'} the effect's rule)") if held else ""
     return Candidate(e0.name, chosen.spec if not brought else spec, reduction, cv_red, p, significant,
-                     int(np.argmax(per_joint)) + 1, detail, n_params, sse, fit=f, problems=problems)
+                     int(np.argmax(per_joint)) + 1, detail, n_params, sse, fit=f, problems=problems, note=note)
 
 
 def _compliance(data, base, blocks, alpha, min_share) -> Candidate | None:

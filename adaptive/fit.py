@@ -323,10 +323,13 @@ class Grid:
 
 
 def grid(data: Data, cols: Columns, rest: Model, effect: Effect, starts: np.ndarray,
-         values: tuple | None = None, icols: Columns | None = None) -> Grid:
+         values: tuple | None = None, icols: Columns | None = None, keep: np.ndarray | None = None) -> Grid:
     """The grid search of `effect`'s non-linear parameter on top of `rest` (see `Grid`): a linear
-    effect changes the columns, a timing effect the torque. `icols`: instruments (IV)."""
+    effect changes the columns, a timing effect the torque. `icols`: instruments (IV). `keep`: a
+    mask over the effect's columns (the others held at 0, their physical bound)."""
     values = list(values if values is not None else effect.space(data.span()))
+    if keep is not None:
+        cols, icols = _Kept(cols, keep), (None if icols is None else _Kept(icols, keep))
     delay = delay_of(rest)
     Y = cols.model(rest)
     Z = icols.model(rest) if icols is not None else None
@@ -340,6 +343,22 @@ def grid(data: Data, cols: Columns, rest: Model, effect: Effect, starts: np.ndar
         rough = lsq.Stats(Y, data.tau(delay), starts)
         screen = [rough.extend(cols.screen(v)) for v in values]
     return Grid(values, [None] * len(values), screen, build)
+
+
+class _Kept:
+    """Columns of an effect with some left out (held at 0): what `grid` sees."""
+
+    def __init__(self, cols: Columns, keep: np.ndarray):
+        self.cols, self.keep = cols, keep
+
+    def model(self, model):
+        return self.cols.model(model)
+
+    def effect(self, e):
+        return self.cols.effect(e)[..., self.keep]
+
+    def screen(self, e):
+        return self.cols.screen(e)[..., self.keep]
 
 
 # -- fitting a model -------------------------------------------------------------------------
@@ -478,11 +497,23 @@ def fit(rec: Recording | Data, model: Model | str, cutoff_hz: float | None = Non
     return iv_fit(data, cols, ls, fixed, method)
 
 
-def _solve(data: Data, cols: Columns, model: Model, search: dict, icols: Columns | None = None) -> Fit:
+def _solve(data: Data, cols: Columns, model: Model, search: dict, icols: Columns | None = None,
+           held: tuple = ()) -> Fit:
+    """The fit of `model` on every row; parameters named in `held` are held at 0 (their bound)."""
     delay = delay_of(model)
-    sol = lsq.solve(cols.model(model), data.tau(delay), None if icols is None else icols.model(model))
     names = list(model.names)
-    return Fit(model, names, sol.theta, sol.std, [names[j] for j in sol.redundant], sol.rel_error,
+    out = [j for j, k in enumerate(names) if k in held]
+    Y = cols.model(model)
+    Z = None if icols is None else icols.model(model)
+    if out:
+        Y = np.delete(Y, out, axis=2)
+        Z = None if Z is None else np.delete(Z, out, axis=2)
+    sol = lsq.solve(Y, data.tau(delay), Z)
+    kept = [k for k in names if k not in held]
+    theta, std = np.zeros(len(names)), np.full(len(names), np.nan)
+    idx = [names.index(k) for k in kept]
+    theta[idx], std[idx] = sol.theta, sol.std
+    return Fit(model, names, theta, std, [kept[j] for j in sol.redundant], sol.rel_error,
                sol.residual, data, delay, search, "ls" if icols is None else "iv", "", icols)
 
 

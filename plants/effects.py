@@ -161,16 +161,24 @@ class Effect(eqx.Module):
         """The physical lower bound of each linear parameter (−inf: signed)."""
         return (-math.inf,) * len(self.names(s))
 
-    def violations(self, s: Structure, params: dict, std: dict | None = None) -> list[str]:
-        """The physical rules the fitted parameters break (beyond two standard deviations)."""
+    def beyond_bounds(self, s: Structure, params: dict, std: dict | None = None) -> list[str]:
+        """The linear parameters below their physical lower bound by more than two standard
+        deviations."""
         std = std or {}
         out = []
         for k, lo in zip(self.names(s), self.lower_bounds(s)):
             v, sd = params.get(k), std.get(k)
             sd = sd if sd is not None and np.isfinite(sd) else 0.0
             if v is not None and np.isfinite(lo) and v + 2 * sd < lo:
-                out.append(f"{k} = {v:.4g} ± {sd:.2g} < {lo:g}: {self.name} {self.rule}")
+                out.append(k)
         return out
+
+    def violations(self, s: Structure, params: dict, std: dict | None = None) -> list[str]:
+        """The physical rules the fitted parameters break (beyond two standard deviations)."""
+        std = std or {}
+        lows = dict(zip(self.names(s), self.lower_bounds(s)))
+        return [f"{k} = {params[k]:.4g} ± {std.get(k) or 0:.2g} < {lows[k]:g}: {self.name} {self.rule}"
+                for k in self.beyond_bounds(s, params, std)]
 
     rule: ClassVar[str] = ""  # what the lower bounds mean, for `violations`
 

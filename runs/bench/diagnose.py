@@ -203,6 +203,7 @@ def run_one(seed: int, hidden: str | None) -> dict:
     out["verdict"] = None if v is None else v.effect
     out["verdict_spec"] = None if v is None else v.spec
     out["verdict_joint"] = None if v is None else int(v.joint)
+    out["unexplained"] = bool(d.unexplained.get("significant"))
     if hidden is None:
         out["outcome"] = "quiet" if v is None else "false alarm"
     else:
@@ -238,8 +239,14 @@ def summarize(results: list[dict]) -> dict:
             for v in values}
     times = [r["diagnose_s"] for r in results if "diagnose_s" in r]
     sims = [r["simulate_s"] for r in results if "simulate_s" in r]
+    missed = [r for r in hidden if r["outcome"] == "missed"]
     return {"false_alarm": alarms(nulls), "false_alarm_verdicts": _counts(r.get("verdict") for r in nulls
                                                                           if r["outcome"] == "false alarm"),
+            # "something is left that no effect explains": said on a recording with nothing missing
+            # (a false alarm of its own), and said where the hidden effect was not named
+            "unexplained_on_null": rate(sum(bool(r.get("unexplained")) for r in nulls if "unexplained" in r),
+                                        sum("unexplained" in r for r in nulls)),
+            "unexplained_when_missed": rate(sum(bool(r.get("unexplained")) for r in missed), len(missed)),
             "detection": detections(hidden), "per_effect": per_effect, "per_condition": per_condition,
             "errors": sum(r["outcome"] == "error" for r in results),
             "null_errors": sum(r["outcome"] == "error" for r in nulls), "crashes": sum(r["outcome"] == "crash" for r in results),
@@ -318,6 +325,8 @@ def render_calibration(r: dict) -> str:
              + (f"  (and {s['null_errors']} refused with a ManusError)" if s.get("null_errors") else ""),
              f"  detection (verdict = hidden effect):       {_pct(s['detection']['named'])}",
              f"  ... and with the right joint:              {_pct(s['detection']['right_joint'])}",
+             f"  'something left' on nothing missing:      {_pct(s['unexplained_on_null'])}",
+             f"  'something left' where an effect was missed: {_pct(s['unexplained_when_missed'])}",
              "",
              f"{'hidden effect':<14}{'named':<32}{'right joint':<32}verdicts"]
     for name, e in s["per_effect"].items():
