@@ -307,7 +307,7 @@ def _judge(data, cols, icols, base, base_sse, starts, folds, whole, e0, values, 
 def _compliance(data, base, blocks, alpha, min_share) -> Candidate | None:
     q = data.rec.q
     tau = fitting.align(data.rec.tau, base.delay / data.dt)  # (the hold is part of `modes.sampling`)
-    mode = modes.detect(q, tau, data.dt, blocks)
+    mode = modes.detect(q, tau, data.dt)  # its own blocks: the frequency resolution needs long ones
     if mode is None:
         return None
     p = one_sided_p(mode.err_rigid, mode.err_mode)

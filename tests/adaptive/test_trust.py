@@ -164,18 +164,21 @@ def test_an_effect_outside_the_vocabulary_is_said_not_misnamed():
 # -- a real double pendulum -------------------------------------------------------------------------
 
 def test_dfki_double_pendulum_from_rigid():
-    """The real DFKI arm (NOTES.md there): gravity first, no invented cogging or Stribeck, and a
-    structured residual left on the elbow (its friction acts on the relative velocity, outside the
-    manus2 structure) that the report says no effect explains."""
-    path = DFKI / "A0_trajectory_01.csv"
-    if not path.exists():
+    """The real DFKI arm (NOTES.md there), the three recordings with moderate swings: gravity
+    first in each, no invented cogging or Stribeck, gravity loads near DFKI's model_2.0 in manus2
+    terms (3.42, 1.09 N·m), and on at least two of them the report says a structured residual is
+    left (the elbow's friction acts on the relative velocity, outside the manus2 structure, and
+    shows on both joints: τ1 = τ_motor1 − τ_motor2)."""
+    paths = [DFKI / f"A0_trajectory_0{i}.csv" for i in (1, 2, 3)]
+    if not all(p.exists() for p in paths):
         pytest.skip("../shared/data/real is not beside the clone")
-    d = discover(read(path), "rigid")
-    found = [s.effect for s in d.steps]
-    assert found[0] == "gravity"
-    assert not {"cogging", "stribeck"} & set(found)
-    u = d.unexplained
-    assert u["significant"] is True and u["joint"] == 2
-    gs = d.final_fit.params
-    # the gravity loads against DFKI's model_2.0 in manus2 terms (3.42, 1.09 N·m): within 35 %
-    assert gs["gs1"] == pytest.approx(3.42, rel=0.35) and gs["gs2"] == pytest.approx(1.09, rel=0.35)
+    left = 0
+    for path in paths:
+        d = discover(read(path), "rigid")
+        found = [s.effect for s in d.steps]
+        assert found[0] == "gravity", path.name
+        assert not {"cogging", "stribeck"} & set(found), path.name
+        p = d.final_fit.params
+        assert p["gs1"] == pytest.approx(3.42, rel=0.35) and p["gs2"] == pytest.approx(1.09, rel=0.35), path.name
+        left += bool(d.unexplained["significant"])
+    assert left >= 2
