@@ -155,10 +155,12 @@ def _blocks_for(data: fitting.Data, blocks: int) -> int:
 
 def diagnose(rec: Recording | fitting.Data, model: Model | str, cutoff_hz: float | None = None,
              blocks: int = BLOCKS, alpha: float = ALPHA, min_share: float = MIN_SHARE,
-             columns: fitting.Columns | None = None, method: str = "auto") -> Diagnosis:
+             columns: fitting.Columns | None = None, method: str = "auto",
+             fitted: fitting.Fit | None = None) -> Diagnosis:
     """Fit `model` to the recording, then try every effect it lacks (see the module docstring).
     A loop over one prepared recording can pass its `columns` (a `fitting.Columns` of the same
-    data) so that each effect's columns are computed once for every step."""
+    data) so that each effect's columns are computed once for every step, and the model's fit
+    on that data when it has it (`fitted`)."""
     structure = (rec.rec if isinstance(rec, fitting.Data) else rec).structure
     parsed = Model(structure, model) if isinstance(model, str) else model  # checked before any work
     if not [n for n in ORDER if not parsed.has(n)]:
@@ -169,7 +171,8 @@ def diagnose(rec: Recording | fitting.Data, model: Model | str, cutoff_hz: float
         raise ModelError("diagnose: the columns given were computed on other data")
     cols = columns or fitting.Columns(data)
     span = data.span()
-    base = fitting.fit(data, model, columns=cols, method=method)
+    reuse = fitted is not None and fitted.data is data and fitted.model.spec == parsed.spec
+    base = fitted if reuse else fitting.fit(data, model, columns=cols, method=method)
     icols = base.instruments if base.method == "iv" else None
     k = _blocks_for(data, blocks)
     guard = int(np.ceil(1.0 / (data.cutoff_hz * data.dt)))

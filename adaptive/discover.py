@@ -122,7 +122,7 @@ def discover(rec: Recording | fitting.Data, model: str, cutoff_hz: float | None 
     say(f"start: {spec}, rel_error {100 * start.rel_error:.2f} %")
     while True:
         try:
-            d = diagnose(data, spec, columns=cols, method=method, **diagnose_options)
+            d = diagnose(data, spec, columns=cols, method=method, fitted=current, **diagnose_options)
         except ModelError as e:
             if steps and "already holds every effect" in str(e):
                 notes.append(str(e))

@@ -369,15 +369,17 @@ class Cogging(Effect):
 
     Thesis App. A: the MANUS-2 motors show 39/rev cogging (39 cogs), 6/rev torque ripple and a
     1/rev position-dependent friction; the order N selects which, and one effect can hold
-    several orders at once (`cogging:39+6`): the first order's parameters are A_i, B_i, a later
-    order N's A_i_N, B_i_N. Amplitudes illustrative.
+    several orders at once (`cogging:39+6`): the first order's parameters are A_i, B_i, the k-th
+    order's A_i_k, B_i_k (k = 2, 3, …, in the order of `orders`). Amplitudes illustrative.
     """
 
     name: ClassVar[str] = "cogging"
     kind: ClassVar[str] = "load"
     evidence: ClassVar[str] = "position"
     order: Array = eqx.field(default=39.0, converter=jnp.asarray)  # cycles per revolution
-    more: tuple[float, ...] = eqx.field(default=(), static=True)  # further orders, held at once
+    # further orders, held at once: arrays (their values are not part of a compiled function's
+    # identity; only how many there are is)
+    more: tuple = eqx.field(default=(), converter=lambda xs: tuple(jnp.asarray(x, float) for x in xs))
     MAX_ORDER: ClassVar[int] = 200  # rotary orders searched: 2 periods over the travel .. this
     MIN_COUNTS: ClassVar[int] = 16  # a period spans at least this many encoder counts
     PERIODS: ClassVar[float] = 1.5  # a period repeats at least this often over the travel
@@ -388,8 +390,8 @@ class Cogging(Effect):
 
     def names(self, s):
         out = per_joint("A", s) + per_joint("B", s)
-        for N in self.more:
-            out += tuple(f"A{i + 1}_{N:g}" for i in range(s.n_joints)) + tuple(f"B{i + 1}_{N:g}" for i in range(s.n_joints))
+        for k in range(2, len(self.more) + 2):  # by position: a name must not depend on a traced value
+            out += tuple(f"A{i + 1}_{k}" for i in range(s.n_joints)) + tuple(f"B{i + 1}_{k}" for i in range(s.n_joints))
         return out
 
     def defaults(self, s):

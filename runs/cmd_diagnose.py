@@ -79,9 +79,10 @@ def unexplained_line(u: dict) -> str:
     """One line on the structure left in the residual that no effect of the vocabulary explains."""
     if not u:
         return "left in the residual: not tested"
+    what = ("a sinusoid at the residual's spectral peak" if u.get("variable") == "frequency"
+            else f"a smooth function of {u.get('against')}")
     if u.get("significant"):
-        return (f"left in the residual: something no effect of the vocabulary explains: a smooth function of "
-                f"{u['against']} removes {100 * u['fraction']:.0f} % of joint {u['joint']}'s remaining error held out "
-                f"(p = {u['p_value']:.2g})")
+        return (f"left in the residual: something no effect of the vocabulary explains: {what} removes "
+                f"{100 * u['fraction']:.0f} % of joint {u['joint']}'s remaining error held out (p = {u['p_value']:.2g})")
     return (f"left in the residual: no structure beyond noise (best: {u.get('against')} on joint {u.get('joint')}, "
             f"{100 * u.get('fraction', 0):.0f} %, p = {u.get('p_value', 1):.2g})")

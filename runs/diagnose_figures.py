@@ -273,8 +273,9 @@ def unexplained_figure(d, out: Path, name: str, title: str = "") -> str | None:
     ax.set_ylabel(f"residual, joint {j + 1}")
     verdict = ("something no effect of the vocabulary explains" if u["significant"]
                else "no structure beyond noise")
+    how = "a sinusoid at the residual's spectral peak" if what == "frequency" else f"a smooth function of {u['against']}"
     ax.set_title(f"{title or Path(data.rec.path).name}: left after {f.model.spec}: {verdict}\n"
-                 f"a smooth function of {u['against']} removes {100 * u['fraction']:.0f} % held out "
+                 f"{how} removes {100 * u['fraction']:.0f} % held out "
                  f"(p = {u['p_value']:.2g}, {u.get('tests', 0)} variables tested)", fontsize=9)
     ax.legend(fontsize=7)
     fig.tight_layout()

@@ -42,7 +42,8 @@ def add_arguments(p) -> None:
                    help="with --calibrate: recordings with nothing missing, and this many per hidden effect")
     p.add_argument("--seed", type=int, default=0, help="with --calibrate: the first seed of the set")
     p.add_argument("--effects", default="",
-                   help="with --calibrate: a comma-separated subset of the hidden effects (default: every effect)")
+                   help="with --calibrate: a comma-separated subset of the hidden effects (default: every effect; "
+                        "'none': the recordings with nothing missing only)")
 
 
 def arm_torque(theta: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
@@ -272,7 +273,9 @@ def calibrate(args) -> dict:
     if n < 1:
         raise ManusError("--recordings must be at least 1")
     effects = calibration.hidden_effects()
-    if args.effects:
+    if args.effects.strip().lower() == "none":  # the null recordings only: the false-alarm rate
+        effects = ()
+    elif args.effects:
         chosen = [e.strip() for e in args.effects.split(",") if e.strip()]
         bad = [e for e in chosen if e not in effects]
         if bad:

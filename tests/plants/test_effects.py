@@ -56,7 +56,7 @@ def test_spring_and_several_cogging_orders():
     s = Manus2()
     q, qd = np.array([0.1, 0.2]), np.array([0.3, -0.02])
     m = Model(s, "spring,cogging:39+6")
-    assert m.names == ("k1", "k2", "A1", "A2", "B1", "B2", "A1_6", "A2_6", "B1_6", "B2_6")
+    assert m.names == ("k1", "k2", "A1", "A2", "B1", "B2", "A1_2", "A2_2", "B1_2", "B2_2")
     p = dict(zip(m.names, np.arange(1.0, 11.0)))
     tau = np.asarray(m.torque(q, qd, np.zeros(2), p))
     expected = (np.array([1.0, 2.0]) * q + np.array([3.0, 4.0]) * np.sin(39 * q) + np.array([5.0, 6.0]) * np.cos(39 * q)
