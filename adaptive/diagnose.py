@@ -31,9 +31,10 @@ The verdict is the significant, proposable candidate with the lowest held-out er
 one (fewer parameters, searched ones counted) within one standard error of it is preferred.
 
 After the verdict, the residual (of the model plus the verdict) is tested for structure no
-effect of the vocabulary explains (`unexplained`): a smooth function of each joint's position,
-velocity, position by direction of motion, of time, and a sinusoid at the residual's spectral
-peak, each fitted on the other blocks and judged on the held-out one as above.
+effect of the vocabulary explains (`unexplained`, `manus.adaptive.leftover`): a smooth function
+of each joint's position, velocity, position by direction of motion, of time, and a sinusoid at
+the residual's spectral peak, each fitted on the other blocks and judged on the held-out one as
+above.
 
 `compliance` is judged in the frequency band where it lives (see `manus.adaptive.modes`).
 """
@@ -43,10 +44,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
 
 from manus.adaptive import fit as fitting
-from manus.adaptive import lsq, modes
+from manus.adaptive import lsq, modes, search
+from manus.adaptive.leftover import residual_structure
+from manus.adaptive.lsq import one_sided_p
 from manus.plants.effects import ORDER, VOCABULARY, Effect, Model
 from manus.plants.errors import ModelError
 from manus.plants.recording import Recording
@@ -58,8 +60,6 @@ MODE_MIN_REDUCTION = 0.05  # a mode must remove this share of the frequency resp
 MIN_SHARE = 0.005  # a candidate must explain at least this share of the recorded torque (RMS) ...
 MOST = 0.5  # ... or remove at least this share of the current error
 MIN_ROWS_PER_BLOCK = 10
-UNEXPLAINED_MIN = 0.10  # a smooth function must remove this share of the remaining error
-KNOTS = 10  # hat functions per smooth function of position or velocity
 
 
 @dataclass
@@ -120,19 +120,6 @@ class Diagnosis:
                 "verdict": self.verdict.effect if self.verdict else None,
                 "verdict_spec": self.verdict.spec if self.verdict else None,
                 "unexplained": self.unexplained, "violations": self.base.violations(), "notes": self.notes}
-
-
-def one_sided_p(base_sse: np.ndarray, sse: np.ndarray) -> float:
-    """p of 'the candidate predicts the held-out blocks better': a one-sided t-test over blocks
-    on the log ratio of squared errors (scale-free: a loud block does not dominate)."""
-    ok = (base_sse > 0) & (sse > 0)
-    if ok.sum() < 3:
-        return 1.0
-    d = np.log(base_sse[ok] / sse[ok])
-    sd = d.std(ddof=1)
-    if not sd > 0:
-        return 0.0 if d.mean() > 0 else 1.0
-    return float(stats.t.sf(d.mean() / (sd / np.sqrt(d.size)), d.size - 1))
 
 
 def held_out(st: lsq.Stats, folds) -> np.ndarray:
@@ -255,7 +242,7 @@ def _judge(data, cols, icols, base, base_sse, starts, folds, whole, e0, values, 
     held: tuple = ()
     for _ in range(2):
         keep = np.array([k not in held for k in e0.names(s)]) if held else None
-        g = fitting.grid(data, cols, under, e0, starts, values, icols, keep)
+        g = search.grid(data, cols, under, e0, starts, values, icols, keep)
         sse = np.zeros(len(folds))
         for j, (train, test) in enumerate(folds):  # the search inside each fold
             i, _ = g.choose(train)
@@ -271,7 +258,7 @@ def _judge(data, cols, icols, base, base_sse, starts, folds, whole, e0, values, 
             break
         held = tuple(bad)
     if len(values) > 1:
-        yy = float(np.sum(data.tau(fitting.delay_of(rest)) ** 2)) or 1.0
+        yy = float(np.sum(data.tau(search.delay_of(rest)) ** 2)) or 1.0
         f.search[e0.name] = ([v.describe() for v in values], np.sqrt(np.maximum(errs, 0) / yy))
     reduction = 1 - f.rel_error / base.rel_error if base.rel_error > 0 else 0.0
     cv_red = 1 - float(np.sqrt(sse.sum() / base_sse.sum())) if base_sse.sum() > 0 else 0.0
@@ -408,104 +395,3 @@ def _mark_overlaps(data, cols, icols, verdict, cands, min_share) -> None:
                       f"{100 * extra:.2f}% more of the torque; {better} fits better held out ({gap:.1f}%)")
             if better == c.effect:
                 c.note += f", within one standard error, so the simpler {verdict.effect} is proposed"
-
-
-# -- what is left ------------------------------------------------------------------------------
-
-def _hats(x: np.ndarray, knots: np.ndarray) -> np.ndarray:
-    """Piecewise-linear hat functions of x on `knots` (a smooth function's basis), (rows, m)."""
-    x = np.clip(x, knots[0], knots[-1])
-    out = np.zeros((x.size, knots.size))
-    i = np.clip(np.searchsorted(knots, x, side="right") - 1, 0, knots.size - 2)
-    w = (x - knots[i]) / np.maximum(knots[i + 1] - knots[i], 1e-300)
-    out[np.arange(x.size), i] = 1 - w
-    out[np.arange(x.size), i + 1] = w
-    return out
-
-
-def _smooth_basis(x: np.ndarray, m: int = KNOTS) -> np.ndarray | None:
-    knots = np.unique(np.quantile(x, np.linspace(0, 1, m)))
-    return _hats(x, knots) if knots.size >= 3 else None
-
-
-def _bases(data: fitting.Data, resid_train: np.ndarray, train_rows: np.ndarray) -> dict:
-    """Candidate smooth structures of the residual: name -> basis (rows, m)."""
-    rows = data.rows
-    out = {}
-    n = data.n_joints
-    for i in range(n):
-        q, qd = data.q[rows, i], data.qd[rows, i]
-        for what, x in (("position", q), ("velocity", qd)):
-            B = _smooth_basis(x)
-            if B is not None:
-                out[(what, i)] = B
-        B = _smooth_basis(q, KNOTS // 2)
-        if B is not None:
-            up = (qd > 0)[:, None]
-            out[("position x direction", i)] = np.concatenate([B * up, B * ~up], 1)
-    t = data.rec.t[rows]
-    out[("time", None)] = _hats(t, np.linspace(t[0], t[-1], KNOTS))
-    return out
-
-
-def residual_structure(data, cols, icols, f: fitting.Fit, starts, folds, alpha) -> dict:
-    """Structure left in the residual of `f` that a smooth function of one variable removes on
-    held-out blocks (see the module docstring): the JSON `unexplained`."""
-    Y = cols.model(f.model)
-    tau = data.tau(f.delay)
-    st = lsq.Stats(Y, tau, starts, None if icols is None else icols.model(f.model))
-    seg_of_row = np.searchsorted(starts, np.arange(data.rows.size), side="right") - 1
-    resid = []
-    for train, test in folds:
-        theta = st.theta(st.coef(train))
-        resid.append((tau - Y @ theta, train[seg_of_row], test[seg_of_row]))
-    tests = []
-    bases = _bases(data, None, None)
-    t = data.rec.t[data.rows]
-    for j in range(data.n_joints):
-        for (what, i), B in list(bases.items()) + [(("frequency", None), None)]:
-            with_, without = np.zeros(len(folds)), np.zeros(len(folds))
-            for k, (r, tr, te) in enumerate(resid):
-                Bk = B if B is not None else _sinusoid(t, r[tr, j], tr)
-                if Bk is None:
-                    continue
-                c = np.linalg.lstsq(Bk[tr], r[tr, j], rcond=1e-10)[0]
-                e = r[te, j] - Bk[te] @ c
-                with_[k], without[k] = e @ e, r[te, j] @ r[te, j]
-            if not without.sum() > 0:
-                continue
-            frac = 1 - float(np.sqrt(with_.sum() / without.sum()))
-            tests.append({"joint": j + 1, "against": what if i is None or i == j else f"{what} of joint {i + 1}",
-                          "variable": what, "of_joint": None if i is None else i + 1,
-                          "fraction": round(frac, 4), "p_value": one_sided_p(without, with_)})
-    if not tests:
-        return {"significant": False, "joint": None, "against": None, "fraction": 0.0, "p_value": 1.0}
-    m = len(tests)
-    for x in tests:
-        x["significant"] = bool(x["p_value"] < alpha / m and x["fraction"] >= UNEXPLAINED_MIN)
-    best = max(tests, key=lambda x: (x["significant"], x["fraction"]))
-    out = {"significant": best["significant"], "joint": best["joint"], "against": best["against"],
-           "fraction": best["fraction"], "p_value": float(f"{best['p_value']:.3g}"), "tests": m,
-           "variable": best["variable"], "of_joint": best["of_joint"]}
-    sig = [x for x in tests if x["significant"]]
-    if sig:
-        out["also"] = [{k: x[k] for k in ("joint", "against", "fraction")} for x in sig if x is not best][:6]
-    return out
-
-
-def _sinusoid(t: np.ndarray, r_train: np.ndarray, train: np.ndarray) -> np.ndarray | None:
-    """sin/cos at the training residual's spectral peak (a periodic disturbance not tied to a
-    joint's position), evaluated on every row."""
-    tt = t[train]
-    if tt.size < 16:
-        return None
-    dt = float(np.median(np.diff(t)))
-    f = np.fft.rfftfreq(8 * tt.size, dt)
-    grid = np.interp(np.arange(tt[0], tt[-1], dt), tt, r_train)
-    spec = np.abs(np.fft.rfft(grid - grid.mean(), 8 * tt.size))
-    lo = max(1, int(np.ceil(3 / (tt[-1] - tt[0]) / (f[1] - f[0]))))  # at least three periods in the record
-    if spec.size <= lo + 1:
-        return None
-    f0 = f[lo + int(np.argmax(spec[lo:]))]
-    w = 2 * np.pi * f0 * t
-    return np.stack([np.sin(w), np.cos(w)], 1)

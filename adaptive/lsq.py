@@ -18,6 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import stats
 
 RCOND = 1e-10
 
@@ -190,3 +191,16 @@ def _newey_west(A: np.ndarray, W: np.ndarray, e: np.ndarray, n: int, lags: int) 
         a, b = g[lag * n:], g[:-lag * n]  # the same joint, `lag` rows apart
         meat += w * (a.T @ b + b.T @ a)
     return A_inv @ meat @ A_inv.T
+
+
+def one_sided_p(base_sse: np.ndarray, sse: np.ndarray) -> float:
+    """p of 'the candidate predicts the held-out blocks better': a one-sided t-test over blocks
+    on the log ratio of squared errors (scale-free: a loud block does not dominate)."""
+    ok = (base_sse > 0) & (sse > 0)
+    if ok.sum() < 3:
+        return 1.0
+    d = np.log(base_sse[ok] / sse[ok])
+    sd = d.std(ddof=1)
+    if not sd > 0:
+        return 0.0 if d.mean() > 0 else 1.0
+    return float(stats.t.sf(d.mean() / (sd / np.sqrt(d.size)), d.size - 1))

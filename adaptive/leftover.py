@@ -1,0 +1,121 @@
+"""What is left: structure in a model's residual that no effect of the vocabulary explains (the
+`unexplained` of `manus diagnose`).
+
+Per held-out block, the model is fitted on the other blocks and its residual taken on every row;
+a smooth function of one variable (piecewise-linear hats on quantile knots) is fitted to the
+training rows' residual of one joint and judged on the held-out block's: each joint's position,
+velocity and position by direction of motion (for every joint's residual: a friction acting on a
+relative velocity shows on both), time, and a sinusoid at the training residual's spectral peak.
+The per-block improvement is tested as in `manus.adaptive.diagnose` (log ratio, t-test), at
+`alpha` over the number of variables tested (Bonferroni); a function must also remove at least
+`UNEXPLAINED_MIN` of the remaining error held out.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from manus.adaptive import lsq
+from manus.adaptive.lsq import one_sided_p
+
+UNEXPLAINED_MIN = 0.10  # a smooth function must remove this share of the remaining error
+KNOTS = 10  # hat functions per smooth function of position or velocity
+
+
+def _hats(x: np.ndarray, knots: np.ndarray) -> np.ndarray:
+    """Piecewise-linear hat functions of x on `knots` (a smooth function's basis), (rows, m)."""
+    x = np.clip(x, knots[0], knots[-1])
+    out = np.zeros((x.size, knots.size))
+    i = np.clip(np.searchsorted(knots, x, side="right") - 1, 0, knots.size - 2)
+    w = (x - knots[i]) / np.maximum(knots[i + 1] - knots[i], 1e-300)
+    out[np.arange(x.size), i] = 1 - w
+    out[np.arange(x.size), i + 1] = w
+    return out
+
+
+def _smooth_basis(x: np.ndarray, m: int = KNOTS) -> np.ndarray | None:
+    knots = np.unique(np.quantile(x, np.linspace(0, 1, m)))
+    return _hats(x, knots) if knots.size >= 3 else None
+
+
+def _bases(data: fitting.Data, resid_train: np.ndarray, train_rows: np.ndarray) -> dict:
+    """Candidate smooth structures of the residual: name -> basis (rows, m)."""
+    rows = data.rows
+    out = {}
+    n = data.n_joints
+    for i in range(n):
+        q, qd = data.q[rows, i], data.qd[rows, i]
+        for what, x in (("position", q), ("velocity", qd)):
+            B = _smooth_basis(x)
+            if B is not None:
+                out[(what, i)] = B
+        B = _smooth_basis(q, KNOTS // 2)
+        if B is not None:
+            up = (qd > 0)[:, None]
+            out[("position x direction", i)] = np.concatenate([B * up, B * ~up], 1)
+    t = data.rec.t[rows]
+    out[("time", None)] = _hats(t, np.linspace(t[0], t[-1], KNOTS))
+    return out
+
+
+def residual_structure(data, cols, icols, f: fitting.Fit, starts, folds, alpha) -> dict:
+    """Structure left in the residual of `f` that a smooth function of one variable removes on
+    held-out blocks (see the module docstring): the JSON `unexplained`."""
+    Y = cols.model(f.model)
+    tau = data.tau(f.delay)
+    st = lsq.Stats(Y, tau, starts, None if icols is None else icols.model(f.model))
+    seg_of_row = np.searchsorted(starts, np.arange(data.rows.size), side="right") - 1
+    resid = []
+    for train, test in folds:
+        theta = st.theta(st.coef(train))
+        resid.append((tau - Y @ theta, train[seg_of_row], test[seg_of_row]))
+    tests = []
+    bases = _bases(data, None, None)
+    t = data.rec.t[data.rows]
+    for j in range(data.n_joints):
+        for (what, i), B in list(bases.items()) + [(("frequency", None), None)]:
+            with_, without = np.zeros(len(folds)), np.zeros(len(folds))
+            for k, (r, tr, te) in enumerate(resid):
+                Bk = B if B is not None else _sinusoid(t, r[tr, j], tr)
+                if Bk is None:
+                    continue
+                c = np.linalg.lstsq(Bk[tr], r[tr, j], rcond=1e-10)[0]
+                e = r[te, j] - Bk[te] @ c
+                with_[k], without[k] = e @ e, r[te, j] @ r[te, j]
+            if not without.sum() > 0:
+                continue
+            frac = 1 - float(np.sqrt(with_.sum() / without.sum()))
+            tests.append({"joint": j + 1, "against": what if i is None or i == j else f"{what} of joint {i + 1}",
+                          "variable": what, "of_joint": None if i is None else i + 1,
+                          "fraction": round(frac, 4), "p_value": one_sided_p(without, with_)})
+    if not tests:
+        return {"significant": False, "joint": None, "against": None, "fraction": 0.0, "p_value": 1.0}
+    m = len(tests)
+    for x in tests:
+        x["significant"] = bool(x["p_value"] < alpha / m and x["fraction"] >= UNEXPLAINED_MIN)
+    best = max(tests, key=lambda x: (x["significant"], x["fraction"]))
+    out = {"significant": best["significant"], "joint": best["joint"], "against": best["against"],
+           "fraction": best["fraction"], "p_value": float(f"{best['p_value']:.3g}"), "tests": m,
+           "variable": best["variable"], "of_joint": best["of_joint"]}
+    sig = [x for x in tests if x["significant"]]
+    if sig:
+        out["also"] = [{k: x[k] for k in ("joint", "against", "fraction")} for x in sig if x is not best][:6]
+    return out
+
+
+def _sinusoid(t: np.ndarray, r_train: np.ndarray, train: np.ndarray) -> np.ndarray | None:
+    """sin/cos at the training residual's spectral peak (a periodic disturbance not tied to a
+    joint's position), evaluated on every row."""
+    tt = t[train]
+    if tt.size < 16:
+        return None
+    dt = float(np.median(np.diff(t)))
+    f = np.fft.rfftfreq(8 * tt.size, dt)
+    grid = np.interp(np.arange(tt[0], tt[-1], dt), tt, r_train)
+    spec = np.abs(np.fft.rfft(grid - grid.mean(), 8 * tt.size))
+    lo = max(1, int(np.ceil(3 / (tt[-1] - tt[0]) / (f[1] - f[0]))))  # at least three periods in the record
+    if spec.size <= lo + 1:
+        return None
+    f0 = f[lo + int(np.argmax(spec[lo:]))]
+    w = 2 * np.pi * f0 * t
+    return np.stack([np.sin(w), np.cos(w)], 1)

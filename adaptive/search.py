@@ -1,0 +1,96 @@
+"""The search of an effect's non-linear parameter (a cogging order, a delay, a Stribeck velocity)
+over the space the effect derives from the recording (`Effect.space`): every grid value's
+least-squares statistics on the same row segments (`manus.adaptive.lsq.Stats`), so that the full
+fit and each held-out fold of `diagnose` can choose their own value on the rows they see. Long
+grids are ranked first on unfiltered columns and only the best few evaluated exactly."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from manus.adaptive import lsq
+from manus.plants.effects import Effect, Model
+
+if TYPE_CHECKING:
+    from manus.adaptive.fit import Columns, Data
+
+
+def delay_of(model: Model) -> float:
+    """The command delay a model assumes [s] (its timing effect's, 0 without one)."""
+    return sum(float(getattr(e, "seconds", 0.0)) for e in model.effects if e.kind == "timing")
+
+
+SCREEN_ABOVE = 24  # grids longer than this are ranked on unfiltered columns first
+SCREEN_KEEP = 3  # ... and this many best are evaluated exactly
+
+
+@dataclass
+class Grid:
+    """One effect's non-linear parameter searched over its space, every grid value's statistics
+    on the same segments (so a fold can choose its own value on its training segments)."""
+
+    values: list  # the effect at each grid value
+    stats: list  # lsq.Stats of the rest of the model plus that value (exact columns), or None until needed
+    screen: list | None  # lsq.Stats on unfiltered columns (long grids), else None
+    build: object  # value index -> exact lsq.Stats
+
+    def exact(self, i: int) -> lsq.Stats:
+        if self.stats[i] is None:
+            self.stats[i] = self.build(i)
+        return self.stats[i]
+
+    def choose(self, use: np.ndarray) -> tuple[int, np.ndarray]:
+        """The value with the least squared error on the segments `use` (those a fit sees), and
+        every value's error there (inf where not evaluated exactly)."""
+        errs = np.full(len(self.values), np.inf)
+        if self.screen is not None:
+            rough = np.array([st.sse(st.coef(use), use).sum() for st in self.screen])
+            idx = np.argsort(rough)[:SCREEN_KEEP]
+        else:
+            idx = range(len(self.values))
+        for i in idx:
+            st = self.exact(i)
+            errs[i] = st.sse(st.coef(use), use).sum()
+        return int(np.argmin(errs)), errs
+
+
+def grid(data: "Data", cols: "Columns", rest: Model, effect: Effect, starts: np.ndarray,
+         values: tuple | None = None, icols: Columns | None = None, keep: np.ndarray | None = None) -> Grid:
+    """The grid search of `effect`'s non-linear parameter on top of `rest` (see `Grid`): a linear
+    effect changes the columns, a timing effect the torque. `icols`: instruments (IV). `keep`: a
+    mask over the effect's columns (the others held at 0, their physical bound)."""
+    values = list(values if values is not None else effect.space(data.span()))
+    if keep is not None:
+        cols, icols = _Kept(cols, keep), (None if icols is None else _Kept(icols, keep))
+    delay = delay_of(rest)
+    Y = cols.model(rest)
+    Z = icols.model(rest) if icols is not None else None
+    base = lsq.Stats(Y, data.tau(delay), starts, Z)
+    if effect.kind == "timing":
+        build = lambda i: lsq.Stats(Y, data.tau(delay + values[i].seconds), starts, Z)
+        return Grid(values, [None] * len(values), None, build)
+    build = lambda i: base.extend(cols.effect(values[i]), icols.effect(values[i]) if icols is not None else None)
+    screen = None
+    if len(values) > SCREEN_ABOVE:
+        rough = lsq.Stats(Y, data.tau(delay), starts)
+        screen = [rough.extend(cols.screen(v)) for v in values]
+    return Grid(values, [None] * len(values), screen, build)
+
+
+class _Kept:
+    """Columns of an effect with some left out (held at 0): what `grid` sees."""
+
+    def __init__(self, cols: "Columns", keep: np.ndarray):
+        self.cols, self.keep = cols, keep
+
+    def model(self, model):
+        return self.cols.model(model)
+
+    def effect(self, e):
+        return self.cols.effect(e)[..., self.keep]
+
+    def screen(self, e):
+        return self.cols.screen(e)[..., self.keep]
