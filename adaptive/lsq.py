@@ -37,6 +37,7 @@ class Stats:
         self.scale = np.sqrt(np.mean(X**2, axis=(0, 1))) + 1e-300
         self.X = X / self.scale
         self.Z = None if Z is None else Z / (np.sqrt(np.mean(Z**2, axis=(0, 1))) + 1e-300)
+        self.iv = Z is not None
         self.G = self._sum(np.einsum("rnp,rnq->rpq", self.X, self.X))
         self.target(tau)
 
@@ -48,7 +49,7 @@ class Stats:
         self.tau = tau
         self.g = self._sum(np.einsum("rnp,rn->rp", self.X, tau))
         self.yy = self._sum(np.einsum("rn,rn->r", tau, tau))
-        if self.Z is not None:
+        if self.iv:
             self.H = self._sum(np.einsum("rnp,rnq->rpq", self.Z, self.X))
             self.h = self._sum(np.einsum("rnp,rn->rp", self.Z, tau))
         return self
@@ -67,25 +68,22 @@ class Stats:
         new.G = np.concatenate([np.concatenate([self.G, XE], 2),
                                 np.concatenate([XE.transpose(0, 2, 1), EE], 2)], 1)
         new.g = np.concatenate([self.g, self._sum(np.einsum("rnp,rn->rp", Es, self.tau))], 1)
-        new.yy, new.tau, new.X, new.Z = self.yy, self.tau, None, None
-        if self.Z is not None and Ez is not None:
+        # (the rows themselves are not kept: an extended Stats is a grid point, not extended again)
+        new.yy, new.tau, new.X, new.Z, new.iv = self.yy, self.tau, None, None, False
+        if self.iv and Ez is not None:
             Zs = Ez / (np.sqrt(np.mean(Ez**2, axis=(0, 1))) + 1e-300)
             ZE = self._sum(np.einsum("rnp,rnq->rpq", self.Z, Es))  # old instruments × new columns
             EX = self._sum(np.einsum("rnp,rnq->rpq", Zs, self.X))  # new instruments × old columns
             EEz = self._sum(np.einsum("rnp,rnq->rpq", Zs, Es))
             new.H = np.concatenate([np.concatenate([self.H, ZE], 2), np.concatenate([EX, EEz], 2)], 1)
             new.h = np.concatenate([self.h, self._sum(np.einsum("rnp,rn->rp", Zs, self.tau))], 1)
-            new.Z = True  # instruments present (their sums are what is used)
+            new.iv = True
         return new
-
-    @property
-    def n_segments(self) -> int:
-        return self.starts.size
 
     def coef(self, use: np.ndarray) -> np.ndarray:
         """Scaled coefficients fitted on the segments `use` (bool mask): minimum-norm least
         squares, or the instrumental-variable solution when instruments were given."""
-        if self.Z is None:
+        if not self.iv:
             A, b = self.G[use].sum(0), self.g[use].sum(0)
         else:
             A, b = self.H[use].sum(0), self.h[use].sum(0)
