@@ -55,7 +55,7 @@ from manus.plants.recording import Recording
 
 BLOCKS = 20
 MIN_BLOCKS = 5
-ALPHA = 0.01
+ALPHA = 0.05  # family-wise, Bonferroni over a step's candidates (calibrated: `manus bench diagnose --calibrate`)
 MODE_MIN_REDUCTION = 0.05  # a mode must remove this share of the frequency response's misfit
 MIN_SHARE = 0.005  # a candidate must explain at least this share of the recorded torque (RMS) ...
 MOST = 0.5  # ... or remove at least this share of the current error
@@ -188,7 +188,7 @@ def diagnose(rec: Recording | fitting.Data, model: Model | str, cutoff_hz: float
                             alpha / m, min_share, span))
     cands.sort(key=lambda c: -c.cv_error_reduction)
     _aliases(cols, base, cands)
-    verdict = _choose(cands, alpha / m)
+    verdict = _choose(cands, alpha / m, data.cutoff_hz)
     if verdict is not None:
         _mark_overlaps(data, cols, icols, verdict, cands, min_share)
         cands.sort(key=lambda c: (c is not verdict, c.overlaps is not None, -c.cv_error_reduction))
@@ -332,14 +332,20 @@ def _aliases(cols, base, cands: list[Candidate]) -> None:
                 b.aliases.append(a.effect)
 
 
-def _choose(cands: list[Candidate], alpha: float) -> Candidate | None:
+def _choose(cands: list[Candidate], alpha: float, cutoff_hz: float = np.inf) -> Candidate | None:
     """Best held-out error among the proposable; a simpler one within one standard error wins;
     a candidate that brings another (a spring its offset) must beat that one alone; of readings
     the recording cannot tell apart, the one with fewer physical assumptions, once. A structural
-    mode is measured in its own band: it wins when nothing else is proposable, or over a timing
-    effect (a delay only mimics a mode's high-frequency residual)."""
+    mode is measured in its own band: it wins when nothing else is proposable, when it rings
+    inside the identification band (below `cutoff_hz`: its ringing is then in the residual every
+    other candidate is fitted to, and they would explain parts of it under other names), or over
+    a timing effect (a delay only mimics a mode's high-frequency residual)."""
     ok = [c for c in cands if c.proposable and c.mode is None]
     modes_ = [c for c in cands if c.proposable and c.mode is not None]
+    if modes_ and modes_[0].mode.f_hz < cutoff_hz and ok:
+        modes_[0].note = (f"the mode rings at {modes_[0].mode.f_hz:.3g} Hz, inside the identification band "
+                          f"(cut-off {cutoff_hz:.3g} Hz): the other candidates are fitted to its ringing; it is proposed first")
+        return modes_[0]
     if not ok:
         return modes_[0] if modes_ else None
     best = min(ok, key=lambda c: c.cv_sse.sum())

@@ -346,6 +346,35 @@ def achieved(setup: Setup, effect, params: dict, traj, dt: float, joint: int | N
     return [float(x) for x in _rms(tau_e) / np.maximum(_rms(np.asarray(traj.tau)), 1e-300)]
 
 
+def distinct(setup: Setup, effect, params: dict, start: str, traj, dt: float, others: tuple = ()) -> float:
+    """How much of the hidden effect no other reading explains: the RMS of its torque along the
+    true motion once projected off the span of the start model plus any one other linear
+    effect of the vocabulary (with the effects it brings; `others` gives the non-linear
+    parameters the truth uses: the cogging order, the Stribeck velocity), the smallest over
+    those, as a fraction of the recorded torque's RMS (all joints). A hidden gravity on a small
+    swing is mostly a constant: its distinct part is what sets it apart from an offset, and no
+    procedure can name it from less."""
+    q, qd = np.asarray(traj.q_true), np.asarray(traj.qd_true)
+    motion = (q, qd, _qdd(qd, dt))
+    tau_h = effect_torque(setup, effect, params, *motion).ravel()
+    scale = max(_rms(np.asarray(traj.tau).ravel()), 1e-300)
+    by_name = {e.name: e for e in others}
+    base = Model(setup.structure, start) if start else None
+    worst = _rms(tau_h) / scale
+    for name in ORDER:
+        rival = by_name.get(name) or VOCABULARY[name]()
+        if name == effect.name or not rival.linear or (base is not None and base.has(name)) \
+                or not applies(name, setup):
+            continue
+        model = Model(setup.structure, tuple(base.effects if base is not None else ()) + tuple(
+            VOCABULARY[b]() for b in rival.brings if b != effect.name) + (rival,))
+        Y = np.asarray(jax.vmap(lambda a, b, c: model.regressor(a, b, c))(*(jnp.asarray(x) for x in motion)))
+        Y = Y.reshape(-1, Y.shape[-1])
+        coef = np.linalg.lstsq(Y, tau_h, rcond=None)[0]
+        worst = min(worst, _rms(tau_h - Y @ coef) / scale)
+    return float(worst)
+
+
 # -- the calibration cases -----------------------------------------------------------------------
 def draw_condition(seed: int, hidden: str | None = None, **overrides) -> dict:
     """The condition of case `seed` (overrides win). A hidden `compliance` is drawn only under
@@ -445,6 +474,11 @@ def case(seed: int, hidden: str | None = None, **overrides) -> Case:
             hp, _ = scale_hidden(setup, effect, hp, joint, traj, AMPLITUDE, dt)
         params = {**params, **hp}
         info["hidden_fraction"] = [round(g, 4) for g in got]
+        info["distinct_fraction"] = round(distinct(setup, effect, hp, start_model(hidden), traj, dt, nonlinear), 4)
+    if hidden == "delay":  # what the late command changes: τ(t) − τ(t − d), against the torque
+        lag = int(round(info["delay_ms"] * 1e-3 * rate))
+        tau = np.asarray(traj.tau)
+        info["hidden_fraction"] = [round(float(x), 4) for x in _rms(tau[lag:] - tau[:-lag]) / np.maximum(_rms(tau), 1e-300)]
     elif extra or d_coloured is not None:
         traj = simulate_case(setup, rate, c["excitation"], params, extra, seconds, sim_seed, d_coloured, nonlinear)
     meta = {"calibration": f"seed {seed}", **setup.meta()}

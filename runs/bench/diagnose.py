@@ -44,6 +44,11 @@ def add_arguments(p) -> None:
     p.add_argument("--effects", default="",
                    help="with --calibrate: a comma-separated subset of the hidden effects (default: every effect; "
                         "'none': the recordings with nothing missing only)")
+    p.add_argument("--alpha", type=float, default=None,
+                   help="with --calibrate: the family-wise significance level diagnose uses (default: its own, "
+                        "manus.adaptive.diagnose.ALPHA), to see what another level would give")
+    p.add_argument("--jobs", type=int, default=0,
+                   help="with --calibrate: worker processes (default: one per core)")
 
 
 def arm_torque(theta: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
@@ -173,7 +178,7 @@ def case_seed(seed: int, effect_index: int, i: int) -> int:
     return int(np.random.SeedSequence([seed, effect_index, i]).generate_state(1)[0] % 2**31)
 
 
-def run_one(seed: int, hidden: str | None) -> dict:
+def run_one(seed: int, hidden: str | None, alpha: float | None = None) -> dict:
     """Simulate one calibration recording and diagnose it; never raises (a ManusError is an
     `error`, anything else a `crash`, both reported)."""
     import traceback
@@ -191,7 +196,7 @@ def run_one(seed: int, hidden: str | None) -> dict:
     out.update(condition=c.condition, joint=c.joint, start=c.start, simulate_s=c.seconds)
     t0 = time.perf_counter()
     try:
-        d = diagnose(c.rec, c.start)
+        d = diagnose(c.rec, c.start) if alpha is None else diagnose(c.rec, c.start, alpha=alpha)
     except ManusError as e:
         out.update(outcome="error", error=str(e), diagnose_s=time.perf_counter() - t0)
         return out
@@ -205,6 +210,9 @@ def run_one(seed: int, hidden: str | None) -> dict:
     out["verdict_spec"] = None if v is None else v.spec
     out["verdict_joint"] = None if v is None else int(v.joint)
     out["unexplained"] = bool(d.unexplained.get("significant"))
+    out["candidates"] = [{k: c[k] for k in ("spec", "joint", "p_value", "cv_error_reduction", "significant")}
+                         | ({"not_proposed": c["not_proposed"]} if "not_proposed" in c else {})
+                         for c in d.report()["candidates"]]
     if hidden is None:
         out["outcome"] = "quiet" if v is None else "false alarm"
     else:
@@ -238,6 +246,7 @@ def summarize(results: list[dict]) -> dict:
             v: {"false_alarm": alarms([r for r in nulls if str(r.get("condition", {}).get(key)) == v]),
                 **detections([r for r in hidden if str(r.get("condition", {}).get(key)) == v])}
             for v in values}
+    distinct = [r for r in hidden if _distinct(r)]
     times = [r["diagnose_s"] for r in results if "diagnose_s" in r]
     sims = [r["simulate_s"] for r in results if "simulate_s" in r]
     missed = [r for r in hidden if r["outcome"] == "missed"]
@@ -248,13 +257,33 @@ def summarize(results: list[dict]) -> dict:
             "unexplained_on_null": rate(sum(bool(r.get("unexplained")) for r in nulls if "unexplained" in r),
                                         sum("unexplained" in r for r in nulls)),
             "unexplained_when_missed": rate(sum(bool(r.get("unexplained")) for r in missed), len(missed)),
-            "detection": detections(hidden), "per_effect": per_effect, "per_condition": per_condition,
+            "detection": detections(hidden),
+            # the recordings whose hidden effect has a part of its own no other reading explains
+            "detection_where_distinct": {**detections(distinct), "threshold": DISTINCT,
+                                         "per_effect": {name: detections([r for r in distinct if r["hidden"] == name])
+                                                        for name in dict.fromkeys(r["hidden"] for r in distinct)}},
+            "per_effect": per_effect, "per_condition": per_condition,
             "errors": sum(r["outcome"] == "error" for r in results),
             "null_errors": sum(r["outcome"] == "error" for r in nulls), "crashes": sum(r["outcome"] == "crash" for r in results),
             "diagnose_s_per_recording": {"mean": float(np.mean(times)) if times else None,
                                          "median": float(np.median(times)) if times else None,
                                          "max": float(np.max(times)) if times else None},
             "simulate_s_per_recording": {"mean": float(np.mean(sims)) if sims else None}}
+
+
+DISTINCT = 0.025  # a hidden effect is distinct when this share of the torque is its own (half its size)
+
+
+def _distinct(r: dict) -> bool:
+    """Whether a hidden effect left a part no other reading explains of at least `DISTINCT` of
+    the torque (`manus.runs.calibration.distinct`; a delay: what it changes in the torque; a
+    mode: counted, its share is not measured)."""
+    c = r.get("condition", {})
+    if "distinct_fraction" in c:
+        return c["distinct_fraction"] >= DISTINCT
+    if r["hidden"] == "delay":
+        return max(c.get("hidden_fraction", [0.0])) >= DISTINCT
+    return "condition" in r
 
 
 def _counts(items) -> dict:
@@ -265,6 +294,7 @@ def _counts(items) -> dict:
 
 
 def calibrate(args) -> dict:
+    from manus.adaptive.diagnose import ALPHA
     from manus.plants.errors import ManusError
     from manus.runs import calibration
     from manus.runs.common import note
@@ -285,10 +315,15 @@ def calibrate(args) -> dict:
     plan += [(case_seed(args.seed, 1 + calibration.hidden_effects().index(e), i), e) for e in effects for i in range(n)]
     note(f"calibration: {n} recordings with nothing missing and {n} per hidden effect ({', '.join(effects)}): "
          f"{len(plan)} in all")
+    if args.alpha is not None and not 0 < args.alpha < 1:
+        raise ManusError(f"--alpha must lie between 0 and 1 (got {args.alpha})")
+    jobs = args.jobs or os.cpu_count() or 1
+    if jobs < 1:
+        raise ManusError(f"--jobs must be at least 1 (got {jobs})")
     t0 = time.perf_counter()
     results = []
-    for k, (seed, hidden) in enumerate(plan, 1):
-        r = run_one(seed, hidden)
+    for k, r in enumerate(_each(plan, args.alpha, jobs), 1):
+        seed, hidden = r["seed"], r["hidden"]
         results.append(r)
         if r["outcome"] in ("crash", "error", "false alarm", "missed", "wrong"):
             c = r.get("condition", {})
@@ -309,8 +344,23 @@ def calibrate(args) -> dict:
                         "diagnose_s_per_recording": summary["diagnose_s_per_recording"]["mean"],
                         "wall_s": wall},
             "calibration": summary, "crashes": crashes, "recordings": n, "seed": args.seed, "effects": list(effects),
-            "amplitude": calibration.AMPLITUDE, "results": [{k: v for k, v in r.items() if k != "trace"} for r in results],
+            "amplitude": calibration.AMPLITUDE, "alpha": args.alpha if args.alpha is not None else ALPHA, "jobs": jobs,
+            "results": [{k: v for k, v in r.items() if k != "trace"} for r in results],
             "load_average": os.getloadavg()[0], "cpu_count": os.cpu_count()}
+
+
+def _each(plan: list, alpha: float | None, jobs: int):
+    """`run_one` over the plan, in order: in this process (one job) or in `jobs` fresh worker
+    processes (spawned, not forked: JAX is not fork-safe), each compiling its own simulations."""
+    if jobs == 1 or len(plan) < 2:
+        for seed, hidden in plan:
+            yield run_one(seed, hidden, alpha)
+        return
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(min(jobs, len(plan)), mp_context=multiprocessing.get_context("spawn")) as pool:
+        yield from pool.map(run_one, *zip(*plan), [alpha] * len(plan))
 
 
 def _pct(r: dict) -> str:
@@ -322,18 +372,23 @@ def _pct(r: dict) -> str:
 def render_calibration(r: dict) -> str:
     s = r["calibration"]
     lines = [f"calibration: {r['recordings']} recordings per row, seed {r['seed']}, hidden at "
-             f"{100 * r['amplitude']:g} % of the torque RMS; rates with Wilson 95 % intervals",
+             f"{100 * r['amplitude']:g} % of the torque RMS, alpha {r.get('alpha', '-')}; rates with Wilson 95 % intervals",
              f"  false alarms (verdict on nothing missing):  {_pct(s['false_alarm'])}"
              + (f"  verdicts: {s['false_alarm_verdicts']}" if s["false_alarm_verdicts"] else "")
              + (f"  (and {s['null_errors']} refused with a ManusError)" if s.get("null_errors") else ""),
              f"  detection (verdict = hidden effect):       {_pct(s['detection']['named'])}",
              f"  ... and with the right joint:              {_pct(s['detection']['right_joint'])}",
+             f"  detection where the hidden effect is distinct (>= {100 * s['detection_where_distinct']['threshold']:g} % "
+             f"of the torque no other reading explains): {_pct(s['detection_where_distinct']['named'])}",
              f"  'something left' on nothing missing:      {_pct(s['unexplained_on_null'])}",
              f"  'something left' where an effect was missed: {_pct(s['unexplained_when_missed'])}",
              "",
              f"{'hidden effect':<14}{'named':<32}{'right joint':<32}verdicts"]
+    lines[-1] = f"{'hidden effect':<14}{'named':<32}{'named where distinct':<32}verdicts"
+    where = s["detection_where_distinct"]["per_effect"]
     for name, e in s["per_effect"].items():
-        lines.append(f"{name:<14}{_pct(e['named']):<32}{_pct(e['right_joint']):<32}{e['verdicts']}")
+        d = where.get(name, {}).get("named", {"n": 0})
+        lines.append(f"{name:<14}{_pct(e['named']):<32}{_pct(d):<32}{e['verdicts']}")
     lines += ["", f"{'condition':<24}{'false alarm':<32}{'named':<32}right joint"]
     for key, values in s["per_condition"].items():
         for v, x in values.items():
