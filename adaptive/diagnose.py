@@ -80,6 +80,7 @@ class Candidate:
     note: str = ""
     problems: list[str] = field(default_factory=list)  # why it is not proposed although significant
     aliases: list[str] = field(default_factory=list)  # candidates that are the same columns here
+    readings: list[str] = field(default_factory=list)  # of the verdict: candidates that explain the same here
 
     @property
     def proposable(self) -> bool:
@@ -94,6 +95,8 @@ class Candidate:
             out["not_proposed"] = self.problems
         if self.aliases:
             out["same_as"] = self.aliases
+        if self.readings:
+            out["reads_as"] = self.readings
         if self.overlaps:
             out["overlaps"] = self.overlaps
         if self.note:
@@ -385,6 +388,7 @@ def _mark_overlaps(data, cols, icols, verdict, cands, min_share) -> None:
     if verdict.fit is None:
         return
     with_v = verdict.fit
+    same = []
     for c in cands:
         if c is verdict or not c.significant or c.fit is None or c.effect in verdict.aliases:
             continue
@@ -394,6 +398,10 @@ def _mark_overlaps(data, cols, icols, verdict, cands, min_share) -> None:
         both = fitting._solve(data, cols, with_v.model.with_effect(e), {}, icols)
         extra = float(np.sqrt(max(with_v.rel_error**2 - both.rel_error**2, 0.0)))  # share of the torque it adds
         if extra < min_share:
+            # and the verdict on top of it: when neither adds to the other, they are two readings
+            back = float(np.sqrt(max(c.fit.rel_error**2 - both.rel_error**2, 0.0)))
+            if back < min_share:
+                same.append(c.spec)
             c.overlaps = verdict.effect
             gap = 100 * abs(1 - np.sqrt(verdict.cv_sse.sum() / c.cv_sse.sum())) if c.cv_sse.sum() > 0 else 0.0
             better = verdict.effect if verdict.cv_sse.sum() <= c.cv_sse.sum() else c.effect
@@ -401,3 +409,10 @@ def _mark_overlaps(data, cols, icols, verdict, cands, min_share) -> None:
                       f"{100 * extra:.2f}% more of the torque; {better} fits better held out ({gap:.1f}%)")
             if better == c.effect:
                 c.note += f", within one standard error, so the simpler {verdict.effect} is proposed"
+    if same:
+        verdict.readings = same
+        verdict.note = ((verdict.note + "; ") if verdict.note else "") + (
+            f"this recording hardly tells {verdict.spec} from {' or '.join(same)}: neither adds {100 * min_share:g} % "
+            f"of the torque to the other (e.g. a small swing, where a tilted plane, a spring with its preload and "
+            f"an offset are nearly one function of position); {verdict.spec} fits best held out, or is the simplest within "
+            "one standard error. A wider motion would tell them apart")

@@ -349,27 +349,37 @@ def achieved(setup: Setup, effect, params: dict, traj, dt: float, joint: int | N
 def distinct(setup: Setup, effect, params: dict, start: str, traj, dt: float, others: tuple = ()) -> float:
     """How much of the hidden effect no other reading explains: the RMS of its torque along the
     true motion once projected off the span of the start model plus any one other linear
-    effect of the vocabulary (with the effects it brings; `others` gives the non-linear
+    effect of the vocabulary that diagnose would offer on top of it (with the effects it
+    brings; `others` gives the non-linear
     parameters the truth uses: the cogging order, the Stribeck velocity), the smallest over
     those, as a fraction of the recorded torque's RMS (all joints). A hidden gravity on a small
     swing is mostly a constant: its distinct part is what sets it apart from an offset, and no
     procedure can name it from less."""
     q, qd = np.asarray(traj.q_true), np.asarray(traj.qd_true)
-    motion = (q, qd, _qdd(qd, dt))
+    motion = tuple(jnp.asarray(x) for x in (q, qd, _qdd(qd, dt)))
     tau_h = effect_torque(setup, effect, params, *motion).ravel()
     scale = max(_rms(np.asarray(traj.tau).ravel()), 1e-300)
     by_name = {e.name: e for e in others}
-    base = Model(setup.structure, start) if start else None
+
+    def columns(name):  # one effect's regressor columns along the motion, (T·n, p)
+        e = by_name.get(name) or VOCABULARY[name]()
+        model = Model(setup.structure, (e,))
+        Y = np.asarray(jax.vmap(model.regressor)(*motion))
+        return Y.reshape(-1, Y.shape[-1])
+
+    base = [n for n in (start.split(",") if start else ())]
+    cols = {n: columns(n) for n in base}
     worst = _rms(tau_h) / scale
     for name in ORDER:
         rival = by_name.get(name) or VOCABULARY[name]()
-        if name == effect.name or not rival.linear or (base is not None and base.has(name)) \
-                or not applies(name, setup):
+        if name == effect.name or name in base or not rival.linear or not applies(name, setup) \
+                or any(r not in base for r in rival.requires):  # (diagnose would not offer it)
             continue
-        model = Model(setup.structure, tuple(base.effects if base is not None else ()) + tuple(
-            VOCABULARY[b]() for b in rival.brings if b != effect.name) + (rival,))
-        Y = np.asarray(jax.vmap(lambda a, b, c: model.regressor(a, b, c))(*(jnp.asarray(x) for x in motion)))
-        Y = Y.reshape(-1, Y.shape[-1])
+        with_ = [b for b in rival.brings if b != effect.name and b not in base] + [name]
+        for b in with_:
+            if b not in cols:
+                cols[b] = columns(b)
+        Y = np.concatenate([cols[b] for b in base + with_], axis=1)
         coef = np.linalg.lstsq(Y, tau_h, rcond=None)[0]
         worst = min(worst, _rms(tau_h - Y @ coef) / scale)
     return float(worst)
@@ -475,12 +485,12 @@ def case(seed: int, hidden: str | None = None, **overrides) -> Case:
         params = {**params, **hp}
         info["hidden_fraction"] = [round(g, 4) for g in got]
         info["distinct_fraction"] = round(distinct(setup, effect, hp, start_model(hidden), traj, dt, nonlinear), 4)
+    elif extra or d_coloured is not None:
+        traj = simulate_case(setup, rate, c["excitation"], params, extra, seconds, sim_seed, d_coloured, nonlinear)
     if hidden == "delay":  # what the late command changes: τ(t) − τ(t − d), against the torque
         lag = int(round(info["delay_ms"] * 1e-3 * rate))
         tau = np.asarray(traj.tau)
         info["hidden_fraction"] = [round(float(x), 4) for x in _rms(tau[lag:] - tau[:-lag]) / np.maximum(_rms(tau), 1e-300)]
-    elif extra or d_coloured is not None:
-        traj = simulate_case(setup, rate, c["excitation"], params, extra, seconds, sim_seed, d_coloured, nonlinear)
     meta = {"calibration": f"seed {seed}", **setup.meta()}
     rec = from_trajectory(traj, rate, "manus2" if setup.name == "arm" else "axis",
                           131072 if setup.name == "arm" else None, meta)

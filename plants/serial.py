@@ -1,0 +1,444 @@
+"""Serial chains of revolute and prismatic joints, from a URDF: any robot arm's `rigid` effect.
+
+`Serial` is a `Structure` in the URDF's own *relative* joint coordinates (each joint measured
+from its parent link, as pinocchio and the robot's controller count them). Its rigid torque is
+
+    τ = H(q) q̈ + C(q, q̇) q̇ + g(q) + diag(Ia) q̈
+
+computed by the recursive Newton–Euler algorithm (RNEA) in JAX (jit- and vmap-able, float64
+when x64 is on). Gravity is part of `rigid` for serial chains: its parameters are the links'
+masses and first moments.
+
+## Frames and parameters
+
+Link j is the body that joint j (1-based, root to tip) moves, with the URDF frame of joint j's
+child link; links attached through fixed joints (and branches locked at their zero position, as a
+gripper's fingers) are merged into it. Its *standard inertial parameters*, in its own frame [SI]:
+
+| name | meaning | unit |
+|---|---|---|
+| `m{j}` | mass | kg |
+| `mx{j}`, `my{j}`, `mz{j}` | first moment m·c (c: centre of mass) | kg m |
+| `Ixx{j}`, `Ixy{j}`, `Ixz{j}`, `Iyy{j}`, `Iyz{j}`, `Izz{j}` | inertia tensor about the link frame's *origin* (not the centre of mass); `Ixy` is the tensor entry, as in the URDF | kg m² |
+
+followed by one armature per joint, `Ia{j}` [kg m² or kg]: the motor's rotor inertia reflected
+through the gear, a torque Ia_j q̈_j on joint j alone. Parameter order (`rigid_names`): the ten of
+link 1, ..., the ten of link n, then Ia1..Ian. Pinocchio orders a link's ten as m, mx, my, mz,
+Ixx, Ixy, Iyy, Ixz, Iyz, Izz (Iyy and Ixz swapped), about the same origin.
+
+Every quantity is linear in these parameters, so the regressors are the exact Jacobians of the
+RNEA with respect to them (`jax.jacfwd`; the kinematics carry no tangents and are computed once).
+
+## What else is here
+
+- `base_parameters`: the identifiable combinations of the standard parameters (Gautier's
+  numerical method: QR with column pivoting of a regressor stacked over random states).
+- Not yet: the simulator's joint-tuple form (`pose`, `mass`, `friction_solve`, ...), so serial
+  chains cannot be simulated yet; recordings with `structure: urdf` are not read yet.
+"""
+
+from __future__ import annotations
+
+import math
+import pathlib
+import xml.etree.ElementTree as ET
+from typing import ClassVar, NamedTuple
+
+import numpy as np
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jax import Array
+
+from manus.plants.errors import ModelError
+from manus.plants.structures import Structure
+
+LINK_PARAMETERS = ("m", "mx", "my", "mz", "Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz")
+GRAVITY = (0.0, 0.0, -9.81)  # m/s², the world's z axis up
+
+
+# -- URDF parsing (numpy) -------------------------------------------------------------------------
+
+def _rpy(rpy) -> np.ndarray:
+    """The URDF rotation Rz(yaw) Ry(pitch) Rx(roll)."""
+    r, p, y = rpy
+    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
+    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                     [-sp, cp * sr, cp * cr]])
+
+
+def _floats(element, attribute: str, default: str) -> np.ndarray:
+    text = default if element is None else element.get(attribute, default)
+    return np.array([float(v) for v in text.split()])
+
+
+def _origin(element) -> tuple[np.ndarray, np.ndarray]:
+    """(R, p) of an `<origin>` child: the child frame's rotation and position in the parent's."""
+    origin = element.find("origin")
+    return _rpy(_floats(origin, "rpy", "0 0 0")), _floats(origin, "xyz", "0 0 0")
+
+
+def _skew(v) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def _link_inertial(link) -> np.ndarray:
+    """A link's ten standard parameters in its own frame (zeros without `<inertial>`)."""
+    inertial = link.find("inertial")
+    if inertial is None:
+        return np.zeros(10)
+    R, c = _origin(inertial)
+    m = float(inertial.find("mass").get("value"))
+    e = inertial.find("inertia")
+    get = lambda k: float(e.get(k, "0"))  # noqa: E731
+    I_c = np.array([[get("ixx"), get("ixy"), get("ixz")],
+                    [get("ixy"), get("iyy"), get("iyz")],
+                    [get("ixz"), get("iyz"), get("izz")]])
+    return _ten(m, m * c, R @ I_c @ R.T + m * _skew(c).T @ _skew(c))
+
+
+def _ten(m: float, h: np.ndarray, I_o: np.ndarray) -> np.ndarray:
+    return np.array([m, *h, I_o[0, 0], I_o[0, 1], I_o[0, 2], I_o[1, 1], I_o[1, 2], I_o[2, 2]])
+
+
+def _moved(theta: np.ndarray, R: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Ten parameters given in a frame placed at (R, p), expressed in the outer frame instead."""
+    m, h = theta[0], theta[1:4]
+    Ixx, Ixy, Ixz, Iyy, Iyz, Izz = theta[4:]
+    I_o = R @ np.array([[Ixx, Ixy, Ixz], [Ixy, Iyy, Iyz], [Ixz, Iyz, Izz]]) @ R.T
+    Rh = R @ h
+    # parallel axis about the new origin: I + S(p)ᵀS(Rh) + S(Rh)ᵀS(p) + m S(p)ᵀS(p) (S: cross product)
+    I_new = I_o + _skew(p).T @ _skew(Rh) + _skew(Rh).T @ _skew(p) + m * _skew(p).T @ _skew(p)
+    return _ten(m, Rh + m * p, I_new)
+
+
+class _Joint(NamedTuple):
+    name: str
+    kind: str
+    parent: str
+    child: str
+    R: np.ndarray
+    p: np.ndarray
+    axis: np.ndarray
+    armature: float
+    mimic: bool
+
+
+def _read(path) -> tuple[dict, dict]:
+    """The URDF's links (name → element) and joints (name → `_Joint`)."""
+    path = pathlib.Path(path)
+    try:
+        root = ET.parse(path).getroot()
+    except (OSError, ET.ParseError) as e:
+        raise ModelError(f"{path}: not a readable URDF ({e})") from e
+    if root.tag != "robot":
+        raise ModelError(f"{path}: not a URDF (root element <{root.tag}>, expected <robot>)")
+    links = {link.get("name"): link for link in root.findall("link")}
+    joints = {}
+    for j in root.findall("joint"):
+        R, p = _origin(j)
+        axis = _floats(j.find("axis"), "xyz", "1 0 0")
+        dynamics = j.find("dynamics")
+        joints[j.get("name")] = _Joint(
+            j.get("name"), j.get("type"), j.find("parent").get("link"), j.find("child").get("link"), R, p,
+            axis / np.linalg.norm(axis), float(dynamics.get("armature", "0")) if dynamics is not None else 0.0,
+            j.find("mimic") is not None)
+    return links, joints
+
+
+# -- the structure ----------------------------------------------------------------------------------
+
+def _rotation(axis: Array, angle: Array) -> Array:
+    """Rotation by `angle` about the unit vector `axis` (Rodrigues)."""
+    K = jnp.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    return jnp.eye(3) + jnp.sin(angle) * K + (1 - jnp.cos(angle)) * (K @ K)
+
+
+def _inertia_tensor(t: Array) -> Array:
+    return jnp.array([[t[4], t[5], t[6]], [t[5], t[7], t[8]], [t[6], t[8], t[9]]])
+
+
+class Serial(Structure):
+    """A serial chain of revolute and prismatic joints in relative joint coordinates (q [rad or m]).
+
+    Configuration: each joint's fixed placement in its parent link's frame (`rotation` (n, 3, 3),
+    `translation` (n, 3) [m]), its unit `axis` (n, 3) in its own frame, which joints are
+    `prismatic`, the world's `gravity` (3,) [m/s²] in the root link's frame, and the URDF's
+    parameter values (`defaults`, (11 n,), the order of `rigid_names`). Build it with
+    `Serial.from_urdf`.
+    """
+
+    name: ClassVar[str] = "urdf"
+    n_joints: int = eqx.field(static=True)
+    joint_names: tuple[str, ...] = eqx.field(static=True)
+    prismatic: tuple[bool, ...] = eqx.field(static=True)
+    rotation: Array
+    translation: Array
+    axis: Array
+    gravity: Array
+    defaults: Array
+
+    @classmethod
+    def from_urdf(cls, path, tip: str | None = None, armature=None, gravity=GRAVITY) -> "Serial":
+        """The serial chain of a URDF file.
+
+        The chain runs from the root link down the movable joints; fixed joints merge their child
+        link into the parent. Where the tree branches into several movable joints (a gripper's
+        fingers) the chain ends, and the branches are locked at their zero position and merged,
+        unless `tip` names the link the chain must reach. `armature` (one per joint
+        [kg m² or kg]) overrides the `armature` attribute of the joints' `<dynamics>` (default 0).
+        `gravity` [m/s²] is given in the root link's frame.
+        """
+        links, joints = _read(path)
+        children = {name: [] for name in links}
+        for j in joints.values():
+            if j.kind not in ("revolute", "continuous", "prismatic", "fixed"):
+                raise ModelError(f"{path}: joint {j.name} is {j.kind}; a serial chain takes revolute, "
+                                 "continuous, prismatic and fixed joints")
+            children[j.parent].append(j)
+        roots = set(links) - {j.child for j in joints.values()}
+        if len(roots) != 1:
+            raise ModelError(f"{path}: expected one root link, found {sorted(roots)}")
+        if tip is not None and tip not in links:
+            raise ModelError(f"{path}: no link named {tip!r}")
+
+        def reaches(link: str) -> bool:
+            return link == tip or any(reaches(j.child) for j in children[link])
+
+        def movable_below(link: str) -> list[_Joint]:
+            """The movable joints reached from `link` through fixed joints only."""
+            out = []
+            for j in children[link]:
+                out += [j] if j.kind != "fixed" else movable_below(j.child)
+            return out
+
+        chain, body, inertials = [], next(iter(roots)), []
+        while True:
+            candidates = movable_below(body)
+            if tip is not None:
+                candidates = [j for j in candidates if reaches(j.child)]
+            if len(candidates) != 1:
+                break
+            chain.append(candidates[0])
+            body = candidates[0].child
+        if not chain:
+            raise ModelError(f"{path}: no chain of movable joints from the root link")
+
+        def collect(link: str, R: np.ndarray, p: np.ndarray, stop: set) -> np.ndarray:
+            """The ten parameters of `link` and everything rigidly attached (joints in `stop` end it)."""
+            theta = _moved(_link_inertial(links[link]), R, p)
+            for j in children[link]:
+                if j.name not in stop:  # fixed, or a locked branch (zero position: its origin alone)
+                    theta = theta + collect(j.child, R @ j.R, R @ j.p + p, stop)
+            return theta
+
+        def placement(joint: _Joint) -> tuple[np.ndarray, np.ndarray]:
+            """The joint's frame in the frame of the previous chain joint's child (or the root)."""
+            start = chain[chain.index(joint) - 1].child if chain.index(joint) else next(iter(roots))
+            R, p, link = joint.R, joint.p, joint.parent
+            while link != start:
+                up = next(j for j in joints.values() if j.child == link)
+                R, p, link = up.R @ R, up.R @ p + up.p, up.parent
+            return R, p
+
+        stop = {j.name for j in chain}
+        for j in chain:
+            if j.mimic:
+                raise ModelError(f"{path}: joint {j.name} mimics another joint; a serial chain takes independent joints")
+            inertials.append(collect(j.child, np.eye(3), np.zeros(3), stop))
+        n = len(chain)
+        arm = np.array([j.armature for j in chain] if armature is None else armature, dtype=float)
+        if arm.shape != (n,):
+            raise ModelError(f"armature: expected {n} values (one per joint), got {arm.shape}")
+        placements = [placement(j) for j in chain]
+        return cls(n_joints=n, joint_names=tuple(j.name for j in chain),
+                   prismatic=tuple(j.kind == "prismatic" for j in chain),
+                   rotation=jnp.asarray(np.stack([R for R, _ in placements])),
+                   translation=jnp.asarray(np.stack([p for _, p in placements])),
+                   axis=jnp.asarray(np.stack([j.axis for j in chain])),
+                   gravity=jnp.asarray(np.asarray(gravity, dtype=float)),
+                   defaults=jnp.asarray(np.concatenate([*inertials, arm])))
+
+    # -- parameters -------------------------------------------------------------------------
+    @property
+    def rigid_names(self):
+        n = self.n_joints
+        return tuple(f"{k}{j + 1}" for j in range(n) for k in LINK_PARAMETERS) + tuple(f"Ia{j + 1}" for j in range(n))
+
+    @property
+    def rigid_defaults(self):
+        return tuple(float(v) for v in np.asarray(self.defaults))
+
+    def theta(self, p: dict) -> Array:
+        """The parameter vector (11 n,) in the order of `rigid_names`, from a dict."""
+        return jnp.stack([jnp.asarray(p[k]) for k in self.rigid_names])
+
+    # -- dynamics on the parameter vector -----------------------------------------------------
+    def rnea(self, q: Array, qd: Array, qdd: Array, theta: Array, gravity: bool = True) -> Array:
+        """Inverse dynamics τ (n,) [N·m or N] by the recursive Newton–Euler algorithm.
+
+        Each link's angular velocity ω, angular acceleration ω̇ and its origin's linear
+        acceleration a go out from the root (which accelerates at −g: gravity as a fictitious
+        upward acceleration), in the link's own frame; each link's wrench about its origin,
+        f = m a + ω̇ × h + ω × (ω × h), n = I ω̇ + ω × I ω + h × a (h = m c, I about the origin),
+        comes back and each joint takes its axis's component. `gravity=False` leaves g out.
+        """
+        n = self.n_joints
+        links = theta[: 10 * n].reshape(n, 10)
+        slide = jnp.asarray(self.prismatic, links.dtype)  # 1 for a prismatic joint, 0 for a revolute
+        turn = 1 - slide
+
+        def outward(carry, x):
+            w, dw, a = carry  # the parent's, in the parent's frame
+            E, p, s, slide, turn, q, qd, qdd, t = x
+            R, p = E @ _rotation(s, turn * q), p + slide * (E @ s) * q
+            a = R.T @ (a + jnp.cross(dw, p) + jnp.cross(w, jnp.cross(w, p)))
+            w, dw = R.T @ w, R.T @ dw
+            a = a + slide * (2 * jnp.cross(w, s * qd) + s * qdd)
+            dw = dw + turn * (jnp.cross(w, s * qd) + s * qdd)
+            w = w + turn * s * qd
+            m, h, I = t[0], t[1:4], _inertia_tensor(t)
+            f = m * a + jnp.cross(dw, h) + jnp.cross(w, jnp.cross(w, h))
+            torque = I @ dw + jnp.cross(w, I @ w) + jnp.cross(h, a)
+            return (w, dw, a), (R, p, f, torque)
+
+        def inward(carry, x):
+            f_child, n_child = carry  # the child's wrench, in this link's frame
+            R, p, f, torque, s, slide, turn = x
+            f, torque = f + f_child, torque + n_child
+            return (R @ f, R @ torque + jnp.cross(p, R @ f)), s @ (slide * f + turn * torque)
+
+        zero = jnp.zeros(3, jnp.result_type(qd, theta))
+        start = (zero, zero, -self.gravity * gravity + zero)
+        _, (R, p, f, torque) = jax.lax.scan(
+            outward, start, (self.rotation, self.translation, self.axis, slide, turn, q, qd, qdd, links))
+        _, tau = jax.lax.scan(inward, (zero, zero), (R, p, f, torque, self.axis, slide, turn), reverse=True)
+        return tau + theta[10 * n:] * qdd
+
+    def mass_matrix(self, q: Array, theta: Array) -> Array:
+        """H(q) (n, n), armature included: ∂τ/∂q̈ of the RNEA without velocity and gravity."""
+        zero = jnp.zeros_like(q)
+        return jax.jacfwd(lambda qdd: self.rnea(q, zero, qdd, theta, gravity=False))(zero)
+
+    def coriolis_times(self, q: Array, qd: Array, v: Array, theta: Array) -> Array:
+        """C(q, q̇) v (n,) with the Christoffel symbols of the first kind, C_ij = Σ_k c_ijk q̇_k,
+        c_ijk = ½ (∂H_ij/∂q_k + ∂H_ik/∂q_j − ∂H_jk/∂q_i), so that Ḣ − 2C is skew-symmetric:
+
+            C v = ½ [ D_q(H v)[q̇] + D_q(H q̇)[v] − ∇_q(q̇ᵀ H v) ]
+
+        (directional derivatives of products H(q)·x, each one RNEA without velocity and gravity).
+        """
+        zero = jnp.zeros_like(q)
+
+        def Hx(q, x):
+            return self.rnea(q, zero, x, theta, gravity=False)
+
+        along_qd = jax.jvp(lambda q: Hx(q, v), (q,), (qd,))[1]
+        along_v = jax.jvp(lambda q: Hx(q, qd), (q,), (v,))[1]
+        gradient = jax.jacfwd(lambda q: qd @ Hx(q, v))(q)
+        return 0.5 * (along_qd + along_v - gradient)
+
+    def slotine_li(self, q: Array, qd: Array, qd_r: Array, qdd_r: Array, theta: Array) -> Array:
+        """H(q) q̈_r + C(q, q̇) q̇_r + g(q) (n,): the Slotine–Li torque (q̇_r, q̈_r: reference)."""
+        zero = jnp.zeros_like(q)
+        return self.rnea(q, zero, qdd_r, theta) + self.coriolis_times(q, qd, qd_r, theta)
+
+    # -- regressors ---------------------------------------------------------------------------
+    def regressor(self, q: Array, qd: Array, qdd: Array) -> Array:
+        """Y (n, 11 n) with τ = Y θ (θ in the order of `rigid_names`)."""
+        return jax.jacfwd(lambda th: self.rnea(q, qd, qdd, th))(jnp.zeros_like(self.defaults))
+
+    def slotine_li_regressor(self, q: Array, qd: Array, qd_r: Array, qdd_r: Array) -> Array:
+        """Y (n, 11 n) with H(q) q̈_r + C(q, q̇) q̇_r + g(q) = Y θ."""
+        return jax.jacfwd(lambda th: self.slotine_li(q, qd, qd_r, qdd_r, th))(jnp.zeros_like(self.defaults))
+
+    # -- the Structure interface (matrix form) --------------------------------------------------
+    def inertia(self, q, p):
+        return self.mass_matrix(q, self.theta(p))
+
+    def coriolis(self, q, qd, p):
+        theta = self.theta(p)
+        return jax.jacfwd(lambda v: self.coriolis_times(q, qd, v, theta))(jnp.zeros_like(qd))
+
+    def rigid_torque(self, q, qd, qdd, p):
+        """H(q) q̈ + C(q, q̇) q̇ + g(q) + diag(Ia) q̈: gravity is part of `rigid` for serial chains."""
+        return self.rnea(q, qd, qdd, self.theta(p))
+
+    def solve(self, H, r):
+        return jnp.linalg.solve(H, r)
+
+    def violations(self, p):
+        """Physical consistency: each link's pseudo-inertia [[½ tr(I) 1 − I, h], [hᵀ, m]] positive
+        semidefinite (a mass distribution exists), armatures non-negative."""
+        theta, n, out = np.asarray(self.theta(p), dtype=float), self.n_joints, []
+        for j in range(n):
+            t = theta[10 * j: 10 * j + 10]
+            I = np.asarray(_inertia_tensor(t))
+            J = np.block([[0.5 * np.trace(I) * np.eye(3) - I, t[1:4, None]], [t[None, 1:4], t[:1, None]]])
+            if np.linalg.eigvalsh(J)[0] < -1e-9 * max(1.0, np.abs(J).max()):
+                out.append(f"link {j + 1}: no mass distribution has these inertial parameters "
+                           "(pseudo-inertia not positive semidefinite)")
+        out += [f"Ia{j + 1} = {theta[10 * n + j]:.4g}: an armature must be non-negative"
+                for j in range(n) if theta[10 * n + j] < 0]
+        return out
+
+    # -- the simulator's joint-tuple form: not yet for serial chains --------------------------
+    def _not_simulated(self, *args):
+        raise ModelError("the simulator does not take serial chains (structure urdf) yet")
+
+    pose = shift = moved = mass = bias = _closed_form = _not_simulated
+
+
+# -- base parameters -----------------------------------------------------------------------------------
+
+class BaseParameters(NamedTuple):
+    """The identifiable combinations of a structure's standard parameters.
+
+    `columns` (r,): the standard parameters kept (their regressor columns are the base
+    regressor); `K` (r, P): θ_base = K θ (K = [I  β] in column-pivoted order: each dependent
+    column of the regressor is a combination β of the kept ones); `names` (r,): each base
+    parameter written out, e.g. `Izz2 + 0.1·m3`.
+    """
+
+    columns: np.ndarray
+    K: np.ndarray
+    names: tuple[str, ...]
+
+    def regressor(self, Y):
+        """The base regressor: the kept columns of Y (..., P)."""
+        return Y[..., self.columns]
+
+    def values(self, theta):
+        """The base parameters (r,) of the standard parameters θ (P,)."""
+        return self.K @ np.asarray(theta)
+
+
+def base_parameters(serial: Serial, samples: int = 200, seed: int = 0, tol: float = 1e-8) -> BaseParameters:
+    """Gautier's numerical method: stack the regressor over `samples` random states (q uniform on
+    [−π, π] (±0.5 m for prismatic joints), q̇ and q̈ standard normal), QR with column pivoting;
+    columns whose |R_kk| falls below `tol`·|R_00| are combinations of the kept ones.
+    """
+    import scipy.linalg
+
+    n, rng = serial.n_joints, np.random.default_rng(seed)
+    span = np.where(serial.prismatic, 0.5, np.pi)
+    q = rng.uniform(-span, span, (samples, n))
+    qd, qdd = rng.standard_normal((2, samples, n))
+    Y = np.asarray(jax.jit(jax.vmap(serial.regressor))(q, qd, qdd)).reshape(samples * n, -1)
+    _, R, perm = scipy.linalg.qr(Y, mode="economic", pivoting=True)
+    diagonal = np.abs(np.diag(R))
+    r = int(np.sum(diagonal > tol * diagonal[0]))
+    beta = scipy.linalg.solve_triangular(R[:r, :r], R[:r, r:])
+    beta[np.abs(beta) < 1e-10] = 0.0
+    kept, dependent = np.sort(perm[:r]), perm[r:]
+    order = np.argsort(perm[:r])  # rows of beta in the order of the kept columns
+    K = np.zeros((r, Y.shape[1]))
+    K[np.arange(r), kept] = 1.0
+    K[:, dependent] = beta[order]
+    names = serial.rigid_names
+    labels = tuple(" ".join([names[c], *(f"{'+' if b > 0 else '−'} {abs(b):.4g}·{names[d]}"
+                                         for b, d in zip(K[i, dependent], dependent) if b != 0)])
+                   for i, c in enumerate(kept))
+    return BaseParameters(kept, K, labels)
