@@ -191,8 +191,8 @@ def test_double_pendulum_matches_its_closed_form(tmp_path):
     assert serial.joint_names == ("shoulder", "elbow") and serial.rigid_defaults[-2:] == (0.0, 0.004)
     theta = serial.defaults.at[-1].set(0.0)  # the closed form has no armature
     q, qd, qdd, _ = states(serial, 5, seed=5)
-    tau = jax.vmap(lambda *x: serial.rnea(*x, theta))(q, qd, qdd)
-    H = jax.vmap(lambda q: serial.mass_matrix(q, theta))(q)
+    tau = jax.jit(jax.vmap(lambda *x: serial.rnea(*x, theta)))(q, qd, qdd)
+    H = jax.jit(jax.vmap(lambda q: serial.mass_matrix(q, theta)))(q)
     for k in range(len(q)):
         H_ref, tau_ref = pendulum_closed_form(q[k], qd[k], qdd[k])
         np.testing.assert_allclose(H[k], H_ref, rtol=0, atol=1e-12)
