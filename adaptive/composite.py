@@ -90,9 +90,15 @@ class CompositeState(NamedTuple):
     @property
     def P(self) -> Array:
         """The gain as a symmetric matrix (P, P) (with any leading axes the entries carry)."""
-        m = int(round((math.sqrt(8 * len(self.gain) + 1) - 1) / 2))
-        e = dict(zip(_upper(m), self.gain))
-        return jnp.stack([jnp.stack([e[min(i, j), max(i, j)] for j in range(m)], -1) for i in range(m)], -2)
+        return symmetric(self.gain, jnp.ndim(self.gain[0]))
+
+
+def symmetric(upper: tuple, axis: int = 0) -> Array:
+    """The symmetric m×m matrix whose upper triangle, row by row (`_upper`), is `upper`; its two
+    axes at `axis` and `axis` + 1 of the result (a non-negative position among the entries' axes)."""
+    m = int(round((math.sqrt(8 * len(upper) + 1) - 1) / 2))
+    e = dict(zip(_upper(m), upper))
+    return jnp.stack([jnp.stack([e[min(i, j), max(i, j)] for j in range(m)], axis) for i in range(m)], axis)
 
 
 def _inverse(S: list) -> list:

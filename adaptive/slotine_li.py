@@ -58,7 +58,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from manus.adaptive.composite import Composite, CompositeState
+from manus.adaptive.composite import Composite, CompositeState, _upper, symmetric
 from manus.adaptive.projection import Projection
 from manus.adaptive.regressors import DEFAULT_BOUNDARY, Regressor
 from manus import estimators
@@ -276,6 +276,20 @@ class Log(NamedTuple):
     stopped: Array
 
 
+def _gram_start(m: int, dtype) -> tuple:
+    """∫₀⁰ YᵀY dt, entry by entry: the upper triangle of an m×m zero matrix, row by row."""
+    return tuple(jnp.zeros((), dtype) for _ in _upper(m))
+
+
+def _gram_step(gram: tuple, Y: Array, dt: float) -> tuple:
+    """∫YᵀY dt one tick on, entry by entry (upper triangle) from the tick's Y (n, P): sums of
+    products of scalars (under vmap a (P, n) × (n, P) product per trial is a tiny batched matmul,
+    and a (P, P) broadcast-and-sum took as long as the whole controller, measured)."""
+    n, m = Y.shape
+    Yt = jnp.moveaxis(Y, -1, 0)  # the parameter axis first: each column a contiguous batch vector
+    return tuple(g + dt * sum(Yt[i, a] * Yt[j, a] for a in range(n)) for g, (i, j) in zip(gram, _upper(m)))
+
+
 def rollout(plant: Plant, controller: SlotineLi, reference: Reference, steps: int, key=None,
             every: int = 50) -> tuple[Log, Array]:
     """`steps` closed-loop ticks in one `lax.scan` (pure: jit and vmap go through), logging the
@@ -295,7 +309,7 @@ def rollout(plant: Plant, controller: SlotineLi, reference: Reference, steps: in
         cstate, u = controller.step(cstate, q, ref)
         _, qd_true = plant.truth(pstate)
         pstate, q_next = plant.step(pstate, u)
-        gram = gram + plant.dt * cstate.Y.T @ cstate.Y
+        gram = _gram_step(gram, cstate.Y, plant.dt)
         return (pstate, cstate, q_next, gram), Log(t, q, ref.q, u, cstate.qd, qd_true, cstate.theta, cstate.stopped)
 
     def chunk(carry, ks):
@@ -303,8 +317,8 @@ def rollout(plant: Plant, controller: SlotineLi, reference: Reference, steps: in
         return carry, (log, carry[3])
 
     ks = jnp.arange(steps).reshape(steps // every, every)
-    _, (log, grams) = jax.lax.scan(chunk, (pstate, cstate, q, jnp.zeros((P, P))), ks)
-    return jax.tree.map(lambda x: x.reshape((steps,) + x.shape[2:]), log), grams
+    _, (log, grams) = jax.lax.scan(chunk, (pstate, cstate, q, _gram_start(P, q.dtype)), ks)
+    return jax.tree.map(lambda x: x.reshape((steps,) + x.shape[2:]), log), symmetric(grams, 1)
 
 
 class BatchLog(NamedTuple):
@@ -344,15 +358,14 @@ def _batch(plant, controller, reference, per_trial, keys, steps: int, every: int
         def start(arrays, key):  # the controller of one trial (its own â(0), Γ, Λ, K_D) and its carry
             c = eqx.tree_at(lambda c: (c.theta0, c.gamma, c.lam, c.kd), controller, arrays)
             pstate, q = plant.reset(key, q0=reference(0.0).q)
-            return c, (pstate, c.init(q), q, jnp.zeros((P, P), q.dtype))
+            return c, (pstate, c.init(q), q, _gram_start(P, q.dtype))
 
         def tick(c, carry, k):
             pstate, cstate, q, gram = carry
             ref = reference(k * plant.dt)
             cstate, u = c.step(cstate, q, ref)
             pstate, q_next = plant.step(pstate, u)
-            Y = cstate.Y  # ∫YᵀY as a sum of products (a (P, 2) × (2, P) product per trial is tiny)
-            gram = gram + plant.dt * jnp.sum(Y[:, :, None] * Y[:, None, :], axis=0)
+            gram = _gram_step(gram, cstate.Y, plant.dt)
             return (pstate, cstate, q_next, gram), (q - ref.q, u, cstate.theta)
 
         # the whole controller per trial (measured: faster than sharing its constant arrays, whose
@@ -362,12 +375,12 @@ def _batch(plant, controller, reference, per_trial, keys, steps: int, every: int
 
         def chunk(carry, ks):
             carry, rows = jax.lax.scan(lambda carry, k: ticks(cs, carry, k), carry, ks)
-            return carry, (rows, jnp.moveaxis(carry[3], 0, -1))
+            return carry, (rows, carry[3])
 
         ks = jnp.arange(steps).reshape(steps // every, every)
         carry, (rows, grams) = jax.lax.scan(chunk, carry, ks)
         rows = jax.tree.map(lambda x: x.reshape((steps,) + x.shape[2:]), rows)
-        return (*rows, carry[1].stopped, grams)  # batch-last
+        return (*rows, carry[1].stopped, symmetric(grams, 1))  # batch-last: grams (C, P, P, B)
 
     devices = jax.devices()
     t = jnp.arange(steps) * plant.dt
