@@ -70,3 +70,60 @@ def test_calibration_pendulum_inertia_and_gravity_within_ten_percent():
     f = fit(c.rec, c.start)
     for name in ("M1", "gs1"):
         assert f.params[name] == pytest.approx(c.truth[name], rel=PENDULUM_TOLERANCE), (name, f.params, c.truth)
+
+
+def _swing(seconds=6.0, rate=200, amplitude=0.3):
+    """The arm swinging ±`amplitude` rad about its workspace centre (both joints), a recorded
+    torque of RMS 1 N·m: what `calibration.distinct` needs of a trajectory."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    t = np.arange(int(seconds * rate)) / rate
+    w = 2 * np.pi * np.array([0.5, 0.7])
+    q = np.asarray(calibration.ARM.centre) + amplitude * np.sin(w * t[:, None])
+    qd = amplitude * w * np.cos(w * t[:, None])
+    return SimpleNamespace(q_true=q, qd_true=qd, tau=np.ones_like(q)), 1.0 / rate
+
+
+def test_calibration_distinct_share_of_a_hidden_effect():
+    """A tilted plane on a ±0.3 rad swing is nearly a constant plus a spring: what sets it apart
+    is its curvature, which a least-squares line in q leaves (numpy, per joint): the distinct
+    share is that (the spring with its preload is the closest rival). A 39/rev cogging has no rival: its distinct share is nearly all of it."""
+    import numpy as np
+
+    from manus.plants.effects import Cogging, Gravity
+
+    traj, dt = _swing()
+    g = {"gc1": 0.03, "gs1": -0.01, "gc2": 0.02, "gs2": 0.015}
+    got = calibration.distinct(calibration.ARM, Gravity(), g, "", traj, dt)
+    q = traj.q_true
+    torque = np.stack([g[f"gc{i + 1}"] * np.cos(q[:, i]) + g[f"gs{i + 1}"] * np.sin(q[:, i]) for i in range(2)], 1)
+    left = [torque[:, i] - np.polyval(np.polyfit(q[:, i], torque[:, i], 1), q[:, i]) for i in range(2)]
+    curvature = float(np.sqrt(np.mean(np.square(left))))
+    whole = float(np.sqrt(np.mean(torque**2)))
+    assert got == pytest.approx(curvature, rel=1e-4) and curvature < 0.05 * whole  # the spring's line is the best rival
+    c = {"A1": 0.01, "B1": 0.005, "A2": 0.008, "B2": -0.004}
+    cogging = calibration.distinct(calibration.ARM, Cogging(order=39.0), c, "", traj, dt)
+    size = float(np.sqrt(np.mean(calibration.effect_torque(calibration.ARM, Cogging(order=39.0), c, q, traj.qd_true,
+                                                           0 * q) ** 2)))
+    assert cogging == pytest.approx(size, rel=0.2)
+
+
+def test_calibration_bench_runs_in_worker_processes():
+    """`manus bench diagnose --calibrate` over two spawned workers: every recording comes back, in
+    the plan's order, with its outcome, its candidates' p-values and the rates' JSON keys."""
+    from types import SimpleNamespace
+
+    from manus.runs.bench import diagnose as bench
+
+    args = SimpleNamespace(recordings=1, effects="offset", seed=3, alpha=None, jobs=2)
+    r = bench.calibrate(args)
+    assert [x["hidden"] for x in r["results"]] == [None, "offset"]
+    assert all(x["outcome"] in ("quiet", "false alarm", "named", "missed", "wrong") for x in r["results"]), r["results"]
+    assert r["crashes"] == {} and r["jobs"] == 2 and r["alpha"] == pytest.approx(0.05)
+    assert all("p_value" in c for x in r["results"] for c in x["candidates"])
+    s = r["calibration"]
+    assert {"false_alarm", "detection", "detection_where_distinct", "per_effect", "per_condition"} <= set(s)
+    assert "distinct_fraction" in r["results"][1]["condition"]
+    assert "named where distinct" in bench.render_calibration(r)
