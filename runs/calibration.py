@@ -23,6 +23,11 @@ one or two samples at 200 Hz; `compliance` is a lightly damped shaft mode at 15â
 sample rate (inside the band the recording resolves), drawn only under the open-loop steps,
 which ring it. Hidden `rigid`, `viscous` or `coulomb` replace the nominal term (start without it).
 
+How much of a hidden effect the data can tell from every other reading is measured beside it:
+`distinct` (in the case's condition, `distinct_fraction`), the part of its torque left once the
+start model plus any one other effect has explained what it can (a hidden delay: the RMS of what
+it changes in the torque, `hidden_fraction`).
+
 `case(seed, hidden)` returns a `Case`; `pendulum(seed)` an errors-in-variables case (a coarse
 encoder at 200 Hz on a swinging pendulum) with its true parameters. `manus bench diagnose
 --calibrate` runs the set; `tests/runs/test_calibration.py` a seeded subset of it.

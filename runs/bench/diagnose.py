@@ -17,6 +17,13 @@ recordings with nothing missing and N per hidden effect of the vocabulary, each 
 drawn from its seed, and reports the false-alarm rate (a verdict on a recording with nothing
 missing), the detection rate (the verdict names the hidden effect; and with the right joint) per
 effect and per condition value, each with its Wilson 95 % interval, and the time per recording.
+Detection is also given over the recordings whose hidden effect is *distinct*: at least
+`DISTINCT` (2.5 %) of the torque is its own, unexplained by the start model plus any one other
+effect (`manus.runs.calibration.distinct`; a delay: what it changes in the torque). Below that no
+procedure can name it (a tilted plane on a small swing is an offset and a spring), so the two
+rates separate what the data cannot tell from what diagnose misses. `--jobs` spreads the
+recordings over worker processes (one per core by default); `--alpha` runs diagnose at another
+family-wise level, to see what it would trade.
 """
 
 from __future__ import annotations
