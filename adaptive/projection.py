@@ -63,12 +63,13 @@ def _onto_elliptic_cone(p0, m0, v0, r):
                                       (av - p0) / jnp.maximum(r * p0 + av, tiny)))
 
     def newton(_, mu):
-        m, v = m0 / (1.0 + mu), v0 / (1.0 + r * mu)
+        a, b = 1.0 / (1.0 + mu), 1.0 / (1.0 + r * mu)
+        m, v = m0 * a, v0 * b
         rho2 = jnp.maximum(m * m + r * v * v, tiny)
         rho = jnp.sqrt(rho2)
         # F = p0/ρ − (1 − μ); dρ/dμ = −(m²/(1 + μ) + r² v²/(1 + r μ))/ρ
         f = p0 / rho - (1.0 - mu)
-        df = 1.0 + p0 * (m * m / (1.0 + mu) + r * r * v * v / (1.0 + r * mu)) / (rho2 * rho)
+        df = 1.0 + p0 * (m * m * a + r * r * v * v * b) / (rho2 * rho)
         return mu - f / df
 
     mu = jax.lax.fori_loop(0, NEWTON_STEPS, newton, mu, unroll=True)
