@@ -26,8 +26,9 @@ through the gear, a torque Ia_j q̈_j on joint j alone. Parameter order (`rigid_
 link 1, ..., the ten of link n, then Ia1..Ian. Pinocchio orders a link's ten as m, mx, my, mz,
 Ixx, Ixy, Iyy, Ixz, Iyz, Izz (Iyy and Ixz swapped), about the same origin.
 
-Every quantity is linear in these parameters, so the regressors are the exact Jacobians of the
-RNEA with respect to them (`jax.jacfwd`; the kinematics carry no tangents and are computed once).
+The torque is linear in these parameters: the regressor is written in closed form from the
+RNEA's outward pass (each link's wrench regressor, summed over the joints it loads), and tested
+against the RNEA and pinocchio.
 
 ## What else is here
 
@@ -150,19 +151,52 @@ def _read(path) -> tuple[dict, dict]:
 
 # -- the structure ----------------------------------------------------------------------------------
 
+def _cross_matrix(x: Array) -> Array:
+    """[x]× (..., 3, 3): [x]× y = x × y, for x (..., 3)."""
+    z = jnp.zeros_like(x[..., 0])
+    return jnp.stack([jnp.stack([z, -x[..., 2], x[..., 1]], -1),
+                      jnp.stack([x[..., 2], z, -x[..., 0]], -1),
+                      jnp.stack([-x[..., 1], x[..., 0], z], -1)], -2)
+
+
 def _rotation(axis: Array, angle: Array) -> Array:
     """Rotation by `angle` about the unit vector `axis` (Rodrigues)."""
-    K = jnp.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    K = _cross_matrix(axis)
     return jnp.eye(3) + jnp.sin(angle) * K + (1 - jnp.cos(angle)) * (K @ K)
 
 
 def _mv(A: Array, x: Array) -> Array:
-    """A x for a 3×3 A, as products and sums (XLA compiles these faster than small dots)."""
-    return (A * x).sum(-1)
+    """A x for 3×3 matrices A (..., 3, 3), as products and sums (XLA compiles these faster than small dots)."""
+    return (A * x[..., None, :]).sum(-1)
 
 
 def _inertia_tensor(t: Array) -> Array:
-    return jnp.array([[t[4], t[5], t[6]], [t[5], t[7], t[8]], [t[6], t[8], t[9]]])
+    """The inertia tensor (..., 3, 3) of ten standard parameters (..., 10)."""
+    return jnp.stack([t[..., 4:7], t[..., (5, 7, 8)], t[..., (6, 8, 9)]], -2)
+
+
+def _times_inertia(x: Array) -> Array:
+    """L(x) (..., 3, 6) with I x = L(x) (Ixx, Ixy, Ixz, Iyy, Iyz, Izz)."""
+    x0, x1, x2 = x[..., 0], x[..., 1], x[..., 2]
+    z = jnp.zeros_like(x0)
+    return jnp.stack([jnp.stack([x0, x1, x2, z, z, z], -1),
+                      jnp.stack([z, x0, z, x1, x2, z], -1),
+                      jnp.stack([z, z, x0, z, x1, x2], -1)], -2)
+
+
+class Motion(NamedTuple):
+    """Each link's motion (arrays (n, ...)): its placement in its parent's frame (R, p), its
+    angular velocity w, angular acceleration dw and its origin's linear acceleration a (gravity
+    included as the root's upward acceleration) in its own frame, and its placement in the root
+    link's frame (R0, o0)."""
+
+    R: Array
+    p: Array
+    w: Array
+    dw: Array
+    a: Array
+    R0: Array
+    o0: Array
 
 
 class Serial(Structure):
@@ -281,45 +315,57 @@ class Serial(Structure):
         return jnp.stack([jnp.asarray(p[k]) for k in self.rigid_names])
 
     # -- dynamics on the parameter vector -----------------------------------------------------
-    def rnea(self, q: Array, qd: Array, qdd: Array, theta: Array, gravity: bool = True) -> Array:
-        """Inverse dynamics τ (n,) [N·m or N] by the recursive Newton–Euler algorithm.
+    def motion(self, q: Array, qd: Array, qdd: Array, gravity: bool = True) -> Motion:
+        """The outward pass of the RNEA: each link's velocity and acceleration from its parent's.
 
-        Each link's angular velocity ω, angular acceleration ω̇ and its origin's linear
-        acceleration a go out from the root (which accelerates at −g: gravity as a fictitious
-        upward acceleration), in the link's own frame; each link's wrench about its origin,
-        f = m a + ω̇ × h + ω × (ω × h), n = I ω̇ + ω × I ω + h × a (h = m c, I about the origin),
-        comes back and each joint takes its axis's component. `gravity=False` leaves g out.
+        Revolute joint (axis s, link frame = joint frame): ω = Rᵀω_p + s q̇,
+        ω̇ = Rᵀω̇_p + (Rᵀω_p) × s q̇ + s q̈, a = Rᵀ(a_p + ω̇_p × p + ω_p × (ω_p × p)); a prismatic
+        joint moves the origin along s instead: ω = Rᵀω_p, ω̇ = Rᵀω̇_p,
+        a = Rᵀ(a_p + ...) + 2 ω × s q̇ + s q̈. The root accelerates at −g (`gravity=False`: 0).
         """
-        n = self.n_joints
-        links = theta[: 10 * n].reshape(n, 10)
-        slide = jnp.asarray(self.prismatic, links.dtype)  # 1 for a prismatic joint, 0 for a revolute
+        slide = jnp.asarray(self.prismatic, jnp.result_type(qd, self.axis))  # 1: prismatic, 0: revolute
         turn = 1 - slide
 
-        def outward(carry, x):
-            w, dw, a = carry  # the parent's, in the parent's frame
-            E, p, s, slide, turn, q, qd, qdd, t = x
+        def outward(parent, x):
+            w, dw, a, R0, o0 = parent  # the parent's, in the parent's frame
+            E, p, s, slide, turn, q, qd, qdd = x
             R, p = E @ _rotation(s, turn * q), p + slide * _mv(E, s) * q
             a = _mv(R.T, a + jnp.cross(dw, p) + jnp.cross(w, jnp.cross(w, p)))
             w, dw = _mv(R.T, w), _mv(R.T, dw)
             a = a + slide * (2 * jnp.cross(w, s * qd) + s * qdd)
             dw = dw + turn * (jnp.cross(w, s * qd) + s * qdd)
             w = w + turn * s * qd
-            m, h, I = t[0], t[1:4], _inertia_tensor(t)
-            f = m * a + jnp.cross(dw, h) + jnp.cross(w, jnp.cross(w, h))
-            torque = _mv(I, dw) + jnp.cross(w, _mv(I, w)) + jnp.cross(h, a)
-            return (w, dw, a), (R, p, f, torque)
+            link = (w, dw, a, R0 @ R, o0 + _mv(R0, p))
+            return link, (R, p, *link)
 
-        def inward(carry, x):
-            f_child, n_child = carry  # the child's wrench, in this link's frame
-            R, p, f, torque, s, slide, turn = x
-            f, torque = f + f_child, torque + n_child
-            return (_mv(R, f), _mv(R, torque) + jnp.cross(p, _mv(R, f))), (s * (slide * f + turn * torque)).sum()
+        zero = jnp.zeros(3, slide.dtype)
+        root = (zero, zero, zero - self.gravity if gravity else zero, jnp.eye(3, dtype=zero.dtype), zero)
+        _, links = jax.lax.scan(outward, root, (self.rotation, self.translation, self.axis, slide, turn, q, qd, qdd))
+        return Motion(*links)
 
-        zero = jnp.zeros(3, jnp.result_type(qd, theta))
-        start = (zero, zero, zero - self.gravity if gravity else zero)
-        _, (R, p, f, torque) = jax.lax.scan(
-            outward, start, (self.rotation, self.translation, self.axis, slide, turn, q, qd, qdd, links))
-        _, tau = jax.lax.scan(inward, (zero, zero), (R, p, f, torque, self.axis, slide, turn), reverse=True)
+    def rnea(self, q: Array, qd: Array, qdd: Array, theta: Array, gravity: bool = True) -> Array:
+        """Inverse dynamics τ (n,) [N·m or N] by the recursive Newton–Euler algorithm.
+
+        After the outward pass (`motion`), each link's wrench about its origin in its own frame,
+        f = m a + ω̇ × h + ω × (ω × h), n = I ω̇ + ω × I ω + h × a (h = m c, I about the origin),
+        accumulates inward, and each joint takes its axis's component (moment or force).
+        `gravity=False` leaves g out.
+        """
+        n = self.n_joints
+        links = theta[: 10 * n].reshape(n, 10)
+        M = self.motion(q, qd, qdd, gravity)
+        m, h, I = links[:, :1], links[:, 1:4], _inertia_tensor(links)
+        f = m * M.a + jnp.cross(M.dw, h) + jnp.cross(M.w, jnp.cross(M.w, h))
+        torque = _mv(I, M.dw) + jnp.cross(M.w, _mv(I, M.w)) + jnp.cross(h, M.a)
+
+        def inward(child, x):  # the child's wrench, in this link's frame
+            R, p, f, torque, s, slide = x
+            f, torque = f + child[0], torque + child[1]
+            return (_mv(R, f), _mv(R, torque) + jnp.cross(p, _mv(R, f))), (s * jnp.where(slide, f, torque)).sum()
+
+        zero = jnp.zeros(3, f.dtype)
+        slide = jnp.asarray(self.prismatic)
+        _, tau = jax.lax.scan(inward, (zero, zero), (M.R, M.p, f, torque, self.axis, slide), reverse=True)
         return tau + theta[10 * n:] * qdd
 
     def mass_matrix(self, q: Array, theta: Array) -> Array:
@@ -345,13 +391,38 @@ class Serial(Structure):
         return self.rnea(q, zero, qdd_r, theta) + self.coriolis_times(q, qd, qd_r, theta)
 
     # -- regressors ---------------------------------------------------------------------------
-    def regressor(self, q: Array, qd: Array, qdd: Array) -> Array:
-        """Y (n, 11 n) with τ = Y θ (θ in the order of `rigid_names`)."""
-        return jax.jacfwd(lambda th: self.rnea(q, qd, qdd, th))(jnp.zeros_like(self.defaults))
+    def regressor(self, q: Array, qd: Array, qdd: Array, gravity: bool = True) -> Array:
+        """Y (n, 11 n) with τ = Y θ (θ in the order of `rigid_names`), in closed form.
+
+        Link j's wrench about its origin is linear in its ten parameters, (f, n) = A_j θ_j with
+        A_j = [[a, [ω̇]× + [ω]×[ω]×, 0], [0, −[a]×, L(ω̇) + [ω]× L(ω)]] (6 × 10, L(x): I x = L(x)·I);
+        moved to the root frame about the root's origin it is W_j = [[R0, 0], [[o0]× R0, R0]] A_j,
+        and joint i ≤ j takes S_i · W_j with S_i its axis as a screw in the root frame:
+        (o0_i × s0_i, s0_i) against (force, moment) for a revolute joint, (s0_i, 0) for a prismatic.
+        """
+        n = self.n_joints
+        M = self.motion(q, qd, qdd, gravity)
+        Ww, Wdw = _cross_matrix(M.w), _cross_matrix(M.dw)
+        zeros = jnp.zeros((n, 3, 6), M.a.dtype)
+        A = jnp.concatenate([
+            jnp.concatenate([M.a[:, :, None], Wdw + Ww @ Ww, zeros], -1),
+            jnp.concatenate([jnp.zeros_like(M.a)[:, :, None], -_cross_matrix(M.a),
+                             _times_inertia(M.dw) + Ww @ _times_inertia(M.w)], -1)], -2)  # (n, 6, 10)
+        force, moment = M.R0 @ A[:, :3], M.R0 @ A[:, 3:]
+        W = jnp.concatenate([force, moment + _cross_matrix(M.o0) @ force], -2)  # (n, 6, 10)
+        s0 = _mv(M.R0, self.axis)
+        slide = jnp.asarray(self.prismatic)[:, None]
+        S = jnp.concatenate([jnp.where(slide, s0, jnp.cross(M.o0, s0)), jnp.where(slide, 0.0, s0)], -1)  # (n, 6)
+        loads = jnp.triu(jnp.ones((n, n), S.dtype))  # link j loads the joints up to j only
+        Y = jnp.einsum("ik,jkp->ijp", S, W) * loads[:, :, None]
+        return jnp.concatenate([Y.reshape(n, 10 * n), jnp.diag(qdd)], -1)
 
     def slotine_li_regressor(self, q: Array, qd: Array, qd_r: Array, qdd_r: Array) -> Array:
-        """Y (n, 11 n) with H(q) q̈_r + C(q, q̇) q̇_r + g(q) = Y θ."""
-        return jax.jacfwd(lambda th: self.slotine_li(q, qd, qd_r, qdd_r, th))(jnp.zeros_like(self.defaults))
+        """Y (n, 11 n) with H(q) q̈_r + C(q, q̇) q̇_r + g(q) = Y θ: three regressors, as in
+        `coriolis_times` (H q̈_r + g = Y(q, 0, q̈_r); C q̇_r by polarization)."""
+        zero = jnp.zeros_like(q)
+        velocity = lambda u: self.regressor(q, u, zero, gravity=False)  # noqa: E731
+        return self.regressor(q, zero, qdd_r) + 0.25 * (velocity(qd + qd_r) - velocity(qd - qd_r))
 
     # -- the Structure interface (matrix form) --------------------------------------------------
     def inertia(self, q, p):
