@@ -263,7 +263,8 @@ class Serial(Structure):
             chain.append(candidates[0])
             body = candidates[0].child
         if not chain:
-            raise ModelError(f"{path}: no chain of movable joints from the root link")
+            branches = f" (it branches into {', '.join(j.name for j in candidates)}: name the tip link)" if candidates else ""
+            raise ModelError(f"{path}: no chain of movable joints from the root link{branches}")
 
         def collect(link: str, R: np.ndarray, p: np.ndarray, stop: set) -> np.ndarray:
             """The ten parameters of `link` and everything rigidly attached (joints in `stop` end it)."""

@@ -205,5 +205,11 @@ def test_refuses_what_is_not_a_serial_chain(tmp_path):
                     '<parent link="a"/><child link="b"/></joint></robot>')
     with pytest.raises(ModelError, match="floating"):
         Serial.from_urdf(path)
+    path.write_text('<robot name="r"><link name="a"/><link name="b"/><link name="c"/>'
+                    '<joint name="j1" type="revolute"><parent link="a"/><child link="b"/></joint>'
+                    '<joint name="j2" type="revolute"><parent link="a"/><child link="c"/></joint></robot>')
+    with pytest.raises(ModelError, match="branches into j1, j2: name the tip link"):
+        Serial.from_urdf(path)
+    assert Serial.from_urdf(path, tip="c").joint_names == ("j2",)
     with pytest.raises(ModelError, match="not a readable URDF"):
         Serial.from_urdf(tmp_path / "missing.urdf")
