@@ -12,10 +12,18 @@ control, `simulate_batch` split over the devices) measured in the same run with 
 of trials and length, recording every tick as the convergence batch does and every 100th as
 `manus bench sim`'s headline does. The batch is timed best of `--repeats` (wall and CPU time of
 all threads).
+
+On a machine shared with other work the wall-clock rates move with the load (printed beside
+them); the CPU time per trial-step moves much less. So the result also gives the batch's speedup
+in CPU time (the scan loop's CPU per step over the batch's CPU per trial-step: the work saved,
+whatever the load) and what the batch would reach with the devices' cores to itself (trial-steps
+per CPU-second times the number of devices: the wall rate of an idle machine, less whatever
+does not run in parallel).
 """
 
 from __future__ import annotations
 
+import os
 import time
 
 HELP = "convergence trials per second: the vmapped batch beside one-by-one Python loops"
@@ -37,6 +45,15 @@ def _timed(f, *args):
     start = time.perf_counter()
     out = jax.block_until_ready(f(*args))
     return time.perf_counter() - start, out
+
+
+def _timed_cpu(f, *args) -> tuple[float, float]:
+    """(wall, CPU of all threads) of one call [s]."""
+    import jax
+
+    t0, c0 = time.perf_counter(), time.process_time()
+    jax.block_until_ready(f(*args))
+    return time.perf_counter() - t0, time.process_time() - c0
 
 
 def _best(f, repeats: int) -> tuple[float, float]:
@@ -71,9 +88,10 @@ def bare_plant(trials: int, seconds: float, repeats: int) -> dict:
         def batch():
             return simulate_batch(plant, controllers, reference, seconds, keys, batched=("controller",), every=every)
         batch()  # compile
-        wall, _ = _best(batch, repeats)
+        wall, cpu = _best(batch, repeats)
         out[every] = trials * int(round(seconds / plant.dt)) / wall
-    return {"plant": PLANT, "record_every_tick": out[1], "record_every_100": out[100]}
+        out[f"cpu{every}"] = cpu / (trials * int(round(seconds / plant.dt))) * 1e9
+    return {"plant": PLANT, "record_every_tick": out[1], "record_every_100": out[100], "cpu_ns_every_tick": out["cpu1"]}
 
 
 def run(args) -> dict:
@@ -107,7 +125,7 @@ def run(args) -> dict:
     one = eqx.filter_jit(lambda c, k: rollout(plant, c, reference, steps, k, EVERY))
     keys = jax.random.split(jax.random.PRNGKey(0), args.sample + 1)
     compile_one, _ = _timed(one, controller, keys[0])
-    scan_s = min(_timed(one, controller, k)[0] for k in keys[1:])
+    scan_s, scan_cpu = min(_timed_cpu(one, controller, k) for k in keys[1:])
 
     ticks = max(1, int(round(args.tick_sample / plant.dt)))
     note(f"one by one, tick by tick: {ticks} ticks ...")
@@ -127,12 +145,17 @@ def run(args) -> dict:
     note(f"the bare plant ({args.trials} trials, manus bench sim's batch) ...")
     bare = bare_plant(args.trials, seconds, args.repeats)
 
+    devices = len(jax.devices())
+    batch_cpu_ns = batch_cpu / (args.trials * steps) * 1e9
     figures = {
         "batch_trials_per_s": args.trials / batch,
         "batch_trial_steps_per_s": args.trials * steps / batch,
-        "batch_cpu_ns_per_trial_step": batch_cpu / (args.trials * steps) * 1e9,
+        "batch_cpu_ns_per_trial_step": batch_cpu_ns,
+        "batch_trial_steps_per_s_idle": devices * 1e9 / batch_cpu_ns,
         "scan_loop_trial_steps_per_s": steps / scan_s,
+        "scan_loop_cpu_ns_per_step": scan_cpu / steps * 1e9,
         "bare_plant_batch_trial_steps_per_s": bare["record_every_tick"],
+        "bare_plant_batch_cpu_ns_per_trial_step": bare["cpu_ns_every_tick"],
         "bare_plant_batch_every_100_trial_steps_per_s": bare["record_every_100"],
         "scan_loop_trials_per_s": 1 / scan_s,
         "tick_loop_trials_per_s": 1 / tick_s,
@@ -141,8 +164,9 @@ def run(args) -> dict:
         "scan_compile_s": compile_one - scan_s,
     }
     return {"figures": figures, "speedup": scan_s * args.trials / batch, "speedup_vs_tick_loop": tick_s * args.trials / batch,
+            "speedup_cpu": scan_cpu / steps * 1e9 / batch_cpu_ns, "load_average": os.getloadavg()[0], "cores": os.cpu_count(),
             "of_bare_plant": args.trials * steps / batch / bare["record_every_tick"], "bare_plant": bare["plant"],
-            "trials": args.trials, "seconds": seconds, "model": model.spec, "law": args.law, "devices": len(jax.devices()),
+            "trials": args.trials, "seconds": seconds, "model": model.spec, "law": args.law, "devices": devices,
             "note": (f"one-by-one rates timed on {args.sample} scanned trial(s) and {ticks} ticks of one trial, "
                      f"extrapolated to {args.trials} trials of {seconds:g} s; compilation excluded")}
 
@@ -159,7 +183,12 @@ def render(r: dict) -> str:
         f"  one by one, tick by tick:    {f['tick_loop_trials_per_s']:8.3f} trials/s  ({f['tick_loop_us_per_tick']:.0f} µs per tick)",
         f"  speedup of the batch: {r['speedup']:.3g}x over the scan loop, {r['speedup_vs_tick_loop']:.3g}x over the tick loop",
         f"  the bare plant ({r['bare_plant']} under impedance control, manus bench sim's batch, same size): "
-        f"{f['bare_plant_batch_trial_steps_per_s']:.3g} trial-steps/s recording every tick, "
+        f"{f['bare_plant_batch_trial_steps_per_s']:.3g} trial-steps/s recording every tick "
+        f"({f['bare_plant_batch_cpu_ns_per_trial_step']:.0f} ns CPU per trial-step), "
         f"{f['bare_plant_batch_every_100_trial_steps_per_s']:.3g} every 100th; the convergence batch runs at "
         f"{100 * r['of_bare_plant']:.0f} % of the first",
+        f"  in CPU time: the batch {f['batch_cpu_ns_per_trial_step']:.0f} ns per trial-step, the scan loop "
+        f"{f['scan_loop_cpu_ns_per_step']:.0f} ns per step: {r['speedup_cpu']:.3g}x less work; with "
+        f"{r['devices']} core(s) to itself the batch would run {f['batch_trial_steps_per_s_idle']:.3g} trial-steps/s "
+        f"(1-min load average {r['load_average']:.1f} on {r['cores']} cores at the end, this run included)",
         f"  ({r['note']})"])
