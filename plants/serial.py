@@ -202,7 +202,8 @@ class Motion(NamedTuple):
 class Serial(Structure):
     """A serial chain of revolute and prismatic joints in relative joint coordinates (q [rad or m]).
 
-    Configuration: each joint's fixed placement in its parent link's frame (`rotation` (n, 3, 3),
+    Configuration (numpy float64 arrays: JAX takes them in the precision of the computation): each
+    joint's fixed placement in its parent link's frame (`rotation` (n, 3, 3),
     `translation` (n, 3) [m]), its unit `axis` (n, 3) in its own frame, which joints are
     `prismatic`, the world's `gravity` (3,) [m/s²] in the root link's frame, and the URDF's
     parameter values (`defaults`, (11 n,), the order of `rigid_names`). Build it with
@@ -213,11 +214,11 @@ class Serial(Structure):
     n_joints: int = eqx.field(static=True)
     joint_names: tuple[str, ...] = eqx.field(static=True)
     prismatic: tuple[bool, ...] = eqx.field(static=True)
-    rotation: Array
-    translation: Array
-    axis: Array
-    gravity: Array
-    defaults: Array
+    rotation: np.ndarray
+    translation: np.ndarray
+    axis: np.ndarray
+    gravity: np.ndarray
+    defaults: np.ndarray
 
     @classmethod
     def from_urdf(cls, path, tip: str | None = None, armature=None, gravity=GRAVITY) -> "Serial":
@@ -295,11 +296,9 @@ class Serial(Structure):
         placements = [placement(j) for j in chain]
         return cls(n_joints=n, joint_names=tuple(j.name for j in chain),
                    prismatic=tuple(j.kind == "prismatic" for j in chain),
-                   rotation=jnp.asarray(np.stack([R for R, _ in placements])),
-                   translation=jnp.asarray(np.stack([p for _, p in placements])),
-                   axis=jnp.asarray(np.stack([j.axis for j in chain])),
-                   gravity=jnp.asarray(np.asarray(gravity, dtype=float)),
-                   defaults=jnp.asarray(np.concatenate([*inertials, arm])))
+                   rotation=np.stack([R for R, _ in placements]), translation=np.stack([p for _, p in placements]),
+                   axis=np.stack([j.axis for j in chain]), gravity=np.asarray(gravity, dtype=float),
+                   defaults=np.concatenate([*inertials, arm]))
 
     # -- parameters -------------------------------------------------------------------------
     @property
@@ -497,7 +496,8 @@ def base_parameters(serial: Serial, samples: int = 200, seed: int = 0, tol: floa
     span = np.where(serial.prismatic, 0.5, np.pi)
     q = rng.uniform(-span, span, (samples, n))
     qd, qdd = rng.standard_normal((2, samples, n))
-    Y = np.asarray(jax.jit(jax.vmap(serial.regressor))(q, qd, qdd)).reshape(samples * n, -1)
+    with jax.enable_x64(True):  # the numerical rank needs float64
+        Y = np.asarray(jax.jit(jax.vmap(serial.regressor))(q, qd, qdd)).reshape(samples * n, -1)
     _, R, perm = scipy.linalg.qr(Y, mode="economic", pivoting=True)
     diagonal = np.abs(np.diag(R))
     r = int(np.sum(diagonal > tol * diagonal[0]))
