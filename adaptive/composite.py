@@ -92,6 +92,12 @@ class CompositeState(NamedTuple):
         """The gain as a symmetric matrix (P, P) (with any leading axes the entries carry)."""
         return symmetric(self.gain, jnp.ndim(self.gain[0]))
 
+    @property
+    def diagonal(self) -> Array:
+        """The gain's diagonal (P,), without forming the matrix."""
+        m = int(round((math.sqrt(8 * len(self.gain) + 1) - 1) / 2))
+        return jnp.stack([g for g, (i, j) in zip(self.gain, _upper(m)) if i == j], -1)
+
 
 def symmetric(upper: tuple, axis: int = 0) -> Array:
     """The symmetric m×m matrix whose upper triangle, row by row (`_upper`), is `upper`; its two

@@ -251,7 +251,7 @@ class SlotineLi(Controller):
         else:
             comp, W, tau_f = self.composite.step(comp, self.regressor, q, v, tau, self.gamma, self.lead, self.dt)
             direction = self.composite.direction(comp, grad, W, tau_f, theta)
-            metric = jnp.diagonal(comp.P)
+            metric = comp.diagonal
         new_theta = theta - self.dt * direction
         if self.projection is not None:
             new_theta = self.projection(new_theta, metric)
