@@ -13,8 +13,6 @@ import jax.numpy as jnp
 from manus.plants.errors import ModelError
 from manus.plants.serial import Serial, base_parameters
 
-pin = pytest.importorskip("pinocchio")
-
 # pinocchio orders a link's ten parameters m, mx, my, mz, Ixx, Ixy, Iyy, Ixz, Iyz, Izz; ours swap Iyy, Ixz
 PIN_ORDER = np.array([0, 1, 2, 3, 4, 5, 7, 6, 8, 9])
 ROBOTS = {"panda": ("panda_description/urdf/panda.urdf", None),
@@ -32,6 +30,7 @@ def urdf(relative: str) -> str:
 
 def pinocchio_model(path: str, serial: Serial, armature: np.ndarray):
     """The URDF in pinocchio, the joints off our chain locked at zero (as `Serial.from_urdf` does)."""
+    pin = pytest.importorskip("pinocchio")
     model = pin.buildModelFromUrdf(path)
     locked = [model.getJointId(name) for name in model.names[1:] if name not in serial.joint_names]
     if locked:
@@ -77,6 +76,7 @@ def test_the_chains_are_the_robots_arms():
 
 
 def test_inverse_dynamics_mass_matrix_and_regressor_agree_with_pinocchio(robot):
+    pin = pytest.importorskip("pinocchio")
     name, serial, model, data = robot
     n, theta = serial.n_joints, serial.defaults
     # the URDF's inertial parameters, fixed links merged, as pinocchio merges them
@@ -102,6 +102,7 @@ def test_inverse_dynamics_mass_matrix_and_regressor_agree_with_pinocchio(robot):
 
 
 def test_coriolis_is_skew_symmetric_and_slotine_li_regressor_is_exact(arm):
+    pin = pytest.importorskip("pinocchio")
     _, serial, model, data = arm
     theta = serial.defaults
     p = dict(zip(serial.rigid_names, theta))
@@ -124,6 +125,7 @@ def test_coriolis_is_skew_symmetric_and_slotine_li_regressor_is_exact(arm):
 
 
 def test_base_parameters_span_the_regressor(robot):
+    pin = pytest.importorskip("pinocchio")
     name, serial, model, data = robot
     base = base_parameters(serial)
     print(name, "base parameters:", len(base.columns), "of", len(serial.rigid_names))
