@@ -128,13 +128,17 @@ class Data:
         return np.mean(np.abs(self.qd[self.rows]) > v_min, axis=0)
 
 
-def align(u: np.ndarray, lag: float) -> np.ndarray:
-    """u read `lag` samples late (fractional, linear interpolation; held at the start)."""
-    k = np.arange(u.shape[0]) - lag
-    k0 = np.clip(np.floor(k).astype(int), 0, u.shape[0] - 1)
-    k1 = np.clip(k0 + 1, 0, u.shape[0] - 1)
-    w = np.clip(k - np.floor(k), 0, 1)[:, None]
-    return (1 - w) * u[k0] + w * u[k1]
+def align(u: np.ndarray, lag) -> np.ndarray:
+    """u (T, n) read `lag` samples late (fractional, linear interpolation; held at the start);
+    `lag` one number, or one per column (a delay per joint)."""
+    lag = np.asarray(lag, float)
+    if lag.ndim == 0:
+        k = np.arange(u.shape[0]) - lag
+        k0 = np.clip(np.floor(k).astype(int), 0, u.shape[0] - 1)
+        k1 = np.clip(k0 + 1, 0, u.shape[0] - 1)
+        w = np.clip(k - np.floor(k), 0, 1)[:, None]
+        return (1 - w) * u[k0] + w * u[k1]
+    return np.stack([align(u[:, [j]], lag[j])[:, 0] for j in range(u.shape[1])], axis=1)
 
 
 def encoder_step(rec: Recording) -> float:

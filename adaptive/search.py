@@ -18,9 +18,14 @@ if TYPE_CHECKING:
     from manus.adaptive.fit import Columns, Data
 
 
-def delay_of(model: Model) -> float:
-    """The command delay a model assumes [s] (its timing effect's, 0 without one)."""
-    return sum(float(getattr(e, "seconds", 0.0)) for e in model.effects if e.kind == "timing")
+def delay_of(model: Model) -> float | np.ndarray:
+    """The command delay a model assumes [s]: its timing effect's (one number, or one per
+    joint when the delay differs between joints), 0 without one."""
+    e = next((e for e in model.effects if e.kind == "timing"), None)
+    if e is None:
+        return 0.0
+    d = e.per_joint(model.n_joints)
+    return float(d[0]) if np.all(d == d[0]) and not isinstance(e.seconds, tuple) else d
 
 
 SCREEN_ABOVE = 24  # grids longer than this are ranked on unfiltered columns first
@@ -70,7 +75,7 @@ def grid(data: "Data", cols: "Columns", rest: Model, effect: Effect, starts: np.
     Z = icols.model(rest) if icols is not None else None
     base = lsq.Stats(Y, data.tau(delay), starts, Z)
     if effect.kind == "timing":
-        build = lambda i: lsq.Stats(Y, data.tau(delay + values[i].seconds), starts, Z)
+        build = lambda i: lsq.Stats(Y, data.tau(_timing(values[i], rest, delay)), starts, Z)
         return Grid(values, [None] * len(values), None, build)
     build = lambda i: base.extend(cols.effect(values[i]), icols.effect(values[i]) if icols is not None else None)
     screen = None
@@ -78,6 +83,12 @@ def grid(data: "Data", cols: "Columns", rest: Model, effect: Effect, starts: np.
         rough = lsq.Stats(Y, data.tau(delay), starts)
         screen = [rough.extend(cols.screen(v)) for v in values]
     return Grid(values, [None] * len(values), screen, build)
+
+
+def _timing(value: Effect, rest: Model, delay) -> float | np.ndarray:
+    """The delay a timing value gives on top of `rest` (which holds none: its delay is `delay`,
+    0): one number, or one per joint."""
+    return value.per_joint(rest.n_joints) if isinstance(value.seconds, tuple) else delay + value.seconds
 
 
 class _Kept:

@@ -35,7 +35,7 @@ class ModelDynamics(eqx.Module):
 
     model: Model
     boundary: float = eqx.field(static=True)  # φ of the friction boundary layer [rad/s or m/s]
-    delay: int = eqx.field(static=True)  # samples between a command and the torque it becomes
+    delays: tuple[int, ...] = eqx.field(static=True)  # per joint: samples between a command and the torque it becomes
 
     def __init__(self, model: Model, dt: float, boundary: float = 0.01):
         if not model.has("rigid"):
@@ -45,7 +45,13 @@ class ModelDynamics(eqx.Module):
         if not self.boundary > 0:
             raise ValueError(f"the friction boundary layer must be positive, got {boundary}")
         d = model.get("delay")
-        self.delay = int(round(d.seconds / dt)) if isinstance(d, Delay) else 0
+        n = model.n_joints
+        self.delays = tuple(int(round(x / dt)) for x in d.per_joint(n)) if isinstance(d, Delay) else (0,) * n
+
+    @property
+    def delay(self) -> int:
+        """The longest delay [samples]: how many commands are kept."""
+        return max(self.delays)
 
     def theta(self, params: dict | Array | None, current: Array | None = None) -> Array:
         """θ (P,) from a full vector, or a dict of some parameters (the rest from `current`, or
@@ -77,7 +83,7 @@ class ModelDynamics(eqx.Module):
         if history is None:
             return tau, None
         full = jnp.concatenate([tau[None], history])
-        return full[self.delay], full[:-1]
+        return jnp.stack([full[d, i] for i, d in enumerate(self.delays)]), full[:-1]
 
     def acceleration(self, q: Array, qd: Array, tau: Array, theta: Array) -> Array:
         """q̈ (n,) of the model under the applied torque τ (n,)."""

@@ -19,7 +19,7 @@ and the diagnosis (what a missing effect leaves in a residual).
 | offset | off_i | off_i | |
 | gravity | gc_i cos(q_i) + gs_i sin(q_i) | gc_i, gs_i | |
 | cogging | Σ_N A_i sin(N q_i) + B_i cos(N q_i) | A_i, B_i per order | N [cycles/rev] (one or more) |
-| delay | the commanded torque arrives d seconds late | | d [s] |
+| delay | the commanded torque arrives d seconds late (one d, or one per joint) | | d [s] |
 | compliance | a shaft spring between motor and link | | f [Hz], ζ, motor fraction |
 | spring | k_i q_i (its preload is `offset`'s constant) | k_i | |
 
@@ -454,18 +454,32 @@ class Cogging(Effect):
 
 
 class Delay(Effect):
-    """The commanded torque arrives `seconds` late (thesis §3.2: the amplifier's 1 ms)."""
+    """The commanded torque arrives `seconds` late (thesis §3.2: the amplifier's 1 ms): one
+    delay for every joint, or one per joint (a tuple: joints driven by different amplifiers or
+    buses). A recording's search first tries one delay for all joints (`space`); once the model
+    holds one, a joint's delay may differ from the others' (`grow`: one joint at a time)."""
 
     name: ClassVar[str] = "delay"
     kind: ClassVar[str] = "timing"
     evidence: ClassVar[str] = "shift"
-    seconds: float = eqx.field(default=0.001, static=True)
+    seconds: float | tuple[float, ...] = eqx.field(default=0.001, static=True)
+
+    def per_joint(self, n: int) -> np.ndarray:
+        """The delay of each of `n` joints [s], (n,)."""
+        d = np.asarray(self.seconds, float)
+        if d.ndim and d.size != n:
+            raise ModelError(f"{self.spec}: {d.size} delays for {n} joints")
+        return np.broadcast_to(d, (n,)).copy()
 
     @property
     def spec(self):
+        if isinstance(self.seconds, tuple):
+            return "delay:" + "/".join(f"{d * 1e3:.4g}ms" for d in self.seconds)
         return f"delay:{self.seconds * 1e3:.4g}ms"
 
     def describe(self):
+        if isinstance(self.seconds, tuple):
+            return {"delay_ms": [round(d * 1e3, 6) for d in self.seconds]}
         return {"delay_ms": self.seconds * 1e3}
 
     def space(self, span):
@@ -476,6 +490,25 @@ class Delay(Effect):
         coarse = np.geomspace(5 * span.dt, top, 30) if top > 5 * span.dt else np.zeros(0)
         grid = np.unique(np.round(np.r_[fine, coarse], 9))
         return tuple(Delay(seconds=float(d)) for d in grid)
+
+    def grow(self, span):
+        """One joint's delay other than it is now, the others kept: for each joint, every value
+        of `space` but its own (so a loop refines the joints' delays one at a time)."""
+        n = len(span.travel)
+        if n < 2:
+            return ()
+        d = self.per_joint(n)
+        return tuple(Delay(seconds=tuple(float(v.seconds) if i == j else float(d[i]) for i in range(n)))
+                     for j in range(n) for v in self.space(span) if v.seconds != d[j])
+
+    def edge(self, span):
+        if not isinstance(self.seconds, tuple):
+            return super().edge(span)
+        top = self.space(span)[-1].seconds
+        at = [i + 1 for i, d in enumerate(self.seconds) if d >= top]
+        if at:  # (a joint at 0 while the others are late is a value, not an edge)
+            return f"{self.spec}: joint {', '.join(map(str, at))} lies on the upper edge of its search range ({top * 1e3:.4g} ms)"
+        return None
 
 
 class Spring(Effect):
@@ -550,7 +583,7 @@ def _number(text: str, what: str) -> float:
 
 def parse_effect(text: str) -> Effect:
     """One effect from its spec: `name` or `name:value` (cogging:39, stribeck:0.02,
-    delay:2ms or delay:0.002, compliance:218.7)."""
+    delay:2ms or delay:0.002, one delay per joint delay:1ms/3ms, compliance:218.7)."""
     name, _, arg = text.strip().partition(":")
     name = name.strip().lower()
     if name not in VOCABULARY:
@@ -566,11 +599,16 @@ def parse_effect(text: str) -> Effect:
     if cls is Compliance:
         return Compliance(f_hz=_number(arg.lower().removesuffix("hz"), "compliance frequency"))
     if cls is Delay:
-        m = re.fullmatch(r"\s*([0-9.eE+-]+)\s*(ms|s)?\s*", arg)
-        if not m:
-            raise ModelError(f"delay: {arg!r} is not a duration such as 1ms or 0.001")
-        value = _number(m.group(1), "delay")
-        return Delay(seconds=value * 1e-3 if m.group(2) == "ms" else value)
+        values = []
+        for part in arg.split("/"):  # one delay, or one per joint: delay:1ms/3ms
+            m = re.fullmatch(r"\s*([0-9.eE+-]+)\s*(ms|s)?\s*", part)
+            if not m:
+                raise ModelError(f"delay: {part!r} is not a duration such as 1ms or 0.001 (per joint: 1ms/3ms)")
+            value = _number(m.group(1), "delay")
+            values.append(value * 1e-3 if m.group(2) == "ms" else value)
+        if any(v < 0 for v in values):
+            raise ModelError(f"delay: {arg!r}: a delay cannot be negative")
+        return Delay(seconds=values[0] if len(values) == 1 else tuple(values))
     raise ModelError(f"effect {name!r} takes no argument (got {arg!r})")
 
 

@@ -132,19 +132,26 @@ class Simulator(Plant):
         return 1.0 / self.rate_hz
 
     @property
-    def delay(self) -> float:
+    def delays(self) -> np.ndarray:
+        """Each joint's command delay [s], (n,)."""
         e = self.model.get("delay")
-        return e.seconds if isinstance(e, Delay) else 0.0
+        return e.per_joint(self.model.n_joints) if isinstance(e, Delay) else np.zeros(self.model.n_joints)
+
+    @property
+    def delay(self) -> float:
+        """The command delay [s] (the longest, when it differs between joints)."""
+        return float(self.delays.max())
 
     @property
     def compliance(self) -> Compliance | None:
         e = self.model.get("compliance")
         return e if isinstance(e, Compliance) else None
 
-    def _lags(self) -> tuple[int, ...]:
-        """For each sub-step, how many periods old the command acting on it is."""
-        m = round(self.delay * self.rate_hz * self.substeps)  # delay in sub-steps
-        return tuple(max(0, -((j - m) // self.substeps)) for j in range(self.substeps))
+    def _lags(self) -> np.ndarray:
+        """For each sub-step and joint, how many periods old the command acting on it is, (substeps, n)."""
+        m = np.round(self.delays * self.rate_hz * self.substeps).astype(int)  # delay in sub-steps
+        j = np.arange(self.substeps)[:, None]
+        return np.maximum(0, -((j - m[None, :]) // self.substeps))
 
     # -- plant interface -------------------------------------------------------------------
     def reset(self, key: Array | None = None, q0: Array | None = None, qd0: Array | None = None):
@@ -154,7 +161,7 @@ class Simulator(Plant):
         q = jnp.broadcast_to(q, (n,)).astype(float)
         qd = jnp.zeros(n) if qd0 is None else jnp.broadcast_to(jnp.asarray(qd0, float), (n,))
         link = (q, qd) if self.compliance is not None else (None, None)
-        commands = jnp.zeros((max(self._lags()) + 1, n))
+        commands = jnp.zeros((int(self._lags().max()) + 1, n))
         state = SimState(q, qd, link[0], link[1], commands, key)
         return state, self.measure(state)
 
@@ -177,13 +184,15 @@ class Simulator(Plant):
         n, s = self.model.n_joints, self.model.structure
         # The sub-steps run on per-joint scalars (see manus.plants.structures), stacked once per period;
         # sin and cos of the configuration once per period, then turned by each sub-step's move.
-        # The lags take at most two neighbouring values: a flag per sub-step picks the older one.
+        # A joint's lags take at most two neighbouring values: a flag per sub-step and joint picks the older one.
         lags = self._lags()
-        newer, older = joints(held[min(lags)], n), joints(held[max(lags)], n)
-        late = np.array([lag > min(lags) for lag in lags])
+        first, last = lags.min(axis=0), lags.max(axis=0)
+        newer = tuple(held[first[i], i] for i in range(n))
+        older = tuple(held[last[i], i] for i in range(n))
+        late = lags > first
 
         def tau_of(is_late):
-            return newer if is_late is None else tuple(jnp.where(is_late, a, b) for a, b in zip(older, newer))
+            return newer if is_late is None else tuple(jnp.where(is_late[i], older[i], newer[i]) for i in range(n))
 
         xs = late if late.any() else None
         q, qd = joints(state.q, n), joints(state.qd, n)

@@ -145,11 +145,21 @@ def _headline(c, verdict) -> str:
 def _search_panel(ax, c):
     values, errs = c.fit.search[c.effect]
     key = next(iter(values[0]))  # the searched parameter (order, vs, delay_ms)
-    x = np.array([v[key] if not isinstance(v[key], list) else v[key][-1] for v in values], float)
     errs = np.asarray(errs, float)
     ok = np.isfinite(errs)
     logx = key == "vs"
-    (ax.semilogx if logx else ax.plot)(x[ok], 100 * errs[ok], ".-", color="C0", lw=0.9, ms=2)
+    if c.effect == "delay" and isinstance(values[0][key], list):  # one joint's delay at a time: a curve each
+        arr = np.array([v[key] for v in values], float)
+        kinds, counts = np.unique(arr, return_counts=True)
+        joint = np.argmax(arr != kinds[np.argmax(counts)], axis=1)  # the joint whose delay differs
+        x = arr[np.arange(len(arr)), joint]
+        for j in np.unique(joint):
+            on = ok & (joint == j)
+            ax.plot(x[on], 100 * errs[on], ".-", lw=0.9, ms=2, label=f"joint {j + 1}")
+        ax.legend(fontsize=7)
+    else:
+        x = np.array([v[key] if not isinstance(v[key], list) else v[key][-1] for v in values], float)
+        (ax.semilogx if logx else ax.plot)(x[ok], 100 * errs[ok], ".-", color="C0", lw=0.9, ms=2)
     best = int(np.nanargmin(np.where(ok, errs, np.nan)))
     ax.plot(x[best], 100 * errs[best], "o", color="C3", ms=4)
     ax.set_xlabel(f"{key} searched (only the best few evaluated exactly)" if (~ok).any() else f"{key} searched")
@@ -186,7 +196,8 @@ def evidence_figure(d, c, out: Path, name: str, title: str = "") -> str:
         how = HOW.get(effect.evidence, "")
         if effect.evidence == "shift":
             x = np.gradient(data.tau(d.base.delay, full=True)[:, i], data.dt)[rows]
-            xl, y = f"dτ{i + 1}/dt (torque rate)", (c.fit.delay - d.base.delay) * x
+            shift = np.broadcast_to(np.asarray(c.fit.delay - d.base.delay, float), (data.n_joints,))[i]
+            xl, y = f"dτ{i + 1}/dt (torque rate)", shift * x
         elif effect.evidence == "position" and "order" in effect.describe():
             N = float(effect.describe().get("orders", [effect.describe()["order"]])[-1])
             x, xl = np.mod(N * q[:, i], 2 * np.pi), f"phase N·q{i + 1} mod 2π (N = {N:g})"

@@ -91,3 +91,18 @@ def test_acceleration_estimates(arm_recording, arm_report):
                                              - truth) ** 2) / np.mean(truth**2))
     assert relative("kalman_ca") < 0.3
     assert relative("kalman_model") < 0.05
+
+
+def test_a_model_based_estimator_applies_each_joints_own_delay():
+    """With a delay per joint (1 and 3 samples), the torque acting now is each joint's command
+    from its own number of periods ago."""
+    from manus.estimators.dynamics import ModelDynamics
+
+    dyn = ModelDynamics(Model(Manus2(), "rigid,viscous,delay:1ms/3ms"), dt=1e-3)
+    history = dyn.commands(2)
+    assert history.shape == (3, 2)
+    acting = []
+    for k in range(1, 7):  # commands k, -k on the two joints
+        tau, history = dyn.acting(history, jnp.array([k, -k], float), 2)
+        acting.append(np.asarray(tau))
+    np.testing.assert_array_equal(np.array(acting), [[0, 0], [1, 0], [2, 0], [3, -1], [4, -2], [5, -3]])

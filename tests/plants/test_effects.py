@@ -113,3 +113,24 @@ def test_thesis_defaults():
     c = parse_effects("compliance")[0]
     k, b = c.shaft(jnp.asarray(1.0))  # the thesis's 1-DOF model: m = 0.1, m2 = 0.9
     assert float(k) == pytest.approx(170000, rel=0.001) and float(b) == pytest.approx(2.0, rel=0.01)
+
+
+def test_a_delay_per_joint_reads_writes_and_grows_one_joint_at_a_time():
+    from manus.plants.effects import Delay, Span
+
+    (d,) = parse_effects("delay:1ms/3ms")
+    assert d.seconds == pytest.approx((1e-3, 3e-3)) and parse_effects(d.spec)[0] == d
+    assert d.describe() == {"delay_ms": [1.0, 3.0]}
+    with pytest.raises(ModelError, match="negative"):
+        parse_effects("delay:-1ms")
+    with pytest.raises(ModelError, match="2 delays for 3 joints"):
+        d.per_joint(3)
+    span = Span(1e-3, 10.0, np.ones(2), 1e-5, np.ones(2), (False, False))
+    grown = Delay(seconds=0.002).grow(span)
+    grid = [v.seconds for v in Delay().space(span)]
+    assert len(grown) == 2 * (len(grid) - 1)  # every other value, on one joint, the other at 2 ms
+    assert all(sum(x != 0.002 for x in g.seconds) == 1 for g in grown)
+    assert Delay(seconds=0.002).grow(Span(1e-3, 10.0, np.ones(1), 1e-5, np.ones(1), (False,))) == ()
+    assert "joint 2" in Delay(seconds=(0.0, grid[-1])).edge(span)
+    assert Delay(seconds=(0.0, 0.002)).edge(span) is None  # a joint at 0 while the other is late: a value
+

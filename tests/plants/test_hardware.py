@@ -205,7 +205,9 @@ def test_lost_and_garbage_packets_are_counted_and_the_run_goes_on(rigs, stepper,
     assert r.stopped_by == "end", r.reason
     # 5 % of the samples lost on the way (binomial: 50 ± 7 of 1000)
     assert 15 <= r.lost_samples <= 100
-    assert r.ticks + r.lost_samples == 1000
+    # every sample up to the last one answered is either answered or lost; the loop ends at the
+    # first sample at or past the 1000th, which is later when the 1000th itself was lost (p = 5 %)
+    assert 1000 <= r.ticks + r.lost_samples <= 1003
     # junk datagrams (5 % of ticks): random bytes, flipped bits, another version, cut short
     assert set(r.refused) <= {"magic", "version", "length", "crc", "kind", "joints"}
     assert 15 <= sum(r.refused.values()) <= 100 and r.refused.get("crc", 0) > 0 and r.refused.get("version", 0) > 0

@@ -98,6 +98,20 @@ def test_a_torque_step_shows_up_exactly_one_sample_later_with_the_delay():
     np.testing.assert_array_equal(q1[1:], q0[:-1])  # exactly one sample later
 
 
+@pytest.mark.parametrize("delays", ["1ms/3ms", "0.5ms/2.5ms"])
+def test_a_delay_per_joint_delays_each_joint_by_its_own(delays):
+    """Two independent axes, one delay each (whole and fractional periods): each joint moves as
+    it does in a simulation with its own delay for both."""
+    taus = np.zeros((60, 2))
+    taus[20:, 0], taus[25:, 1] = 1.0, -0.5
+    both = Simulator(Model(Axis(n_joints=2), f"rigid,viscous,delay:{delays}"), actuator=None, encoder=None)
+    q, _, _ = open_loop(both, taus)
+    for j, d in enumerate(delays.split("/")):
+        alone = Simulator(Model(Axis(n_joints=2), f"rigid,viscous,delay:{d}"), actuator=None, encoder=None)
+        np.testing.assert_array_equal(q[:, j], open_loop(alone, taus)[0][:, j])
+    assert both.delay == pytest.approx(max(float(d[:-2]) for d in delays.split("/")) * 1e-3)
+
+
 def test_compliance_resonance_in_the_position_spectrum():
     """Thesis Figs. 4-18 to 4-20: a 10 Hz square wave, open loop, into the 1-DOF model with the
     shaft (m = 0.1, m2 = 0.9, k2 = 170000, b = 1.5, b2 = 2.0)."""
