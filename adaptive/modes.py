@@ -15,9 +15,10 @@ resonance f = ω_z/√r/2π (since ω_p² = k(1/J_m + 1/J_L) = ω_z²/r), the `c
 Only physical modes count: damped at most as friction on a light motor damps them (ζ ≤ 0.2,
 `ZETAS`), a motor share r in `SHARE`, and a resonance the measured response really shows — a
 peak of |θ̈/τ| at f at least `PEAK` times its level on the falling flank (1.3–1.6 f, inside
-the band; so at 1 kHz modes up to ~280 Hz are resolved). Closed-loop data can otherwise dress the controller's response to encoder noise
-(|θ̈/τ| rising steadily with frequency) up as a "mode" near the top of the band. The misfit is the coherence-weighted
-relative error of Z over the band, and the error reduction the fraction of the rigid model's
+the band; so at 1 kHz modes up to ~280 Hz are resolved). Closed-loop data can otherwise dress
+the controller's response to encoder noise (|θ̈/τ| rising steadily with frequency) up as a
+"mode" near the top of the band. The misfit is the coherence-weighted relative error of Z over
+the band, and the error reduction the fraction of the rigid model's
 misfit the mode removes. Frequency responses are estimated with the H1 estimator (cross-spectrum
 over input spectrum, unbiased by noise on the measured position) per joint, corrected for what
 sampling does to a rigid joint's response (`sampling`: the held command and the differentiated

@@ -24,8 +24,7 @@ def delay_of(model: Model) -> float | np.ndarray:
     e = next((e for e in model.effects if e.kind == "timing"), None)
     if e is None:
         return 0.0
-    d = e.per_joint(model.n_joints)
-    return float(d[0]) if np.all(d == d[0]) and not isinstance(e.seconds, tuple) else d
+    return e.per_joint(model.n_joints) if isinstance(e.seconds, tuple) else float(e.seconds)
 
 
 SCREEN_ABOVE = 24  # grids longer than this are ranked on unfiltered columns first
