@@ -127,7 +127,8 @@ class Diagnosis:
 
 def held_out(st: lsq.Stats, folds) -> np.ndarray:
     """Per block, the squared error of the fit on the other blocks."""
-    return np.array([st.sse(st.coef(train), test).sum() for train, test in folds])
+    train, test = (np.array(m) for m in zip(*folds))
+    return st.sses(st.coefs(train), test)
 
 
 def _blocks_for(data: fitting.Data, blocks: int) -> int:
@@ -246,11 +247,12 @@ def _judge(data, cols, icols, base, base_sse, starts, folds, whole, e0, values, 
     for _ in range(2):
         keep = np.array([k not in held for k in e0.names(s)]) if held else None
         g = search.grid(data, cols, under, e0, starts, values, icols, keep)
+        train, test = (np.array(m) for m in zip(*folds))
+        chosen_in, _ = g.choose_each(train)  # the search inside each fold, on its training blocks
         sse = np.zeros(len(folds))
-        for j, (train, test) in enumerate(folds):  # the search inside each fold
-            i, _ = g.choose(train)
-            st = g.exact(i)
-            sse[j] = st.sse(st.coef(train), test).sum()
+        for i in np.unique(chosen_in):
+            st, on = g.exact(i), chosen_in == i
+            sse[on] = st.sses(st.coefs(train[on]), test[on])
         best, errs = g.choose(whole)
         chosen = g.values[best]
         full = under.with_effect(chosen)

@@ -89,6 +89,20 @@ class Stats:
             A, b = self.H[use].sum(0), self.h[use].sum(0)
         return np.linalg.lstsq(A, b, rcond=RCOND)[0]
 
+    def coefs(self, masks: np.ndarray) -> np.ndarray:
+        """`coef` on each of the segment masks (F, S) at once: (F, P), one batched pseudo-inverse
+        (the same minimum-norm solution as `coef`'s, to rounding)."""
+        A, b = (self.H, self.h) if self.iv else (self.G, self.g)
+        m = np.asarray(masks, float)
+        return np.einsum("fpq,fq->fp", np.linalg.pinv(np.einsum("fs,spq->fpq", m, A), rcond=RCOND), m @ b)
+
+    def sses(self, C: np.ndarray, masks: np.ndarray) -> np.ndarray:
+        """Squared error of the coefficients C (F, P) on the segments of each mask (F, S), summed
+        per mask: (F,), as `sse(...).sum()` row by row."""
+        quad = np.einsum("fsp,fp->fs", np.einsum("spq,fq->fsp", self.G, C), C)
+        per = np.maximum(self.yy[None, :] - 2 * C @ self.g.T + quad, 0.0)
+        return (per * masks).sum(1)
+
     def sse(self, c: np.ndarray, use: np.ndarray) -> np.ndarray:
         """Squared error of scaled coefficients `c` on each segment of `use`."""
         # (a quadratic form: clipped at 0 where rounding leaves an exact fit slightly negative)

@@ -49,16 +49,24 @@ class Grid:
     def choose(self, use: np.ndarray) -> tuple[int, np.ndarray]:
         """The value with the least squared error on the segments `use` (those a fit sees), and
         every value's error there (inf where not evaluated exactly)."""
-        errs = np.full(len(self.values), np.inf)
+        best, errs = self.choose_each(use[None])
+        return int(best[0]), errs[0]
+
+    def choose_each(self, masks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """`choose` for each of the segment masks (F, S) at once (each fold of a held-out test
+        chooses on its own training segments): the best value per mask (F,) and the errors (F, V)."""
+        F, V = masks.shape[0], len(self.values)
+        errs = np.full((F, V), np.inf)
         if self.screen is not None:
-            rough = np.array([st.sse(st.coef(use), use).sum() for st in self.screen])
-            idx = np.argsort(rough)[:SCREEN_KEEP]
+            rough = np.stack([st.sses(st.coefs(masks), masks) for st in self.screen], 1)  # (F, V)
+            keep = np.zeros((F, V), bool)
+            np.put_along_axis(keep, np.argsort(rough, axis=1)[:, :SCREEN_KEEP], True, axis=1)
         else:
-            idx = range(len(self.values))
-        for i in idx:
-            st = self.exact(i)
-            errs[i] = st.sse(st.coef(use), use).sum()
-        return int(np.argmin(errs)), errs
+            keep = np.ones((F, V), bool)
+        for i in np.flatnonzero(keep.any(0)):
+            st, on = self.exact(i), keep[:, i]
+            errs[on, i] = st.sses(st.coefs(masks[on]), masks[on])
+        return np.argmin(errs, axis=1), errs
 
 
 def grid(data: "Data", cols: "Columns", rest: Model, effect: Effect, starts: np.ndarray,

@@ -22,8 +22,8 @@ Detection is also given over the recordings whose hidden effect is *distinct*: a
 effect (`manus.runs.calibration.distinct`; a delay: what it changes in the torque). Below that no
 procedure can name it (a tilted plane on a small swing is an offset and a spring), so the two
 rates separate what the data cannot tell from what diagnose misses. `--jobs` spreads the
-recordings over worker processes (one per core by default); `--alpha` runs diagnose at another
-family-wise level, to see what it would trade.
+recordings over worker processes (one per core by default); `--alpha` and `--blocks` run
+diagnose at another family-wise level or number of held-out blocks, to see what they would trade.
 """
 
 from __future__ import annotations
@@ -54,6 +54,9 @@ def add_arguments(p) -> None:
     p.add_argument("--alpha", type=float, default=None,
                    help="with --calibrate: the family-wise significance level diagnose uses (default: its own, "
                         "manus.adaptive.diagnose.ALPHA), to see what another level would give")
+    p.add_argument("--blocks", type=int, default=None,
+                   help="with --calibrate: held-out blocks per recording (default: diagnose's own, "
+                        "manus.adaptive.diagnose.BLOCKS)")
     p.add_argument("--jobs", type=int, default=0,
                    help="with --calibrate: worker processes (default: one per core)")
 
@@ -185,7 +188,7 @@ def case_seed(seed: int, effect_index: int, i: int) -> int:
     return int(np.random.SeedSequence([seed, effect_index, i]).generate_state(1)[0] % 2**31)
 
 
-def run_one(seed: int, hidden: str | None, alpha: float | None = None) -> dict:
+def run_one(seed: int, hidden: str | None, alpha: float | None = None, blocks: int | None = None) -> dict:
     """Simulate one calibration recording and diagnose it; never raises (a ManusError is an
     `error`, anything else a `crash`, both reported)."""
     import traceback
@@ -203,7 +206,8 @@ def run_one(seed: int, hidden: str | None, alpha: float | None = None) -> dict:
     out.update(condition=c.condition, joint=c.joint, start=c.start, simulate_s=c.seconds)
     t0 = time.perf_counter()
     try:
-        d = diagnose(c.rec, c.start) if alpha is None else diagnose(c.rec, c.start, alpha=alpha)
+        options = {k: v for k, v in (("alpha", alpha), ("blocks", blocks)) if v is not None}
+        d = diagnose(c.rec, c.start, **options)
     except ManusError as e:
         out.update(outcome="error", error=str(e), diagnose_s=time.perf_counter() - t0)
         return out
@@ -301,7 +305,7 @@ def _counts(items) -> dict:
 
 
 def calibrate(args) -> dict:
-    from manus.adaptive.diagnose import ALPHA
+    from manus.adaptive.diagnose import ALPHA, BLOCKS
     from manus.plants.errors import ManusError
     from manus.runs import calibration
     from manus.runs.common import note
@@ -329,7 +333,10 @@ def calibrate(args) -> dict:
         raise ManusError(f"--jobs must be at least 1 (got {jobs})")
     t0 = time.perf_counter()
     results = []
-    for k, r in enumerate(_each(plan, args.alpha, jobs), 1):
+    blocks = getattr(args, "blocks", None)
+    if blocks is not None and blocks < 3:
+        raise ManusError(f"--blocks must be at least 3 (got {blocks})")
+    for k, r in enumerate(_each(plan, args.alpha, blocks, jobs), 1):
         seed, hidden = r["seed"], r["hidden"]
         results.append(r)
         if r["outcome"] in ("crash", "error", "false alarm", "missed", "wrong"):
@@ -352,22 +359,23 @@ def calibrate(args) -> dict:
                         "wall_s": wall},
             "calibration": summary, "crashes": crashes, "recordings": n, "seed": args.seed, "effects": list(effects),
             "amplitude": calibration.AMPLITUDE, "alpha": args.alpha if args.alpha is not None else ALPHA, "jobs": jobs,
+            "blocks": blocks if blocks is not None else BLOCKS,
             "results": [{k: v for k, v in r.items() if k != "trace"} for r in results],
             "load_average": os.getloadavg()[0], "cpu_count": os.cpu_count()}
 
 
-def _each(plan: list, alpha: float | None, jobs: int):
+def _each(plan: list, alpha: float | None, blocks: int | None, jobs: int):
     """`run_one` over the plan, in order: in this process (one job) or in `jobs` fresh worker
     processes (spawned, not forked: JAX is not fork-safe), each compiling its own simulations."""
     if jobs == 1 or len(plan) < 2:
         for seed, hidden in plan:
-            yield run_one(seed, hidden, alpha)
+            yield run_one(seed, hidden, alpha, blocks)
         return
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
     with ProcessPoolExecutor(min(jobs, len(plan)), mp_context=multiprocessing.get_context("spawn")) as pool:
-        yield from pool.map(run_one, *zip(*plan), [alpha] * len(plan))
+        yield from pool.map(run_one, *zip(*plan), [alpha] * len(plan), [blocks] * len(plan))
 
 
 def _pct(r: dict) -> str:
@@ -379,7 +387,7 @@ def _pct(r: dict) -> str:
 def render_calibration(r: dict) -> str:
     s = r["calibration"]
     lines = [f"calibration: {r['recordings']} recordings per row, seed {r['seed']}, hidden at "
-             f"{100 * r['amplitude']:g} % of the torque RMS, alpha {r.get('alpha', '-')}; rates with Wilson 95 % intervals",
+             f"{100 * r['amplitude']:g} % of the torque RMS, alpha {r.get('alpha', '-')}, {r.get('blocks', '-')} held-out blocks; rates with Wilson 95 % intervals",
              f"  false alarms (verdict on nothing missing):  {_pct(s['false_alarm'])}"
              + (f"  verdicts: {s['false_alarm_verdicts']}" if s["false_alarm_verdicts"] else "")
              + (f"  (and {s['null_errors']} refused with a ManusError)" if s.get("null_errors") else ""),

@@ -117,7 +117,7 @@ def test_calibration_bench_runs_in_worker_processes():
 
     from manus.runs.bench import diagnose as bench
 
-    args = SimpleNamespace(recordings=1, effects="offset", seed=3, alpha=None, jobs=2)
+    args = SimpleNamespace(recordings=1, effects="offset", seed=3, alpha=None, blocks=None, jobs=2)
     r = bench.calibrate(args)
     assert [x["hidden"] for x in r["results"]] == [None, "offset"]
     assert all(x["outcome"] in ("quiet", "false alarm", "named", "missed", "wrong") for x in r["results"]), r["results"]
