@@ -97,6 +97,8 @@ def residual_structure(data, cols, icols, f: fitting.Fit, starts, folds, alpha) 
     out = {"significant": best["significant"], "joint": best["joint"], "against": best["against"],
            "fraction": best["fraction"], "p_value": float(f"{best['p_value']:.3g}"), "tests": m,
            "variable": best["variable"], "of_joint": best["of_joint"]}
+    if not best["significant"] and best["p_value"] < alpha / m:  # real, but too small to count
+        out["below_relevance"] = UNEXPLAINED_MIN
     sig = [x for x in tests if x["significant"]]
     if sig:
         out["also"] = [{k: x[k] for k in ("joint", "against", "fraction")} for x in sig if x is not best][:6]

@@ -84,5 +84,9 @@ def unexplained_line(u: dict) -> str:
     if u.get("significant"):
         return (f"left in the residual: something no effect of the vocabulary explains: {what} removes "
                 f"{100 * u['fraction']:.0f} % of joint {u['joint']}'s remaining error held out (p = {u['p_value']:.2g})")
+    if u.get("below_relevance"):
+        return (f"left in the residual: a small structure: {what} removes {100 * u['fraction']:.1f} % of joint "
+                f"{u['joint']}'s remaining error held out (p = {u['p_value']:.2g}), under the "
+                f"{100 * u['below_relevance']:.0f} % that counts")
     return (f"left in the residual: no structure beyond noise (best: {u.get('against')} on joint {u.get('joint')}, "
             f"{100 * u.get('fraction', 0):.0f} %, p = {u.get('p_value', 1):.2g})")
