@@ -17,6 +17,8 @@ import time
 
 import numpy as np
 
+from manus.runs.bench import best_time
+
 HELP = "the Panda's regressor rows per second: vmapped JAX beside pinocchio in a Python loop"
 PANDA = "example-robot-data/robots/panda_description/urdf/panda.urdf"
 
@@ -25,15 +27,6 @@ def add_arguments(p) -> None:
     p.add_argument("--states", type=int, default=20000, help="random states in the JAX array")
     p.add_argument("--pinocchio-states", type=int, default=2000, help="states in pinocchio's Python loop")
     p.add_argument("--repeats", type=int, default=3, help="best of this many timed runs")
-
-
-def _best(fn, repeats: int) -> float:
-    best = float("inf")
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
 
 
 def run(args) -> dict:
@@ -65,7 +58,7 @@ def run(args) -> dict:
         Y = np.asarray(regressors(q, qd, qdd))
         compile_s = time.perf_counter() - t0
         note(f"JAX: best of {args.repeats} ...")
-        jax_s = _best(lambda: regressors(q, qd, qdd).block_until_ready(), args.repeats)
+        jax_s = best_time(lambda: regressors(q, qd, qdd).block_until_ready(), args.repeats)
 
     model = pin.buildModelFromUrdf(path)
     model = pin.buildReducedModel(model, [model.getJointId(k) for k in model.names[1:] if k not in serial.joint_names],
@@ -77,7 +70,7 @@ def run(args) -> dict:
         return [pin.computeJointTorqueRegressor(model, data, q[k], qd[k], qdd[k]).copy() for k in range(m)]
 
     note(f"pinocchio: {m} states in a Python loop, best of {args.repeats} ...")
-    pin_s = _best(loop, args.repeats)
+    pin_s = best_time(loop, args.repeats)
     order = np.concatenate([10 * j + np.array([0, 1, 2, 3, 4, 5, 7, 6, 8, 9]) for j in range(n)])
     agreement = float(np.abs(np.stack(loop())[:, :, order] - Y[:m, :, : 10 * n]).max())
 

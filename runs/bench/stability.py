@@ -9,6 +9,8 @@ import time
 
 import numpy as np
 
+from manus.runs.bench import best_time
+
 HELP = "step tests per second over the (b_c, k) grid: one vmapped call vs a Python loop over points"
 
 
@@ -16,15 +18,6 @@ def add_arguments(p) -> None:
     p.add_argument("--points", type=int, default=2048, help="grid points in the vmapped call")
     p.add_argument("--loop-points", type=int, default=24, help="points run one by one in the baseline")
     p.add_argument("--repeats", type=int, default=3, help="best of this many timed runs")
-
-
-def _best(fn, repeats: int) -> float:
-    best = float("inf")
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
 
 
 def run(args) -> dict:
@@ -45,14 +38,14 @@ def run(args) -> dict:
     t0 = time.perf_counter()
     sweep.local(test, k, b_c, bucketed=False)
     compile_batch = time.perf_counter() - t0
-    batch = _best(lambda: sweep.local(test, k, b_c, bucketed=False), args.repeats)
+    batch = best_time(lambda: sweep.local(test, k, b_c, bucketed=False), args.repeats)
 
     note(f"loop: {args.loop_points} step tests one by one ...")
     one = jax.jit(test.metrics)
     t0 = time.perf_counter()
     jax.block_until_ready(one(k[0], b_c[0]))
     compile_one = time.perf_counter() - t0
-    loop = _best(lambda: [jax.block_until_ready(one(k[i], b_c[i])) for i in range(args.loop_points)], args.repeats)
+    loop = best_time(lambda: [jax.block_until_ready(one(k[i], b_c[i])) for i in range(args.loop_points)], args.repeats)
 
     vmapped, looped = args.points / batch, args.loop_points / loop
     substeps = test.ticks * round(test.physics_hz / test.rate_hz)
