@@ -289,26 +289,26 @@ def simulate_case(setup: Setup, rate: int, excitation: str, params: dict, extra:
     return simulate(wrapped, controller, reference, seconds, key=jax.random.PRNGKey(rng_seed % 2**31))
 
 
+def effect_columns(setup: Setup, effect, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+    """A linear effect's regressor columns along a motion, (T, n, P)."""
+    model = Model(setup.structure, (effect,))
+    return np.asarray(jax.vmap(model.regressor)(jnp.asarray(q), jnp.asarray(qd), jnp.asarray(qdd)))
+
+
 def effect_torque(setup: Setup, effect, params: dict, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
     """The torque (T, n) a linear effect adds along a motion."""
-    model = Model(setup.structure, (effect,))
-    names = model.names
-    theta = jnp.asarray([params.get(k, 0.0) for k in names], float)
-    Y = jax.vmap(lambda a, b, c: model.regressor(a, b, c))(jnp.asarray(q), jnp.asarray(qd), jnp.asarray(qdd))
-    return np.asarray(jnp.einsum("tnp,p->tn", Y, theta))
+    theta = np.array([params.get(k, 0.0) for k in effect.names(setup.structure)], float)
+    return effect_columns(setup, effect, q, qd, qdd) @ theta
 
 
 def parameter_joints(setup: Setup, effect) -> dict[str, int | None]:
     """For each linear parameter of `effect`: the 0-based joint its column acts on, or None when
     it acts on several (the arm's a2) — from the regressor itself, not from the names."""
-    model = Model(setup.structure, (effect,))
     rng = np.random.default_rng(0)
-    n = setup.n
     scales = np.repeat(10.0 ** np.arange(-4, 1), 8)[:, None]  # speeds from 1e-4 to 1 (Stribeck's exp(−(q̇/vs)²))
-    Y = np.asarray(jax.vmap(lambda a, b, c: model.regressor(a, b, c))(
-        *(jnp.asarray(rng.normal(size=(scales.size, n)) * scales) for _ in range(3))))
+    Y = effect_columns(setup, effect, *(rng.normal(size=(scales.size, setup.n)) * scales for _ in range(3)))
     out = {}
-    for p, name in enumerate(model.names):
+    for p, name in enumerate(effect.names(setup.structure)):
         on = np.flatnonzero(np.abs(Y[:, :, p]).max(axis=0) > 0)
         out[name] = int(on[0]) if on.size == 1 else None
     return out
@@ -354,37 +354,34 @@ def achieved(setup: Setup, effect, params: dict, traj, dt: float, joint: int | N
 def distinct(setup: Setup, effect, params: dict, start: str, traj, dt: float, others: tuple = ()) -> float:
     """How much of the hidden effect no other reading explains: the RMS of its torque along the
     true motion once projected off the span of the start model plus any one other linear
-    effect of the vocabulary that diagnose would offer on top of it (with the effects it
-    brings; `others` gives the non-linear
-    parameters the truth uses: the cogging order, the Stribeck velocity), the smallest over
-    those, as a fraction of the recorded torque's RMS (all joints). A hidden gravity on a small
-    swing is mostly a constant: its distinct part is what sets it apart from an offset, and no
-    procedure can name it from less."""
+    effect of the vocabulary that diagnose would offer on top of it (with the effects it brings;
+    `others` gives the non-linear parameters the truth uses: the cogging order, the Stribeck
+    velocity), the smallest over those, as a fraction of the recorded torque's RMS (all joints).
+    A hidden gravity on a small swing is mostly a constant: its distinct part is what sets it
+    apart from an offset, and no procedure can name it from less."""
     q, qd = np.asarray(traj.q_true), np.asarray(traj.qd_true)
-    motion = tuple(jnp.asarray(x) for x in (q, qd, _qdd(qd, dt)))
+    motion = (q, qd, _qdd(qd, dt))
     tau_h = effect_torque(setup, effect, params, *motion).ravel()
     scale = max(_rms(np.asarray(traj.tau).ravel()), 1e-300)
     by_name = {e.name: e for e in others}
+    of = lambda name: by_name.get(name) or VOCABULARY[name]()
+    cols: dict = {}
 
-    def columns(name):  # one effect's regressor columns along the motion, (T·n, p)
-        e = by_name.get(name) or VOCABULARY[name]()
-        model = Model(setup.structure, (e,))
-        Y = np.asarray(jax.vmap(model.regressor)(*motion))
-        return Y.reshape(-1, Y.shape[-1])
+    def columns(name):  # one effect's columns along the motion, (T·n, p), computed once
+        if name not in cols:
+            Y = effect_columns(setup, of(name), *motion)
+            cols[name] = Y.reshape(-1, Y.shape[-1])
+        return cols[name]
 
-    base = [n for n in (start.split(",") if start else ())]
-    cols = {n: columns(n) for n in base}
+    base = start.split(",") if start else []
     worst = _rms(tau_h) / scale
     for name in ORDER:
-        rival = by_name.get(name) or VOCABULARY[name]()
+        rival = of(name)
         if name == effect.name or name in base or not rival.linear or not applies(name, setup) \
                 or any(r not in base for r in rival.requires):  # (diagnose would not offer it)
             continue
         with_ = [b for b in rival.brings if b != effect.name and b not in base] + [name]
-        for b in with_:
-            if b not in cols:
-                cols[b] = columns(b)
-        Y = np.concatenate([cols[b] for b in base + with_], axis=1)
+        Y = np.concatenate([columns(b) for b in base + with_], axis=1)
         coef = np.linalg.lstsq(Y, tau_h, rcond=None)[0]
         worst = min(worst, _rms(tau_h - Y @ coef) / scale)
     return float(worst)
