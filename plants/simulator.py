@@ -5,7 +5,8 @@ One control period (1 kHz by default) of `Simulator.step`:
 1. the command passes the actuator chain (thesis §2.2–2.5, §3.2): 12-bit ±10 V D/A,
    0.6 A/V amplifier, K_T = 3.7 N·m/A; the D/A both quantizes and saturates (±22.2 N·m);
 2. it enters a delay line (the `delay` effect: the amplifier's 1 ms) and is held (zero-order
-   hold) over the period;
+   hold) over the period, plus `torque_noise` times a white Gaussian draw per period and joint
+   (`white_noise`: counter-based, the period's count under the reset's key);
 3. the continuous dynamics are sub-stepped (`substeps` per period) with a Moreau-type time
    stepping scheme: Störmer–Verlet (second order) for the smooth torques, and the set-valued friction
    (coulomb, stribeck, asymmetry) solved implicitly each sub-step, so a joint at rest stays
@@ -86,6 +87,7 @@ class SimState(NamedTuple):
     link_qd: Array | None
     commands: Array  # past commands, newest first (L, n)
     key: Array
+    tick: Array | None = None  # control periods since reset (uint32): the torque noise's counter
 
 
 def workspace_centre(model: Model) -> Array:
@@ -93,6 +95,30 @@ def workspace_centre(model: Model) -> Array:
     if isinstance(model.structure, Manus2):
         return jnp.array([0.464, 2.409])
     return jnp.zeros(model.n_joints)
+
+
+def white_noise(key: Array, tick: Array, n: int) -> Array:
+    """The torque noise's n standard normal draws (float32) for control period `tick` of the
+    stream `key`: counter-based, so the draw of any period costs the same and needs no key
+    carried from period to period.
+
+    Threefry-2x32 (JAX's generator) of the counter (tick, block) under `key` gives 32 random bits
+    per draw; their top 24, as the odd integer m in (−2²⁴, 2²⁴), give v = m / 2²⁴ in (−1, 1),
+    uniform and symmetric, and z = √2 erf⁻¹(v) (as `jax.random.normal` does; float32, whose
+    erf⁻¹ XLA vectorizes, unlike float64's). Tails stop at |z| ≈ 5.4 (probability 2⁻²⁴).
+    Distinct ticks and blocks are distinct counters: independent draws (tested: mean, variance,
+    autocorrelation and distribution against numpy's generator)."""
+    from jax.extend.random import threefry_2x32
+
+    if jnp.issubdtype(key.dtype, jax.dtypes.prng_key):  # a typed key: its raw pair
+        key = jax.random.key_data(key)
+    blocks = (n + 1) // 2  # one Threefry block gives two draws
+    tick = jnp.asarray(tick, jnp.uint32)
+    count = jnp.concatenate([jnp.broadcast_to(tick, (blocks,)), jnp.arange(blocks, dtype=jnp.uint32)])
+    bits = threefry_2x32(key, count)[:n]
+    odd = (jax.lax.shift_right_logical(bits, jnp.uint32(7)) | jnp.uint32(1)).astype(jnp.int32) - (1 << 24)
+    v = odd.astype(jnp.float32) * jnp.float32(2.0 ** -24)
+    return jnp.float32(math.sqrt(2.0)) * jax.lax.erf_inv(v)
 
 
 class Simulator(Plant):
@@ -162,7 +188,7 @@ class Simulator(Plant):
         qd = jnp.zeros(n) if qd0 is None else jnp.broadcast_to(jnp.asarray(qd0, float), (n,))
         link = (q, qd) if self.compliance is not None else (None, None)
         commands = jnp.zeros((int(self._lags().max()) + 1, n))
-        state = SimState(q, qd, link[0], link[1], commands, key)
+        state = SimState(q, qd, link[0], link[1], commands, key, jnp.zeros((), jnp.uint32))
         return state, self.measure(state)
 
     def measure(self, state: SimState) -> Array:
@@ -177,9 +203,9 @@ class Simulator(Plant):
         commands = jnp.concatenate([u[None], state.commands[:-1]])
         key = state.key
         held = commands  # zero-order hold + delay: sub-step j applies held[lag_j]
-        if self.torque_noise:
-            key, sub = jax.random.split(key)
-            held = held + self.torque_noise * jax.random.normal(sub, u.shape)
+        if self.torque_noise:  # the key stays; the period's counter picks the draw
+            held = held + self.torque_noise * white_noise(key, state.tick, u.shape[0]).astype(held.dtype)
+        tick = state.tick + jnp.uint32(1)
         h = self.dt / self.substeps
         n, s = self.model.n_joints, self.model.structure
         # The sub-steps run on per-joint scalars (see manus.plants.structures), stacked once per period;
@@ -201,14 +227,14 @@ class Simulator(Plant):
                 return self._substep_rigid(*carry, tau_of(is_late), h), None
             carry = (q, qd, s.pose(q), self._half_shift(qd, h), self._bounds_ahead(q, qd, h))
             (q, qd, *_), _ = jax.lax.scan(body, carry, xs, length=self.substeps)
-            new = SimState(jnp.stack(q), jnp.stack(qd), None, None, commands, key)
+            new = SimState(jnp.stack(q), jnp.stack(qd), None, None, commands, key, tick)
         else:
             lq, lqd = joints(state.link_q, n), joints(state.link_qd, n)
             def body(carry, is_late):
                 return self._substep_compliant(*carry, tau_of(is_late), h), None
             carry = (q, qd, lq, lqd, s.pose(lq), self._half_shift(lqd, h), self._bounds_ahead(q, qd, h, "motor"))
             (q, qd, lq, lqd, *_), _ = jax.lax.scan(body, carry, xs, length=self.substeps)
-            new = SimState(jnp.stack(q), jnp.stack(qd), jnp.stack(lq), jnp.stack(lqd), commands, key)
+            new = SimState(jnp.stack(q), jnp.stack(qd), jnp.stack(lq), jnp.stack(lqd), commands, key, tick)
         return new, self.measure(new)
 
     # -- dynamics, on per-joint scalars -----------------------------------------------------

@@ -171,6 +171,51 @@ def test_a_sliding_joint_stops_where_the_closed_form_says_and_stays_stopped():
         assert q[stop, j] - q[0, j] == pytest.approx(v0**2 / (2 * decel), rel=1e-3)
 
 
+def test_the_torque_noise_is_white_and_gaussian_as_numpys_generator_is():
+    """`white_noise` (counter-based Threefry, float32 erf⁻¹) against numpy's standard normal draws,
+    the same statistics with the same bounds: mean, variance, autocorrelation at lags 1–5, the
+    joints and two keys uncorrelated, the distribution (two-sample KS, the 3σ tails)."""
+    from scipy.stats import ks_2samp
+
+    from manus.plants.simulator import white_noise
+
+    n_ticks, n = 100_000, 3  # three joints: two Threefry blocks per tick
+    draw = jax.jit(jax.vmap(white_noise, in_axes=(None, 0, None)), static_argnums=2)
+    ticks = jnp.arange(n_ticks, dtype=jnp.uint32)
+    ours = np.asarray(draw(jax.random.PRNGKey(5), ticks, n), float)
+    other_key = np.asarray(draw(jax.random.PRNGKey(6), ticks, n), float)
+    numpys = np.random.default_rng(0).standard_normal((n_ticks, n))
+    bound = 4.5 / math.sqrt(n_ticks)  # 4.5 standard errors of a correlation (or of a mean per draw)
+
+    def corr(a, b):
+        return float(np.mean((a - a.mean()) * (b - b.mean())) / (a.std() * b.std()))
+
+    for z in (ours, numpys):
+        assert np.all(np.isfinite(z))
+        assert abs(z.mean()) < bound / math.sqrt(n)
+        assert abs(z.var() - 1.0) < bound * math.sqrt(2.0 / n)
+        for j in range(n):
+            for lag in range(1, 6):
+                assert abs(corr(z[lag:, j], z[:-lag, j])) < bound, (j, lag)
+            assert abs(corr(z[:, j], z[:, (j + 1) % n])) < bound
+        tails = np.mean(np.abs(z) > 3.0)  # 0.27 % for a Gaussian
+        assert abs(tails - 0.0027) < 4.5 * math.sqrt(0.0027 / z.size)
+    assert abs(corr(ours[:, 0], other_key[:, 0])) < bound
+    assert ks_2samp(ours.ravel(), numpys.ravel()).pvalue > 1e-3
+    assert np.abs(ours).max() < 5.5  # 24 random bits per draw: the tails stop at 5.4
+
+
+def test_the_plant_adds_the_noise_draw_of_each_period_to_the_held_torque():
+    """A free unit mass per joint, no command: each period the velocity moves by σ z_k T exactly,
+    z_k the draw of period k under the reset's key."""
+    from manus.plants.simulator import white_noise
+
+    sim = Simulator(Model(Axis(n_joints=2), "rigid"), actuator=None, encoder=None, torque_noise=0.1)
+    _, qd, _ = open_loop(sim, np.zeros((501, 2)), key=jax.random.PRNGKey(9))
+    z = jax.vmap(white_noise, in_axes=(None, 0, None))(jax.random.PRNGKey(9), jnp.arange(500, dtype=jnp.uint32), 2)
+    np.testing.assert_allclose(np.diff(qd, axis=0) / (0.1 * 1e-3), np.asarray(z, float), rtol=1e-9, atol=1e-9)
+
+
 def test_batch_equals_the_same_trials_one_by_one():
     plant = Simulator(Model(Manus2(), "rigid,viscous,coulomb,delay"), torque_noise=0.01)
     gains = jnp.array([10.0, 30.0, 60.0])
