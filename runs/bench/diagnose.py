@@ -407,7 +407,7 @@ def render_calibration(r: dict) -> str:
              f"  detection (verdict = hidden effect):       {_pct(s['detection']['named'])}",
              f"  ... or among the verdict's readings:       {_pct(s['detection']['named_or_reading'])}  (the verdict "
              "names the hidden effect as a reading this recording cannot tell from it)",
-             f"  ... and with the right joint:              {_pct(s['detection']['right_joint'])}",
+             f"  ... of those, on the right joint:          {_pct(s['detection']['right_joint'])}",
              f"  detection where the hidden effect is distinct (>= {100 * s['detection_where_distinct']['threshold']:g} % "
              f"of the torque no other reading explains): {_pct(s['detection_where_distinct']['named'])}",
              f"  'something left' on nothing missing:      {_pct(s['unexplained_on_null'])}",
@@ -419,7 +419,7 @@ def render_calibration(r: dict) -> str:
     for name, e in s["per_effect"].items():
         d = where.get(name, {}).get("named", {"n": 0})
         lines.append(f"{name:<14}{_pct(e['named']):<32}{_pct(e['named_or_reading']):<32}{_pct(d):<32}{e['verdicts']}")
-    lines += ["", f"{'condition':<24}{'false alarm':<32}{'named':<32}right joint"]
+    lines += ["", f"{'condition':<24}{'false alarm':<32}{'named':<32}named or a reading, on its joint"]
     for key, values in s["per_condition"].items():
         for v, x in values.items():
             lines.append(f"{key + '=' + v:<24}{_pct(x['false_alarm']):<32}{_pct(x['named']):<32}{_pct(x['right_joint'])}")
