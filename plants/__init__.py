@@ -2,6 +2,7 @@
 
 from manus.plants.effects import VOCABULARY, Effect, Model, parse_effects
 from manus.plants.errors import ManusError, ModelError, RecordingError
+from manus.plants.serial import Serial, SerialBase
 from manus.plants.simulator import Actuator, Encoder, Simulator
 from manus.plants.stepper import Controller, Plant, Reference, RefSample
 from manus.plants.structures import Axis, Manus2, Structure, structure_named
@@ -9,5 +10,5 @@ from manus.plants.structures import Axis, Manus2, Structure, structure_named
 __all__ = [
     "VOCABULARY", "Effect", "Model", "parse_effects", "ManusError", "ModelError", "RecordingError",
     "Actuator", "Encoder", "Simulator", "Controller", "Plant", "Reference", "RefSample",
-    "Axis", "Manus2", "Structure", "structure_named",
+    "Axis", "Manus2", "Serial", "SerialBase", "Structure", "structure_named",
 ]

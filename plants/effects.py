@@ -358,6 +358,8 @@ class Gravity(Effect):
         return th[:n] * fastmath.cos(q) + th[n:] * fastmath.sin(q)
 
     def applies(self, s, prismatic=()):
+        if getattr(s, "rigid_gravity", ""):  # a structure whose rigid effect holds gravity says why
+            return s.rigid_gravity
         if any(prismatic):
             return "gravity is a cos/sin of a joint angle: it does not apply to a prismatic axis (a constant load there is an offset)"
         return None

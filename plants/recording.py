@@ -7,7 +7,10 @@
     0.0000,0.474383559,2.405186002,0.155845,1.208326,0.607345,0.003299
 
 Columns: `t` [s]; `q1..qn` measured positions; `tau1..taun` commanded torques; optional
-`qd1..qdn` true velocities; any other column is kept in `extra`. A file that breaks the rules is
+`qd1..qdn` true velocities; any other column is kept in `extra`. A serial robot's recording says
+`# structure: urdf` and `# robot: PATH` (its URDF file, relative to the recording; `read(...,
+robot=FILE)` and the command line's `--robot FILE.urdf` give or replace it); its joint count must
+be the URDF chain's. A file that breaks the rules is
 refused with a `RecordingError` naming the file, the line and the problem. One exception, so that
 a run killed mid-write is still readable: an incomplete last line (no newline at the end of the
 file) is dropped with a warning: when it does not parse as a row, and always in a file whose
@@ -29,7 +32,7 @@ import numpy as np
 from manus.plants.errors import RecordingError
 from manus.plants.structures import Structure, structure_named
 
-STRUCTURES = ("manus2", "axis")
+STRUCTURES = ("manus2", "axis", "urdf")
 
 
 @dataclass
@@ -41,6 +44,8 @@ class Recording:
     meta: dict[str, str] = field(default_factory=dict)
     extra: dict[str, np.ndarray] = field(default_factory=dict)
     path: str = "<memory>"
+    # a serial chain read once (structure urdf), or given by whoever made the recording in memory
+    serial: Structure | None = field(default=None, repr=False, compare=False)
 
     @property
     def n_joints(self) -> int:
@@ -74,8 +79,10 @@ class Recording:
 
     @property
     def prismatic(self) -> tuple[bool, ...]:
-        """Per joint: a linear axis (metadata `joints`: `prismatic` or `revolute`, one for all or
-        one per joint; default revolute)."""
+        """Per joint: a linear axis (a serial chain's from its URDF; otherwise metadata `joints`:
+        `prismatic` or `revolute`, one for all or one per joint; default revolute)."""
+        if self.structure_name == "urdf":
+            return tuple(self.structure.prismatic)
         kinds = [k.strip().lower() for k in self.meta.get("joints", "revolute").split(",")]
         kinds = kinds * self.n_joints if len(kinds) == 1 else kinds
         return tuple(k == "prismatic" for k in kinds[:self.n_joints])
@@ -91,8 +98,24 @@ class Recording:
         return self.meta.get("structure") or ("manus2" if self.n_joints == 2 else "axis")
 
     @property
+    def robot(self) -> Path | None:
+        """The URDF file of a serial chain (metadata `robot`, relative to the recording's folder;
+        an in-memory recording's relative to the working directory)."""
+        robot = self.meta.get("robot")
+        if not robot:
+            return None
+        p = Path(robot)
+        if p.is_absolute() or self.path == "<memory>":
+            return p
+        return Path(self.path).parent / p
+
+    @property
     def structure(self) -> Structure:
-        return structure_named(self.structure_name, self.n_joints)
+        if self.structure_name != "urdf":
+            return structure_named(self.structure_name, self.n_joints)
+        if self.serial is None:
+            self.serial = _serial_of(self)
+        return self.serial
 
     @property
     def has_truth(self) -> bool:
@@ -110,13 +133,34 @@ class Recording:
         """Samples start:stop, as a recording of its own."""
         sl = slice(start, stop)
         return Recording(self.t[sl], self.q[sl], self.tau[sl], None if self.qd is None else self.qd[sl],
-                         dict(self.meta), {k: v[sl] for k, v in self.extra.items()}, self.path)
+                         dict(self.meta), {k: v[sl] for k, v in self.extra.items()}, self.path, self.serial)
+
+
+def _serial_of(rec: Recording) -> Structure:
+    """The serial chain a `structure: urdf` recording names, its joint count checked against the
+    recording's; a `RecordingError` naming the recording otherwise."""
+    from manus.plants.errors import ModelError
+
+    robot = rec.robot
+    if robot is None:
+        raise RecordingError(f"{rec.path}: structure urdf needs the robot's URDF: a '# robot: PATH' line (relative to "
+                             "the recording) or --robot FILE.urdf")
+    if not robot.is_file():
+        raise RecordingError(f"{rec.path}: robot {robot}: no such URDF file" +
+                             (f" (the metadata's {rec.meta['robot']!r} is read relative to the recording's folder)"
+                              if not Path(rec.meta["robot"]).is_absolute() else ""))
+    try:
+        return structure_named("urdf", rec.n_joints, robot)
+    except ModelError as e:
+        raise RecordingError(f"{rec.path}: robot {e}" if str(e).startswith(str(robot)) else f"{rec.path}: {e}") from None
 
 
 # -- reading ------------------------------------------------------------------------------------
 
-def read(path: str | os.PathLike) -> Recording:
-    """Read a recording: `.csv`, `.npz`, or an EMPS `.mat` file."""
+def read(path: str | os.PathLike, robot: str | os.PathLike | None = None) -> Recording:
+    """Read a recording: `.csv`, `.npz`, or an EMPS `.mat` file. `robot` (a URDF file) makes it a
+    serial chain's recording (`structure: urdf`), whatever its metadata says; a `structure: urdf`
+    recording's URDF is read and its joint count checked here."""
     path = Path(path)
     if not path.exists():
         raise RecordingError(f"{path}: no such file")
@@ -124,10 +168,18 @@ def read(path: str | os.PathLike) -> Recording:
         raise RecordingError(f"{path}: is a directory, not a recording")
     suffix = path.suffix.lower()
     if suffix == ".npz":
-        return _read_npz(path)
-    if suffix == ".mat":
-        return _read_mat(path)
-    return _read_csv(path)
+        rec = _read_npz(path)
+    elif suffix == ".mat":
+        rec = _read_mat(path)
+    else:
+        rec = _read_csv(path)
+    if robot is not None:
+        rec.meta["structure"] = "urdf"
+        rec.meta["robot"] = str(Path(robot).absolute())
+        rec.meta.pop("joints", None)  # the URDF says which joints are prismatic
+    if rec.structure_name == "urdf":
+        rec.structure  # noqa: B018 (read and checked now: a bad robot is the recording's error)
+    return rec
 
 
 def _fail(path, line, problem):
@@ -368,10 +420,13 @@ def write(rec: Recording, path: str | os.PathLike) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     cols = rec.columns()
+    meta = dict(rec.meta)
+    if rec.robot is not None:  # relative to where the file goes
+        meta["robot"] = os.path.relpath(rec.robot.absolute(), path.parent.absolute())
     if path.suffix.lower() == ".npz":
-        np.savez(path, **cols, **{k: np.asarray(v) for k, v in rec.meta.items()})
+        np.savez(path, **cols, **{k: np.asarray(v) for k, v in meta.items()})
         return path
-    with RecordingWriter(path, list(cols), rec.meta) as w:
+    with RecordingWriter(path, list(cols), meta) as w:
         w.append(np.stack(list(cols.values()), 1))
     return path
 
@@ -428,13 +483,27 @@ class RecordingWriter:
         self.close()
 
 
-def from_trajectory(traj, rate_hz: float, structure: str, counts_per_rev: float | None = None,
+def from_trajectory(traj, rate_hz: float, structure: str | Structure, counts_per_rev: float | None = None,
                     meta: dict | None = None) -> Recording:
-    """A recording of a simulated closed-loop run (with its true velocities and reference)."""
+    """A recording of a simulated closed-loop run (with its true velocities and reference).
+    `structure`: a name, or the structure itself; a serial chain (`Serial`, or its base form)
+    makes a `structure: urdf` recording whose `robot` is the chain's URDF file (written relative
+    to the recording by `write`)."""
     n = traj.q.shape[1]
+    serial = None
+    if not isinstance(structure, str):
+        serial = getattr(structure, "serial", structure)  # a base form's chain
+        structure = serial.name
     m = {"sample_rate_hz": f"{rate_hz:g}", "structure": structure, "command_hold": "zoh"}
     if counts_per_rev:
         m["counts_per_rev"] = f"{counts_per_rev:g}"
+    if serial is not None and structure == "urdf":
+        if not serial.source:
+            raise RecordingError("a serial chain's recording names its URDF file: this chain was not read from one")
+        m["robot"] = str(Path(serial.source).absolute())
+    else:
+        serial = None
     m.update(meta or {})
     extra = {f"qref{i + 1}": np.asarray(traj.q_ref[:, i]) for i in range(n)}
-    return Recording(np.asarray(traj.t), np.asarray(traj.q), np.asarray(traj.tau), np.asarray(traj.qd_true), m, extra)
+    return Recording(np.asarray(traj.t), np.asarray(traj.q), np.asarray(traj.tau), np.asarray(traj.qd_true), m, extra,
+                     serial=serial)

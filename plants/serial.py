@@ -32,10 +32,16 @@ against the RNEA and pinocchio.
 
 ## What else is here
 
+- The effect protocol: `Model(serial, "rigid,viscous,coulomb,offset")` holds the chain's rigid
+  effect (gravity included) and the per-joint effects, each acting on its joint's own relative
+  coordinate (b_i q̇_i, Fc_i sgn(q̇_i), ...). The per-joint cos/sin `gravity` effect does not apply
+  (`rigid_gravity` says why: gravity is part of rigid here).
+- The simulator's joint-tuple form (`pose`, `mass`, `bias`): `manus.plants.simulator.Simulator`
+  takes a serial chain, its H(q) dense and its coupled stick-slip step the box QP of
+  `manus.plants.serial_friction`; `manus.plants.serial_sim` drives it into a recording.
 - `base_parameters`: the identifiable combinations of the standard parameters (Gautier's
-  numerical method: QR with column pivoting of a regressor stacked over random states).
-- Not yet: the simulator's joint-tuple form (`pose`, `mass`, `friction_solve`, ...), so serial
-  chains cannot be simulated yet; recordings with `structure: urdf` are not read yet.
+  numerical method: QR with column pivoting of a regressor stacked over random states), and
+  `SerialBase`, the chain in those parameters: the structure `manus fit` identifies.
 """
 
 from __future__ import annotations
@@ -53,10 +59,13 @@ import jax.numpy as jnp
 from jax import Array
 
 from manus.plants.errors import ModelError
+from manus.plants.serial_friction import Dense
 from manus.plants.structures import Structure
 
 LINK_PARAMETERS = ("m", "mx", "my", "mz", "Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz")
 GRAVITY = (0.0, 0.0, -9.81)  # m/s², the world's z axis up
+GRAVITY_IN_RIGID = ("a serial chain's gravity is part of rigid (the links' masses and first moments in the "
+                    "world's gravity): a cos/sin of each relative joint angle is not a physical effect there")
 
 
 # -- URDF parsing (numpy) -------------------------------------------------------------------------
@@ -130,6 +139,8 @@ class _Joint(NamedTuple):
 def _read(path) -> tuple[dict, dict]:
     """The URDF's links (name → element) and joints (name → `_Joint`)."""
     path = pathlib.Path(path)
+    if not path.is_file():
+        raise ModelError(f"{path}: no such URDF file")
     try:
         root = ET.parse(path).getroot()
     except (OSError, ET.ParseError) as e:
@@ -211,6 +222,7 @@ class Serial(Structure):
     """
 
     name: ClassVar[str] = "urdf"
+    rigid_gravity: ClassVar[str] = GRAVITY_IN_RIGID  # why the per-joint `gravity` effect does not apply
     n_joints: int = eqx.field(static=True)
     joint_names: tuple[str, ...] = eqx.field(static=True)
     prismatic: tuple[bool, ...] = eqx.field(static=True)
@@ -219,6 +231,7 @@ class Serial(Structure):
     axis: np.ndarray
     gravity: np.ndarray
     defaults: np.ndarray
+    source: str = eqx.field(default="", static=True)  # the URDF file it was read from
 
     @classmethod
     def from_urdf(cls, path, tip: str | None = None, armature=None, gravity=GRAVITY) -> "Serial":
@@ -229,14 +242,26 @@ class Serial(Structure):
         fingers) the chain ends, and the branches are locked at their zero position and merged,
         unless `tip` names the link the chain must reach. `armature` (one per joint
         [kg m² or kg]) overrides the `armature` attribute of the joints' `<dynamics>` (default 0).
-        `gravity` [m/s²] is given in the root link's frame.
+        `gravity` [m/s²] is given in the root link's frame. A file that is not such a URDF is
+        refused with a `ModelError` that names the file and the problem.
         """
+        try:
+            return cls._from_urdf(path, tip, armature, gravity)
+        except (ValueError, TypeError, AttributeError, KeyError, ZeroDivisionError) as e:
+            what = f"missing {e}" if isinstance(e, KeyError) else str(e)
+            raise ModelError(f"{path}: not a well-formed URDF ({type(e).__name__}: {what})") from None
+
+    @classmethod
+    def _from_urdf(cls, path, tip, armature, gravity) -> "Serial":
         links, joints = _read(path)
         children = {name: [] for name in links}
         for j in joints.values():
             if j.kind not in ("revolute", "continuous", "prismatic", "fixed"):
                 raise ModelError(f"{path}: joint {j.name} is {j.kind}; a serial chain takes revolute, "
                                  "continuous, prismatic and fixed joints")
+            if j.parent not in links or j.child not in links:
+                missing = j.parent if j.parent not in links else j.child
+                raise ModelError(f"{path}: joint {j.name} names the link {missing!r}, which the URDF does not have")
             children[j.parent].append(j)
         roots = set(links) - {j.child for j in joints.values()}
         if len(roots) != 1:
@@ -298,7 +323,7 @@ class Serial(Structure):
                    prismatic=tuple(j.kind == "prismatic" for j in chain),
                    rotation=np.stack([R for R, _ in placements]), translation=np.stack([p for _, p in placements]),
                    axis=np.stack([j.axis for j in chain]), gravity=np.asarray(gravity, dtype=float),
-                   defaults=np.concatenate([*inertials, arm]))
+                   defaults=np.concatenate([*inertials, arm]), source=str(path))
 
     # -- parameters -------------------------------------------------------------------------
     @property
@@ -369,9 +394,35 @@ class Serial(Structure):
         return tau + theta[10 * n:] * qdd
 
     def mass_matrix(self, q: Array, theta: Array) -> Array:
-        """H(q) (n, n), armature included: ∂τ/∂q̈ of the RNEA without velocity and gravity."""
+        """H(q) (n, n), armature included, by composite inertias in the root frame.
+
+        Joint i's unit motion is the twist ξ_i = S_i (as in `regressor`: (o0_i × s0_i, s0_i) for a
+        revolute joint, (s0_i, 0) for a prismatic one), link k's spatial inertia about the root's
+        origin M_k = [[m 1, −[h0]×], [[h0]×, I0]] (h0, I0: its first moment and inertia about that
+        origin, in the root frame), and H_ij = ξ_iᵀ (Σ_{k ≥ max(i, j)} M_k) ξ_j: the links beyond
+        both joints are the ones both move.
+        """
+        n = self.n_joints
         zero = jnp.zeros_like(q)
-        return jax.jacfwd(lambda qdd: self.rnea(q, zero, qdd, theta, gravity=False))(zero)
+        M = self.motion(q, zero, zero, gravity=False)
+        links = theta[: 10 * n].reshape(n, 10)
+        m, h, I = links[:, 0], links[:, 1:4], _inertia_tensor(links)
+        Rh = _mv(M.R0, h)
+        Io = M.R0 @ I @ jnp.swapaxes(M.R0, -1, -2)
+        So, Sh = _cross_matrix(M.o0), _cross_matrix(Rh)
+        T = lambda A: jnp.swapaxes(A, -1, -2)  # noqa: E731
+        I0 = Io + T(So) @ Sh + T(Sh) @ So + m[:, None, None] * (T(So) @ So)  # parallel axes to the root's origin
+        h0 = Rh + m[:, None] * M.o0
+        H0 = _cross_matrix(h0)
+        eye = jnp.broadcast_to(jnp.eye(3, dtype=I0.dtype), I0.shape) * m[:, None, None]
+        spatial = jnp.concatenate([jnp.concatenate([eye, -H0], -1), jnp.concatenate([H0, I0], -1)], -2)  # (n, 6, 6)
+        composite = jnp.cumsum(spatial[::-1], 0)[::-1]  # Σ over the links from k to the tip
+        s0 = _mv(M.R0, self.axis)
+        slide = jnp.asarray(self.prismatic)[:, None]
+        S = jnp.concatenate([jnp.where(slide, s0, jnp.cross(M.o0, s0)), jnp.where(slide, 0.0, s0)], -1)  # (n, 6)
+        beyond = np.maximum.outer(np.arange(n), np.arange(n))  # max(i, j)
+        H = jnp.einsum("ia,ijab,jb->ij", S, composite[beyond], S)
+        return H + jnp.diag(theta[10 * n:])
 
     def coriolis_times(self, q: Array, qd: Array, v: Array, theta: Array) -> Array:
         """C(q, q̇) v (n,) for the C of the Christoffel symbols of the first kind, C_ij = Σ_k c_ijk q̇_k,
@@ -454,11 +505,34 @@ class Serial(Structure):
                 for j in range(n) if theta[10 * n + j] < 0]
         return out
 
-    # -- the simulator's joint-tuple form: not yet for serial chains --------------------------
-    def _not_simulated(self, *args):
-        raise ModelError("the simulator does not take serial chains (structure urdf) yet")
+    # -- the simulator's joint-tuple form ----------------------------------------------------
+    # The pose is the configuration itself (H and C are computed from q by the RNEA each time);
+    # the mass matrix is dense, and its friction step the box QP of `manus.plants.serial_friction`.
+    def pose(self, q):
+        return tuple(q)
 
-    pose = shift = moved = mass = bias = _closed_form = _not_simulated
+    def shift(self, dq):
+        return tuple(dq)
+
+    def moved(self, pose, shift):
+        return tuple(a + b for a, b in zip(pose, shift))
+
+    def mass(self, pose, p):
+        return Dense(self.mass_matrix(jnp.stack(pose), self.theta(p)))
+
+    def bias(self, pose, qd, p):
+        """C(q, q̇) q̇ + g(q): gravity is part of `rigid` for serial chains."""
+        q = jnp.stack(pose)
+        tau = self.rnea(q, jnp.stack(qd), jnp.zeros_like(q), self.theta(p))
+        return tuple(tau[i] for i in range(self.n_joints))
+
+    def _closed_form(self, H):
+        return Dense(H)
+
+    # -- identification --------------------------------------------------------------------
+    def base(self) -> "SerialBase":
+        """This chain in its base parameters (`base_parameters`), the form identification uses."""
+        return _base_of(self)
 
 
 # -- base parameters -----------------------------------------------------------------------------------
@@ -513,3 +587,125 @@ def base_parameters(serial: Serial, samples: int = 200, seed: int = 0, tol: floa
                                          for b, d in ((K[i, d], d) for d in np.sort(dependent)) if b != 0)])
                    for i, c in enumerate(kept))
     return BaseParameters(kept, K, labels)
+
+
+_BASES: dict[tuple, BaseParameters] = {}
+
+
+def _base_of(serial: Serial) -> "SerialBase":
+    """`SerialBase` of a chain; its base parameters computed once per geometry (they do not depend
+    on the parameter values)."""
+    key = (serial.joint_names, serial.prismatic, *(np.asarray(getattr(serial, k), float).tobytes()
+                                                  for k in ("rotation", "translation", "axis", "gravity")))
+    if key not in _BASES:
+        _BASES[key] = base_parameters(serial)
+    b = _BASES[key]
+    standard = serial.rigid_names
+    names = tuple(standard[c] + ("R" if " " in label else "") for c, label in zip(b.columns, b.names))
+    return SerialBase(serial=serial, n_joints=serial.n_joints, columns=tuple(int(c) for c in b.columns),
+                      base_names=names, combinations=b.names, K=b.K)
+
+
+class SerialBase(Structure):
+    """A serial chain in its base parameters: what inverse-dynamics identification can know.
+
+    Its rigid parameters are θ_b = K θ (`BaseParameters`, Gautier's numerical QR), each named
+    after the standard parameter it keeps, with `R` appended when others are regrouped into it
+    (Khalil and Gautier's convention: `Izz2R` = Izz2 + 0.1·m3 + ...); `combinations` writes each
+    one out. The rigid torque is the base regressor (the kept columns of `Serial.regressor`) times
+    θ_b. H(q), C(q, q̇), g(q) and the simulator's joint-tuple form take the standard parameters with
+    θ_b in the kept places and zeros elsewhere: every standard θ with the same K θ gives the same
+    torque in every state, so they are the base parameters' own (which is also why a fitted set can
+    be simulated: the instruments of IDIM-IV).
+    """
+
+    name: ClassVar[str] = "urdf"
+    rigid_gravity: ClassVar[str] = GRAVITY_IN_RIGID
+    serial: Serial
+    n_joints: int = eqx.field(static=True)
+    columns: tuple[int, ...] = eqx.field(static=True)
+    base_names: tuple[str, ...] = eqx.field(static=True)
+    combinations: tuple[str, ...] = eqx.field(static=True)
+    K: np.ndarray
+    CHECK_STATES: ClassVar[int] = 64  # random configurations on which `violations` checks H(q) > 0
+
+    @property
+    def rigid_names(self):
+        return self.base_names
+
+    @property
+    def rigid_defaults(self):
+        return tuple(float(v) for v in self.K @ np.asarray(self.serial.defaults))
+
+    @property
+    def prismatic(self) -> tuple[bool, ...]:
+        return self.serial.prismatic
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return self.serial.joint_names
+
+    def values(self, theta) -> np.ndarray:
+        """The base parameters (r,) of standard parameters θ (11 n,)."""
+        return self.K @ np.asarray(theta, float)
+
+    def standard(self, p: dict) -> Array:
+        """A standard parameter vector with these base parameters: θ_b in the kept places, zeros elsewhere."""
+        theta_b = jnp.stack([jnp.asarray(p[k]) for k in self.base_names])
+        return jnp.zeros(len(self.serial.rigid_names), theta_b.dtype).at[jnp.asarray(self.columns)].set(theta_b)
+
+    def regressor(self, q: Array, qd: Array, qdd: Array) -> Array:
+        """The base regressor (n, r)."""
+        return self.serial.regressor(q, qd, qdd)[:, jnp.asarray(self.columns)]
+
+    # -- matrix form ---------------------------------------------------------------------------
+    def rigid_torque(self, q, qd, qdd, p):
+        theta_b = jnp.stack([jnp.asarray(p[k]) for k in self.base_names])
+        return self.regressor(q, qd, qdd) @ theta_b
+
+    def inertia(self, q, p):
+        return self.serial.mass_matrix(q, self.standard(p))
+
+    def coriolis(self, q, qd, p):
+        theta = self.standard(p)
+        return jax.jacfwd(lambda v: self.serial.coriolis_times(q, qd, v, theta))(jnp.zeros_like(qd))
+
+    def solve(self, H, r):
+        return jnp.linalg.solve(H, r)
+
+    def violations(self, p):
+        """Base parameters are combinations, so the pseudo-inertia of a link cannot be checked;
+        what can: H(q) positive definite (on `CHECK_STATES` random configurations)."""
+        rng = np.random.default_rng(0)
+        span = np.where(self.serial.prismatic, 0.5, np.pi)
+        q = rng.uniform(-span, span, (self.CHECK_STATES, self.n_joints))
+        with jax.enable_x64(True):
+            theta = self.standard({k: float(p[k]) for k in self.base_names})
+            H = np.asarray(jax.jit(jax.vmap(lambda q: self.serial.mass_matrix(q, theta)))(q))
+        low = np.linalg.eigvalsh(H)[:, 0]
+        bad = int(np.sum(~(low > 0)))
+        if not bad:
+            return []
+        return [f"the base parameters give an inertia matrix H(q) that is not positive definite (in {bad} of "
+                f"{len(q)} random configurations, smallest eigenvalue {low.min():.3g}): no physical robot has them"]
+
+    # -- the simulator's joint-tuple form (see `Serial`) -----------------------------------------
+    def pose(self, q):
+        return tuple(q)
+
+    def shift(self, dq):
+        return tuple(dq)
+
+    def moved(self, pose, shift):
+        return tuple(a + b for a, b in zip(pose, shift))
+
+    def mass(self, pose, p):
+        return Dense(self.serial.mass_matrix(jnp.stack(pose), self.standard(p)))
+
+    def bias(self, pose, qd, p):
+        q = jnp.stack(pose)
+        tau = self.serial.rnea(q, jnp.stack(qd), jnp.zeros_like(q), self.standard(p))
+        return tuple(tau[i] for i in range(self.n_joints))
+
+    def _closed_form(self, H):
+        return Dense(H)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from manus.runs.common import add_common, note, table
+from manus.runs.common import add_common, add_robot_option, note, read_recording, table
 
 NAME = "estimators"
 HELP = "compare every velocity estimator on a recording (against its true velocity, or the offline reference)"
@@ -10,6 +10,7 @@ HELP = "compare every velocity estimator on a recording (against its true veloci
 
 def add_arguments(p) -> None:
     p.add_argument("recording", metavar="REC", help="a recording (.csv, .npz, or an EMPS .mat file)")
+    add_robot_option(p)
     p.add_argument("--tune", action="store_true",
                    help="tune each estimator's knob on the recording first (against the true velocity, "
                         "else by the whiteness of its prediction residual)")
@@ -27,7 +28,7 @@ def add_arguments(p) -> None:
 def run(args) -> dict:
     from manus.estimators import NAMES
     from manus.estimators.compare import compare
-    from manus.plants import Model, recording
+    from manus.plants import Model
     from manus.plants.errors import ManusError
     from manus.runs.plants_cli import parse_params
 
@@ -37,10 +38,12 @@ def run(args) -> dict:
         raise ManusError(f"unknown estimator {unknown[0]!r}: the estimators are {', '.join(NAMES)}")
     if args.cutoff <= 0:
         raise ManusError("--cutoff must be positive")
-    rec = recording.read(args.recording)
+    rec = read_recording(args)
     model_knobs = {"structure": rec.structure_name}
-    if args.model:
-        model_knobs["model"] = Model(rec.structure, args.model)
+    if args.model or rec.structure_name == "urdf":  # a serial chain's model is built on the recording's robot
+        from manus.estimators.registry import NOMINAL_MODEL
+
+        model_knobs["model"] = Model(rec.structure, args.model or NOMINAL_MODEL)
     if args.param:
         model_knobs["params"] = parse_params(args.param)
     note(f"{rec.path}: {len(rec)} samples of {rec.n_joints} joint(s) at {rec.sample_rate_hz:g} Hz, "

@@ -7,15 +7,16 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from manus.runs.common import add_common, note, table
+from manus.runs.common import add_common, add_robot_option, note, read_recording, table
 
 NAME = "fit"
 HELP = "identify a model's parameters from a recording (inverse dynamics), with std, rel_error and a compare figure"
 
 
 def add_model_options(p, required: bool = True) -> None:
-    """REC, --model and --cutoff: shared by fit, diagnose and discover."""
+    """REC, --robot, --model and --cutoff: shared by fit, diagnose and discover."""
     p.add_argument("recording", metavar="REC", help="a recording (.csv, .npz, or an EMPS .mat file)")
+    add_robot_option(p)
     p.add_argument("--model", required=required, metavar="EFFECTS",
                    help="effects of the model, e.g. rigid,viscous,coulomb (an argument fixes a non-linear "
                         "parameter: cogging:39, delay:1ms; without one it is searched)")
@@ -42,7 +43,6 @@ def add_arguments(p) -> None:
 def load(args, proposing: bool = False):
     """The recording and the model text, checked: a one-line error for bad input. `proposing`
     (diagnose, discover): a model holding every effect leaves nothing to propose."""
-    from manus.plants import recording
     from manus.plants.effects import ORDER, parse_effects
     from manus.plants.errors import ManusError
 
@@ -51,7 +51,7 @@ def load(args, proposing: bool = False):
     effects = parse_effects(args.model)  # unknown names, duplicates: refused before the file is read
     if proposing and len(effects) == len(ORDER):
         raise ManusError(f"the model {args.model} already holds every effect of the vocabulary: nothing is left to propose")
-    rec = recording.read(args.recording)
+    rec = read_recording(args)
     if getattr(args, "hold", None):
         rec.meta["command_hold"] = args.hold
     note(f"{rec.path}: {len(rec)} samples of {rec.n_joints} joint(s) at {rec.sample_rate_hz:g} Hz ({rec.structure_name})")

@@ -15,6 +15,20 @@ def add_common(parser, out: bool = True) -> None:
                             help=f"where figures go (default {DEFAULT_OUT}/)")
 
 
+def add_robot_option(parser) -> None:
+    """--robot: shared by every command that reads a recording."""
+    parser.add_argument("--robot", metavar="FILE.urdf",
+                        help="the robot's URDF: the recording is this serial chain's (structure urdf), whatever its "
+                             "metadata says (a recording can also name it: '# structure: urdf', '# robot: PATH')")
+
+
+def read_recording(args):
+    """The recording `args.recording`, a serial chain's when `--robot` names its URDF."""
+    from manus.plants import recording
+
+    return recording.read(args.recording, robot=getattr(args, "robot", None))
+
+
 def note(*parts) -> None:
     """A progress note or remark for the person at the terminal: stderr, never stdout."""
     print(*parts, file=sys.stderr, flush=True)

@@ -213,5 +213,5 @@ def test_refuses_what_is_not_a_serial_chain(tmp_path):
     with pytest.raises(ModelError, match="branches into j1, j2: name the tip link"):
         Serial.from_urdf(path)
     assert Serial.from_urdf(path, tip="c").joint_names == ("j2",)
-    with pytest.raises(ModelError, match="not a readable URDF"):
+    with pytest.raises(ModelError, match="no such URDF file"):
         Serial.from_urdf(tmp_path / "missing.urdf")
