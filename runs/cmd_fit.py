@@ -105,6 +105,10 @@ def render(r: dict) -> str:
              f"  method {r['method']}: {r['method_why']}",
              f"  cut-off: {r['cutoff_note']}; command hold: {r['hold']}",
              table(rows, ["parameter", "value", "std", "std %"])]
+    regrouped = {k: v for k, v in r.get("base_parameters", {}).items() if k != v}
+    if regrouped:  # a serial chain: the base parameters that are combinations of standard ones
+        lines.append("  base parameters (identifiable combinations of the standard ones; the others are themselves):")
+        lines += [f"    {k} = {v}" for k, v in regrouped.items()]
     for k, v in r.get("nonlinear", {}).items():
         lines.append(f"  {k} = {v:.6g} (searched or fixed)")
     for v in r.get("violations", []):
