@@ -25,7 +25,7 @@ joints (H not diagonal) one joint's stiction moves the others, so the box is sol
 3. otherwise the better of the two (PGS's iterate, the clipped polish) starts the next round;
    `ROUNDS` rounds in all (a fixed amount of work: the sub-step is one compiled function).
 
-Tolerance (tests/plants/test_serial_sim.py: 400 random Panda configurations with random
+Tolerance (tests/plants/test_serial_sim.py: 200 random Panda configurations with random
 armatures, levels (some zero) and velocities, 0 to 7 joints stuck, against a bounded
 least-squares solution by scipy's BVLS): every case confirmed exact by the polish, |f − f*| below
 1e-13 of the levels (rounding). PGS alone after the same 30 sweeps errs by up to 3e-4 of the
