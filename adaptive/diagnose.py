@@ -70,7 +70,7 @@ class Candidate:
     cv_error_reduction: float
     p_value: float
     significant: bool
-    joint: int  # 1-based: the joint where it removes most
+    joint: int  # 1-based: where its own parameters are most significant (else where it removes most)
     detail: dict
     n_params: int
     cv_sse: np.ndarray  # (blocks,) held-out squared error with the candidate
@@ -295,8 +295,30 @@ def _judge(data, cols, icols, base, base_sse, starts, folds, whole, e0, values, 
     spec = ",".join(e.spec for e in (*brought, chosen))
     note = (f"{', '.join(held)} held at {'its' if len(held) == 1 else 'their'} physical bound (fitted free, "
             f"{'it breaks' if len(held) == 1 else 'they break'} the effect's rule)") if held else ""
+    joint = _own_joint(cols, f, own, data.n_joints)
+    joint = int(np.argmax(per_joint)) if joint is None else joint
     return Candidate(e0.name, chosen.spec if not brought else spec, reduction, cv_red, p, significant,
-                     int(np.argmax(per_joint)) + 1, detail, n_params, sse, fit=f, problems=problems, note=note)
+                     joint + 1, detail, n_params, sse, fit=f, problems=problems, note=note)
+
+
+def _own_joint(cols, f, own, n: int) -> int | None:
+    """The joint (0-based) whose own parameters of the candidate are the most significant: the
+    sum of (θ/σ)² over the parameters whose column acts on that joint alone. Where the residual
+    falls on every joint (in a coupled chain a missing term bends the shared inertial parameters,
+    and every joint's error drops), this still names where the effect acts. None when no
+    parameter belongs to one joint (a delay; the arm's coupling term): the caller falls back on
+    the per-joint error reduction."""
+    score = np.zeros(n)
+    for e in own:
+        if not e.linear:
+            continue
+        on = np.abs(cols.effect(e)).max(axis=0) > 0  # (n, p): the joints each column acts on
+        for k, name in enumerate(e.names(f.model.structure)):
+            joints = np.flatnonzero(on[:, k])
+            v, sd = f.params.get(name), f.stds.get(name)
+            if joints.size == 1 and v is not None and sd is not None and np.isfinite(sd) and sd > 0:
+                score[joints[0]] += (v / sd) ** 2
+    return int(np.argmax(score)) if score.max() > 0 else None
 
 
 def _compliance(data, base, blocks, alpha, min_share) -> Candidate | None:

@@ -179,11 +179,6 @@ def test_diagnose_names_the_hidden_offset(panda_diagnosis):
     assert abs(offsets["off4"] - 0.5) < 0.01 and max(abs(v) for k, v in offsets.items() if k != "off4") < 0.01
 
 
-@pytest.mark.xfail(strict=True, reason="diagnose's `joint` is the joint whose residual the candidate reduces most in "
-                   "relative terms (adaptive/diagnose.py, _judge: argmax of per_joint_error_reduction). In a coupled "
-                   "chain the missing offset bends the shared base parameters (gravity's first moments), so every "
-                   "joint's residual falls by 92-97 % and the largest of these is another joint's (joint 6 here). "
-                   "Needed: the joint where the candidate's own fitted torque is largest against that joint's residual")
 def test_diagnose_names_the_joint_of_the_hidden_offset(panda_diagnosis):
     verdict = next(c for c in panda_diagnosis["candidates"] if c["effect"] == panda_diagnosis["verdict"])
     assert verdict["joint"] == 4
