@@ -20,7 +20,11 @@ import os
 import pkgutil
 import sys
 
-from manus import runs
+# numpy's small batched solves on one BLAS thread (on a busy 2-core machine OpenBLAS's threads
+# spin-wait far longer than these products take); must precede the first numpy import.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+from manus import runs  # noqa: E402
 # Measured on this CPU (docs/performance.md): compile a whole scan body as one
 # function, and expose both cores as devices for sharded batches. Must precede the JAX import.
 XLA_FLAGS = ("--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000000",

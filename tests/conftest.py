@@ -3,7 +3,11 @@
 import os
 import pathlib
 
-import jax
+# numpy's small batched solves (diagnose's folds) on one BLAS thread: on a busy 2-core machine
+# OpenBLAS's threads spin-wait far longer than the work takes. Must precede the first numpy import.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import jax  # noqa: E402
 import pytest
 
 jax.config.update("jax_enable_x64", True)
