@@ -124,14 +124,44 @@ class Projection(eqx.Module):
         theta = jnp.maximum(theta, self.lower)
         if self.cone is None:
             return theta
-        i, j, k = self.cone
-        eps, g = self.min_inertia, gamma
-        u, v, w = theta[i] - eps, theta[j], theta[k] - eps
+        cone, eps = self.cone, self.min_inertia
+        outside = lambda t: _outside_cone(t, cone, eps)
+        onto = lambda t, g: _onto_cone(t, g, cone, eps)
+        keep = lambda t, g: t
 
-        pu, pv, pw = project_psd2(u, v, w, g[i], g[j], g[k])
-        # a select, no branch: under vmap a `cond` runs both sides anyway, and the projection is
-        # a few dozen flops; inside the cone θ comes back bit for bit
-        inside = (u >= 0) & (w >= 0) & (u * w >= v * v)
-        moved = {i: pu + eps, j: pv, k: pw + eps}  # θ rebuilt from its entries: no scatter under vmap
-        projected = jnp.stack([moved[m] if m in moved else theta[m] for m in range(theta.shape[-1])])
-        return jnp.where(inside, theta, projected)
+        # Only a point outside the cone needs the projection (inside, θ comes back bit for bit):
+        # one trial branches on it; under vmap, where a `cond` on a per-trial flag would become a
+        # select of both sides, the batch branches once on whether any of its trials is outside,
+        # which is rare after the first ticks (docs/performance.md)
+        @jax.custom_batching.custom_vmap
+        def onto_cone(theta, gamma):
+            return jax.lax.cond(outside(theta), onto, keep, theta, gamma)
+
+        @onto_cone.def_vmap
+        def onto_cone_batched(axis_size, in_batched, theta, gamma):
+            theta, gamma = (x if batched else jnp.broadcast_to(x, (axis_size,) + x.shape)
+                            for x, batched in zip((theta, gamma), in_batched))
+            # entries first (the batch vectors contiguous, as the batch keeps them)
+            theta, gamma = theta.T, gamma.T
+            any_outside = jnp.any(outside(theta))
+            theta = jax.lax.cond(any_outside, jax.vmap(onto, in_axes=-1, out_axes=-1), keep, theta, gamma)
+            return theta.T, True
+
+        return onto_cone(theta, gamma)
+
+
+def _outside_cone(theta: Array, cone: tuple[int, int, int], eps: float) -> Array:
+    """Whether θ (P,) lies outside the inertia cone M ⪰ ε I (M from the entries `cone` of θ)."""
+    i, j, k = cone
+    u, v, w = theta[i] - eps, theta[j], theta[k] - eps
+    return ~((u >= 0) & (w >= 0) & (u * w >= v * v))
+
+
+def _onto_cone(theta: Array, gamma: Array, cone: tuple[int, int, int], eps: float) -> Array:
+    """θ with its inertias projected onto the cone; a point inside comes back bit for bit."""
+    i, j, k = cone
+    u, v, w = theta[i] - eps, theta[j], theta[k] - eps
+    pu, pv, pw = project_psd2(u, v, w, gamma[i], gamma[j], gamma[k])
+    moved = {i: pu + eps, j: pv, k: pw + eps}  # θ rebuilt from its entries: no scatter under vmap
+    projected = jnp.stack([moved[m] if m in moved else theta[m] for m in range(theta.shape[-1])])
+    return jnp.where(_outside_cone(theta, cone, eps), projected, theta)
