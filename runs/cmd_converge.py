@@ -28,6 +28,7 @@ NAME = "converge"
 HELP = "parameter-convergence trials of the Slotine-Li adaptive controller (thesis App. C), vmapped"
 TRAJECTORIES = ("complex", "benign", "multisine")
 EVERY = 50  # ticks between checkpoints of the excitation ∫YᵀY
+RECORD = 10  # ticks between the recorded rows of the figures (the statistics cover every tick)
 
 
 def add_arguments(p) -> None:
@@ -59,17 +60,28 @@ def add_arguments(p) -> None:
 
 
 class Trials(NamedTuple):
-    """A batch of trials, numpy arrays with a leading trial axis B."""
+    """A batch of trials, numpy arrays with a leading trial axis B. The statistics (final
+    estimates, settle times, tracking error, largest command) cover every tick; the rows for the
+    figures are every `RECORD`-th tick's."""
 
-    t: np.ndarray  # (T,)
+    t: np.ndarray  # times of the recorded ticks (T,)
     q_err: np.ndarray  # q − q_d (B, T, n)
     tau: np.ndarray  # commands (B, T, n)
     theta: np.ndarray  # estimates (B, T, P)
     t_gram: np.ndarray  # checkpoint times (C,)
-    lam_min: np.ndarray  # smallest eigenvalue of ∫₀ᵗ YᵀY at the checkpoints (B, C)
+    grams: np.ndarray  # ∫₀ᵗ YᵀY dt at the checkpoints (B, C, P, P)
     stopped: np.ndarray  # a trial's controller stopped itself (B,)
     names: tuple
     truth: np.ndarray  # (P,)
+    theta_final: np.ndarray  # estimates after the last tick (B, P)
+    q_err_ms: np.ndarray  # mean of (q − q_d)² over every tick (B, n)
+    tau_max: np.ndarray  # largest |τ| over every tick (B, n)
+    settle: np.ndarray  # time after which the estimate stays within 5 % of the truth, NaN never (B, P)
+
+    @property
+    def lam_min(self) -> np.ndarray:
+        """The smallest eigenvalue of ∫₀ᵗ YᵀY at every checkpoint (B, C)."""
+        return np.linalg.eigvalsh(self.grams)[..., 0]
 
 
 def reference_named(name: str, model):
@@ -90,8 +102,11 @@ def controller_for(plant, model, law: str, estimator, form: str = "slotine-li", 
     unless told otherwise; `gains` as for `manus.adaptive.make_controller`."""
     from manus.adaptive.controllers import make_controller, make_estimator
 
-    if isinstance(estimator, str) and plant.encoder is not None:  # the Kalman filters want the encoder step
-        estimator = make_estimator(estimator, plant.dt, model, step=plant.encoder.step)
+    if isinstance(estimator, str):
+        knobs = {} if plant.encoder is None else {"step": plant.encoder.step}  # the Kalman filters want it
+        if estimator in ("kalman_cv", "kalman_ca"):  # they start at their steady state: the same estimates
+            knobs["steady"] = True  # to rounding (5e-14) with the constant gain, 11 ns less per trial-step
+        estimator = make_estimator(estimator, plant.dt, model, **knobs)
     knobs = {"lead": 0.0, "velocity_lag": 0.0} if uncompensated else {"lead": 0.5 * plant.dt + plant.delay}
     if plant.actuator is not None:
         knobs["limit"] = plant.actuator.limit
@@ -100,7 +115,7 @@ def controller_for(plant, model, law: str, estimator, form: str = "slotine-li", 
 
 
 def run_trials(plant, controller, reference, trials: int, seconds: float, init_spread=0.5, gain_spread=0.25,
-               seed=0) -> Trials:
+               seed=0, record=RECORD) -> Trials:
     """`trials` closed-loop runs of `controller` on `plant`, vmapped (see the module docstring)."""
     import jax
     import jax.numpy as jnp
@@ -121,15 +136,16 @@ def run_trials(plant, controller, reference, trials: int, seconds: float, init_s
     arrays = (jnp.asarray(theta0), *(jnp.asarray(np.asarray(x) * np.exp(rng.uniform(-g, g, (trials,) + x.shape)))
                                      for x in (controller.gamma, controller.lam, controller.kd)))
     keys = jax.random.split(jax.random.PRNGKey(seed), trials)
-    log = rollout_batch(plant, controller, reference, arrays, keys, steps, EVERY)
-    lam_min = np.linalg.eigvalsh(log.grams)[..., 0]
     truth = np.array([float(plant.params.get(k, 0.0)) for k in controller.names])
-    return Trials(log.t, log.q_err, log.tau, log.theta, log.t[EVERY - 1::EVERY] + plant.dt,
-                  lam_min, log.stopped, tuple(controller.names), truth)
+    log = rollout_batch(plant, controller, reference, arrays, keys, steps, EVERY, record, truth)
+    return Trials(log.t, log.q_err, log.tau, log.theta, (np.arange(steps // EVERY) + 1) * EVERY * plant.dt,
+                  log.grams, log.stopped, tuple(controller.names), truth, log.theta_final, log.q_err_ms, log.tau_max,
+                  log.settle)
 
 
 def settle_times(t: np.ndarray, theta: np.ndarray, truth: float, tol: float = 0.05) -> np.ndarray:
-    """Per trial, the time after which |θ − truth| ≤ tol |truth| for good (NaN: never)."""
+    """Per trial, the time after which |θ − truth| ≤ tol |truth| for good (NaN: never), from a
+    record of every tick (the batch keeps this statistic as it runs: `Trials.settle`)."""
     outside = np.abs(theta - truth) > tol * abs(truth)  # (B, T)
     last = np.where(outside.any(1), outside.shape[1] - 1 - np.argmax(outside[:, ::-1], 1), -1)
     times = np.where(last + 1 < len(t), t[np.minimum(last + 1, len(t) - 1)], np.nan)
@@ -141,23 +157,25 @@ def summarize(tr: Trials) -> dict:
     ok = ~tr.stopped
     params = {}
     for i, name in enumerate(tr.names):
-        final = tr.theta[ok, -1, i]
+        final = tr.theta_final[ok, i]
         truth = float(tr.truth[i])
         entry = {"truth": truth, "final": float(final.mean()), "final_std": float(final.std())}
         if truth != 0:
-            settle = settle_times(tr.t, tr.theta[ok, :, i], truth)
+            settle = tr.settle[ok, i]
             entry["error"] = (entry["final"] - truth) / abs(truth)
             entry["settled"] = float(np.mean(np.isfinite(settle)))
             entry["t_within_5pct"] = float(np.nanmedian(settle)) if entry["settled"] >= 0.5 else None
         else:  # not in the plant: only an absolute figure means something
             entry.update(error=None, settled=None, t_within_5pct=None)
         params[name] = entry
-    lam = tr.lam_min[ok]
+    # the smallest eigenvalue of ∫YᵀY at the end and after 1 s only (`Trials.lam_min` has them all)
+    at = [len(tr.t_gram) - 1] + ([int(np.searchsorted(tr.t_gram, 1.0 - 1e-9))] if tr.t_gram[-1] >= 1 else [])
+    lam = np.linalg.eigvalsh(tr.grams[ok][:, at])[..., 0]
     return {"params": params, "trials": int(len(tr.stopped)), "stopped_trials": int(tr.stopped.sum()),
-            "excitation": {"lambda_min": float(np.mean(lam[:, -1])), "lambda_min_at_1s":
-                           float(np.mean(lam[:, np.searchsorted(tr.t_gram, 1.0 - 1e-9)])) if tr.t_gram[-1] >= 1 else None},
-            "tracking_rms": np.sqrt(np.mean(tr.q_err[ok] ** 2, axis=(0, 1))).tolist(),
-            "tau_max": np.abs(tr.tau[ok]).max(axis=(0, 1)).tolist()}
+            "excitation": {"lambda_min": float(np.mean(lam[:, 0])),
+                           "lambda_min_at_1s": float(np.mean(lam[:, 1])) if len(at) > 1 else None},
+            "tracking_rms": np.sqrt(np.mean(tr.q_err_ms[ok], axis=0)).tolist(),
+            "tau_max": tr.tau_max[ok].max(axis=0).tolist()}
 
 
 def _pairs(items: list[str], flag: str) -> dict[str, float]:

@@ -1,11 +1,13 @@
 """`manus bench converge`: parameter-convergence trials per second, the batch of N trials (4 s of
-the complex trajectory each, one vmapped `lax.scan`) beside the same trials one by one in a
-Python loop, measured in the same run.
+the complex trajectory each, one vmapped `lax.scan`, and the statistics `manus converge`
+reports: `run_trials` then `summarize`) beside the same trials one by one in a Python loop,
+measured in the same run.
 
 Two one-by-one baselines, each timed on a few trials and extrapolated to N (said so in the
-result): a Python loop over trials, each one `lax.scan` jitted once (`rollout`); and a Python
-loop over ticks, the plant and controller steps jitted once and called per tick (how the
-hardware loop runs a controller). Compilation is timed apart and left out of every rate.
+result): a Python loop over trials, each one `lax.scan` jitted once (`manus.adaptive.slotine_li.trial`:
+the batch's ticks, statistics and records for one trial, unbatched); and a Python loop over
+ticks, the plant and controller steps jitted once and called per tick (how the hardware loop
+runs a controller). Compilation is timed apart and left out of every rate.
 
 Beside them, the ceiling: `manus bench sim`'s bare-plant batch (the thesis plant under impedance
 control, `simulate_batch` split over the devices) measured in the same run with the same number
@@ -98,12 +100,14 @@ def run(args) -> dict:
     import equinox as eqx
     import jax
 
-    from manus.adaptive.slotine_li import rollout
+    import jax.numpy as jnp
+
+    from manus.adaptive.slotine_li import trial
     from manus.plants import Model, Simulator
     from manus.plants.errors import ManusError
     from manus.plants.references import Complex
     from manus.plants.structures import Manus2
-    from manus.runs.cmd_converge import EVERY, controller_for, run_trials
+    from manus.runs.cmd_converge import EVERY, RECORD, controller_for, run_trials, summarize
     from manus.runs.common import note
 
     if args.trials < 1 or args.sample < 1 or args.repeats < 1 or args.seconds <= 0 or args.tick_sample <= 0:
@@ -117,12 +121,13 @@ def run(args) -> dict:
 
     note(f"batch of {args.trials} trials ({seconds:g} s each) on {len(jax.devices())} device(s): compiling, "
          f"then best of {args.repeats} ...")
-    first, _ = _timed(lambda: run_trials(plant, controller, reference, args.trials, seconds))
-    batch, batch_cpu = _best(lambda: run_trials(plant, controller, reference, args.trials, seconds, seed=1).theta,
+    first, _ = _timed(lambda: summarize(run_trials(plant, controller, reference, args.trials, seconds)))
+    batch, batch_cpu = _best(lambda: summarize(run_trials(plant, controller, reference, args.trials, seconds, seed=1)),
                              args.repeats)
 
     note(f"one by one, a scan per trial: {args.sample} trial(s) ...")
-    one = eqx.filter_jit(lambda c, k: rollout(plant, c, reference, steps, k, EVERY))
+    truth = jnp.asarray([float(plant.params.get(k, 0.0)) for k in controller.names])
+    one = eqx.filter_jit(lambda c, k: trial(plant, c, reference, steps, k, truth, EVERY, RECORD))
     keys = jax.random.split(jax.random.PRNGKey(0), args.sample + 1)
     compile_one, _ = _timed(one, controller, keys[0])
     scan_s, scan_cpu = min(_timed_cpu(one, controller, k) for k in keys[1:])

@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 
 from manus.adaptive import Composite, SlotineLi, make_controller, replay, rollout
+from manus.adaptive.regressors import Regressor
+from manus.adaptive.slotine_li import fusion_boundary, regressor_entries, rollout_batch, trial
 from manus.estimators.base import Estimate, Estimator, FirstDifference
 from manus.plants import Model, Simulator
 from manus.plants.closed_loop import simulate
@@ -161,3 +163,61 @@ def test_a_model_that_does_not_match_the_plant_is_refused_before_the_run():
         simulate(Simulator(TRUTH), ctrl, Complex(), 0.1)
     with pytest.raises(ManusError, match="runs at dt = 0.002 s but the controller at 0.001 s"):
         SlotineLi(TRUTH, estimator=FirstDifference(dt=0.002))
+
+
+def test_the_regressor_entry_by_entry_is_the_regressors_array():
+    """`regressor_entries` (rigid columns written out, every other column its effect's torque with
+    that parameter 1) against `Regressor.__call__` (forward-mode differentiation), bit for bit."""
+    reg = Regressor(Model(Manus2(), "rigid,viscous,coulomb,stribeck,asymmetry,gravity,cogging"))
+    args = jnp.asarray(np.random.default_rng(0).normal(0, 1, (4, 40, 2)))
+    args = args.at[2, ::2].multiply(1e-3)  # inside and outside the Coulomb boundary layer
+    entries = jax.jit(jax.vmap(lambda *a: jnp.stack([jnp.stack(row) for row in regressor_entries(reg, *a)])))(*args)
+    np.testing.assert_array_equal(np.asarray(entries), np.asarray(jax.jit(jax.vmap(reg))(*args)))
+
+
+def test_the_fusion_boundary_returns_its_input_bit_for_bit_under_vmap():
+    x = jnp.array([[1.5, -0.0, jnp.nan], [jnp.inf, 0.0, -2.0]])
+    out = jax.jit(jax.vmap(lambda r: fusion_boundary((r[0], [r[1], r[2]]))))(x)
+    for got, want in zip(jax.tree.leaves(out), (x[:, 0], x[:, 1], x[:, 2])):
+        np.testing.assert_array_equal(np.signbit(got), np.signbit(want))
+        np.testing.assert_array_equal(got, want)
+    out = jax.jit(jax.vmap(lambda r: fusion_boundary((r[0], [r[1], r[2]]))))(x[::-1])  # NaN first: the other branch
+    np.testing.assert_array_equal(jax.tree.leaves(out)[2], x[::-1, 2])
+
+
+def test_the_batch_keeps_the_statistics_of_every_tick_and_a_row_of_every_fifth():
+    """`rollout_batch` (vmapped, every entry a batch vector, a record of every 5th tick and the
+    statistics of every tick) against `rollout` (every tick logged) trial by trial: the rows, the
+    estimates, ∫YᵀY dt, the settle times (numpy on the full log), the mean square tracking error
+    and the largest command. (`trial`, the same scans unbatched, is `manus bench converge`'s.)"""
+    from manus.runs.cmd_converge import settle_times
+
+    truth_model = Model(Manus2(), "rigid,viscous,coulomb")
+    plant = Simulator(truth_model, torque_noise=0.005)
+    ctrl = SlotineLi(truth_model, lead=0.0015)
+    truth = np.array([float(plant.params[k]) for k in ctrl.names])
+    theta0 = truth * np.array([[1.3, 0.8, 1.2, 0.5, 1.5, 1.4, 0.6], [0.1, 1.9, 0.1, 1.0, 1.0, 1.0, 1.0], [1.0] * 7])
+    per_trial = (jnp.asarray(theta0), *(jnp.broadcast_to(x, (3,) + x.shape) * jnp.array([1.0, 1.2, 0.8])[:, None]
+                                        for x in (ctrl.gamma, ctrl.lam, ctrl.kd)))
+    keys = jax.random.split(jax.random.PRNGKey(4), 3)
+    steps, every, record = 600, 50, 5
+    batch = rollout_batch(plant, ctrl, Complex(), per_trial, keys, steps, every, record)
+    np.testing.assert_allclose(batch.t, (np.arange(steps // record) * record + record - 1) * 1e-3)
+    full = eqx.filter_jit(rollout)
+    for i in range(3):
+        c = eqx.tree_at(lambda c: (c.theta0, c.gamma, c.lam, c.kd), ctrl, tuple(x[i] for x in per_trial))
+        log, grams = full(plant, c, Complex(), steps, keys[i], every)
+        q_err, theta = np.asarray(log.q - log.q_ref), np.asarray(log.theta)
+        close = lambda got, want: np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12)  # vector vs scalar code
+        close(batch.q_err[i], q_err[record - 1::record])
+        close(batch.tau[i], np.asarray(log.tau)[record - 1::record])
+        close(batch.theta[i], theta[record - 1::record])
+        close(batch.theta_final[i], theta[-1])
+        close(batch.grams[i], np.asarray(grams))
+        close(batch.q_err_ms[i], np.mean(q_err ** 2, axis=0))
+        close(batch.tau_max[i], np.abs(np.asarray(log.tau)).max(0))
+        for k in range(len(truth)):
+            want = settle_times(np.asarray(log.t), theta[None, :, k], truth[k])[0]
+            assert batch.settle[i, k] == pytest.approx(want, nan_ok=True), (i, k)
+    assert np.isfinite(batch.settle).any() and np.isnan(batch.settle).any()  # both kinds of trial
+    assert not batch.stopped.any()
