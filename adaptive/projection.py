@@ -34,6 +34,11 @@ unconverged). A point with P₀ < 0 goes through Moreau's decomposition, P_K(z) 
 the dual cone K* = {P ≥ √(M² + V²/r)}, where −z has P ≥ 0 (inside K*, i.e. z in the polar cone:
 the projection is the apex, 0). Everything is elementwise arithmetic with a fixed number of steps:
 under `vmap` every quantity is a batch vector.
+
+Only a point outside the cone needs any of it (inside, θ comes back bit for bit): one trial
+branches on that, and a vmapped batch branches once on whether any of its trials is outside
+(`jax.custom_batching.custom_vmap`), which in the convergence trials happens only in their first
+few hundred ticks.
 """
 
 from __future__ import annotations

@@ -291,7 +291,7 @@ def fusion_boundary(tree):
 
     XLA on the CPU fuses cheap elementwise work into each consumer, re-computing it there: a
     value read by ten fusions is computed ten times (Y's entries and s feed τ, Yᵀ s, the new
-    estimates and ∫YᵀY: 238 -> 196 ns CPU per trial-step in the convergence batch without the
+    estimates and ∫YᵀY: 297 -> 194 ns CPU per trial-step in the convergence batch without the
     repeats, measured). A conditional is a boundary fusion does not cross, and the batch's
     branches once on one trial's value (the first entry equal to itself: always, but XLA cannot
     tell); the other branch returns the same values (NaN stays NaN) in a form XLA does not
