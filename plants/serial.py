@@ -210,7 +210,21 @@ class Motion(NamedTuple):
     o0: Array
 
 
-class Serial(Structure):
+class _Configuration(Structure):
+    """The simulator's joint-tuple form of a chain whose pose is its configuration itself (H and
+    C are computed from q each time); its mass matrix is dense (`serial_friction.Dense`)."""
+
+    def pose(self, q):
+        return tuple(q)
+
+    def shift(self, dq):
+        return tuple(dq)
+
+    def moved(self, pose, shift):
+        return tuple(a + b for a, b in zip(pose, shift))
+
+
+class Serial(_Configuration):
     """A serial chain of revolute and prismatic joints in relative joint coordinates (q [rad or m]).
 
     Configuration (numpy float64 arrays: JAX takes them in the precision of the computation): each
@@ -505,18 +519,7 @@ class Serial(Structure):
                 for j in range(n) if theta[10 * n + j] < 0]
         return out
 
-    # -- the simulator's joint-tuple form ----------------------------------------------------
-    # The pose is the configuration itself (H and C are computed from q by the RNEA each time);
-    # the mass matrix is dense, and its friction step the box QP of `manus.plants.serial_friction`.
-    def pose(self, q):
-        return tuple(q)
-
-    def shift(self, dq):
-        return tuple(dq)
-
-    def moved(self, pose, shift):
-        return tuple(a + b for a, b in zip(pose, shift))
-
+    # -- the simulator's joint-tuple form (pose, shift, moved: `_Configuration`) ------------
     def mass(self, pose, p):
         return Dense(self.mass_matrix(jnp.stack(pose), self.theta(p)))
 
@@ -606,7 +609,7 @@ def _base_of(serial: Serial) -> "SerialBase":
                       base_names=names, combinations=b.names, K=b.K)
 
 
-class SerialBase(Structure):
+class SerialBase(_Configuration):
     """A serial chain in its base parameters: what inverse-dynamics identification can know.
 
     Its rigid parameters are θ_b = K θ (`BaseParameters`, Gautier's numerical QR), each named
@@ -690,15 +693,6 @@ class SerialBase(Structure):
                 f"{len(q)} random configurations, smallest eigenvalue {low.min():.3g}): no physical robot has them"]
 
     # -- the simulator's joint-tuple form (see `Serial`) -----------------------------------------
-    def pose(self, q):
-        return tuple(q)
-
-    def shift(self, dq):
-        return tuple(dq)
-
-    def moved(self, pose, shift):
-        return tuple(a + b for a, b in zip(pose, shift))
-
     def mass(self, pose, p):
         return Dense(self.serial.mass_matrix(jnp.stack(pose), self.standard(p)))
 
