@@ -1,5 +1,10 @@
 """`manus bench robot`: the Panda's regressor (`manus.plants.serial.Serial`) in regressor rows per
-second, beside pinocchio's `computeJointTorqueRegressor` in a Python loop, in one run.
+second, beside pinocchio's `computeJointTorqueRegressor` in a Python loop, in one run; then the
+Panda simulated (1 kHz, 2 sub-steps, viscous and Coulomb friction per joint and an offset on joint
+4, tracking a Fourier excitation under a feed-forward controller: the acceptance test's set-up)
+for `--fit-seconds` as one trial, `manus fit` of `rigid,viscous,coulomb,offset` on that recording
+(first call and best of `--repeats`), and a vmapped batch of `--trials` trials of
+`--batch-seconds` (trial-steps per second beside the single trial's steps per second).
 
 A row is one joint's torque equation at one state (q, q̇, q̈): a state gives 7 rows (77 columns:
 the ten standard parameters of each link and the armatures). JAX: the regressor `vmap`ped over an
@@ -27,6 +32,10 @@ def add_arguments(p) -> None:
     p.add_argument("--states", type=int, default=20000, help="random states in the JAX array")
     p.add_argument("--pinocchio-states", type=int, default=2000, help="states in pinocchio's Python loop")
     p.add_argument("--repeats", type=int, default=3, help="best of this many timed runs")
+    p.add_argument("--fit-seconds", type=float, default=60.0,
+                   help="length of the simulated Panda recording that manus fit is timed on [s] (0: skip)")
+    p.add_argument("--trials", type=int, default=8, help="trials in the simulator's vmapped batch")
+    p.add_argument("--batch-seconds", type=float, default=1.0, help="length of each batched trial [s]")
 
 
 def run(args) -> dict:
@@ -36,8 +45,8 @@ def run(args) -> dict:
     from manus.plants.serial import Serial
     from manus.runs.common import note
 
-    if args.states < 1 or args.pinocchio_states < 1 or args.repeats < 1:
-        raise ManusError("--states, --pinocchio-states and --repeats must be positive")
+    if args.states < 1 or args.pinocchio_states < 1 or args.repeats < 1 or args.trials < 1 or args.batch_seconds <= 0:
+        raise ManusError("--states, --pinocchio-states, --repeats, --trials and --batch-seconds must be positive")
     try:
         import pinocchio as pin
 
@@ -75,10 +84,57 @@ def run(args) -> dict:
     agreement = float(np.abs(np.stack(loop())[:, :, order] - Y[:m, :, : 10 * n]).max())
 
     jax_rows, pin_rows = args.states * n / jax_s, m * n / pin_s
-    return {"figures": {"jax_rows_per_s": jax_rows, "pinocchio_rows_per_s": pin_rows, "jax_compile_s": compile_s},
-            "speedup": jax_rows / pin_rows, "agreement": agreement, "robot": "panda", "joints": n,
-            "columns": Y.shape[-1], "states": args.states, "pinocchio_states": m,
-            "devices": len(jax.devices()), "load_average": load}
+    out = {"figures": {"jax_rows_per_s": jax_rows, "pinocchio_rows_per_s": pin_rows, "jax_compile_s": compile_s},
+           "speedup": jax_rows / pin_rows, "agreement": agreement, "robot": "panda", "joints": n,
+           "columns": Y.shape[-1], "states": args.states, "pinocchio_states": m,
+           "devices": len(jax.devices()), "load_average": load}
+    if args.fit_seconds > 0:
+        out["figures"].update(_loop(path, args, note))
+        out.update(fit_seconds=args.fit_seconds, trials=args.trials, batch_seconds=args.batch_seconds)
+    return out
+
+
+FC = (0.5, 0.5, 0.4, 0.4, 0.3, 0.3, 0.2)  # Coulomb [N·m] per joint (the acceptance test's)
+B = (0.3, 0.3, 0.25, 0.25, 0.15, 0.15, 0.1)  # viscous [N·m·s/rad]
+CENTRE = (0.0, -0.3, 0.0, -2.0, 0.0, 1.8, 0.8)
+MODEL = "rigid,viscous,coulomb,offset"
+
+
+def _loop(path: str, args, note) -> dict:
+    """The Panda simulated (one trial, then a vmapped batch) and fitted: seconds and rates."""
+    import jax
+
+    from manus.adaptive.fit import fit
+    from manus.plants import Model, Simulator
+    from manus.plants.closed_loop import simulate_batch
+    from manus.plants.serial import Serial
+    from manus.plants.serial_sim import Feedforward, Fourier, record
+
+    serial = Serial.from_urdf(path, armature=np.linspace(0.1, 0.3, 7))
+    truth = {**{f"b{i + 1}": v for i, v in enumerate(B)}, **{f"Fc{i + 1}": v for i, v in enumerate(FC)},
+             **{f"off{i + 1}": 0.0 for i in range(7)}, "off4": 0.5}
+    centre = np.array(CENTRE)
+    with jax.enable_x64(True):
+        sim = Simulator(Model(serial, MODEL), truth, substeps=2, actuator=None, q0=centre)
+        reference = Fourier(centre, amplitude=1.0, f0=0.2, harmonics=6, decay=1.5, seed=1)
+        note(f"simulating {args.fit_seconds:g} s of the Panda (one trial, with compilation) ...")
+        t0 = time.perf_counter()
+        rec = record(sim, reference, args.fit_seconds)
+        sim_s = time.perf_counter() - t0
+        note(f"manus fit {MODEL} on it, first call then best of {args.repeats} ...")
+        t0 = time.perf_counter()
+        fitted = fit(rec, MODEL)
+        fit_first = time.perf_counter() - t0
+        fit_s = best_time(lambda: fit(rec, MODEL), args.repeats)
+        note(f"{args.trials} trials of {args.batch_seconds:g} s vmapped ...")
+        keys = jax.random.split(jax.random.PRNGKey(0), args.trials)
+        controller = Feedforward(serial, sim.dt)
+        batch = lambda: simulate_batch(sim, controller, reference, args.batch_seconds, keys, every=10)
+        batch()  # compile
+        batch_s = best_time(batch, max(1, args.repeats - 1))
+    steps = int(round(args.batch_seconds * sim.rate_hz))
+    return {"simulate_one_trial_steps_per_s": len(rec) / sim_s, "fit_first_call_s": fit_first, "fit_s": fit_s,
+            "fit_rel_error": fitted.rel_error, "batch_trial_steps_per_s": args.trials * steps / batch_s}
 
 
 def render(r: dict) -> str:
@@ -90,4 +146,10 @@ def render(r: dict) -> str:
         f"  pinocchio, Python loop, {r['pinocchio_states']} states: {f['pinocchio_rows_per_s']:.3g} rows/s",
         f"  speedup: {r['speedup']:.3g}x; the two agree within {r['agreement']:.2g}; "
         f"load average {r['load_average']:.2f} at the start",
-    ])
+    ] + ([
+        f"the Panda simulated at 1 kHz (2 sub-steps, friction per joint, coupled stick-slip), fitted by manus fit:",
+        f"  one trial of {r['fit_seconds']:g} s: {f['simulate_one_trial_steps_per_s']:.3g} steps/s (compilation included)",
+        f"  batch of {r['trials']} trials of {r['batch_seconds']:g} s, vmapped: {f['batch_trial_steps_per_s']:.3g} trial-steps/s",
+        f"  manus fit on the {r['fit_seconds']:g} s: {f['fit_s']:.2f} s (first call {f['fit_first_call_s']:.2f} s), "
+        f"rel_error {100 * f['fit_rel_error']:.3g} %",
+    ] if "fit_s" in f else []))
