@@ -210,6 +210,12 @@ class Motion(NamedTuple):
     o0: Array
 
 
+@eqx.filter_jit
+def _mass_matrices(serial, q, theta):
+    """H(q) at each configuration of q (m, n): compiled once per chain, not once per call."""
+    return jax.vmap(lambda x: serial.mass_matrix(x, theta))(q)
+
+
 class _Configuration(Structure):
     """The simulator's joint-tuple form of a chain whose pose is its configuration itself (H and
     C are computed from q each time); its mass matrix is dense (`serial_friction.Dense`)."""
@@ -684,7 +690,7 @@ class SerialBase(_Configuration):
         q = rng.uniform(-span, span, (self.CHECK_STATES, self.n_joints))
         with jax.enable_x64(True):
             theta = self.standard({k: float(p[k]) for k in self.base_names})
-            H = np.asarray(jax.jit(jax.vmap(lambda q: self.serial.mass_matrix(q, theta)))(q))
+            H = np.asarray(_mass_matrices(self.serial, jnp.asarray(q), theta))
         low = np.linalg.eigvalsh(H)[:, 0]
         bad = int(np.sum(~(low > 0)))
         if not bad:
