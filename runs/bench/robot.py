@@ -94,10 +94,27 @@ def run(args) -> dict:
     return out
 
 
-FC = (0.5, 0.5, 0.4, 0.4, 0.3, 0.3, 0.2)  # Coulomb [N·m] per joint (the acceptance test's)
+FC = (0.5, 0.5, 0.4, 0.4, 0.3, 0.3, 0.2)  # Coulomb [N·m] per joint
 B = (0.3, 0.3, 0.25, 0.25, 0.15, 0.15, 0.1)  # viscous [N·m·s/rad]
+HIDDEN = {"off4": 0.5}  # one hidden effect on one joint of seven: a constant 0.5 N·m on joint 4
 CENTRE = (0.0, -0.3, 0.0, -2.0, 0.0, 1.8, 0.8)
 MODEL = "rigid,viscous,coulomb,offset"
+
+
+def panda_case(path: str):
+    """The Panda of issue 13's acceptance (its URDF at `path`, armatures 0.1..0.3 kg m²) with
+    viscous and Coulomb friction per joint and an offset on joint 4, 1 kHz, 2 sub-steps, and the
+    Fourier excitation it tracks: (serial, simulator, reference, truth)."""
+    from manus.plants import Model, Simulator
+    from manus.plants.serial import Serial
+    from manus.plants.serial_sim import Fourier
+
+    serial = Serial.from_urdf(path, armature=np.linspace(0.1, 0.3, 7))
+    truth = {**{f"b{i + 1}": v for i, v in enumerate(B)}, **{f"Fc{i + 1}": v for i, v in enumerate(FC)},
+             **{f"off{i + 1}": 0.0 for i in range(7)}, **HIDDEN}
+    centre = np.array(CENTRE)
+    sim = Simulator(Model(serial, MODEL), truth, substeps=2, actuator=None, q0=centre)
+    return serial, sim, Fourier(centre, amplitude=1.0, f0=0.2, harmonics=6, decay=1.5, seed=1), truth
 
 
 def _loop(path: str, args, note) -> dict:
@@ -105,18 +122,11 @@ def _loop(path: str, args, note) -> dict:
     import jax
 
     from manus.adaptive.fit import fit
-    from manus.plants import Model, Simulator
     from manus.plants.closed_loop import simulate_batch
-    from manus.plants.serial import Serial
-    from manus.plants.serial_sim import Feedforward, Fourier, record
+    from manus.plants.serial_sim import Feedforward, record
 
-    serial = Serial.from_urdf(path, armature=np.linspace(0.1, 0.3, 7))
-    truth = {**{f"b{i + 1}": v for i, v in enumerate(B)}, **{f"Fc{i + 1}": v for i, v in enumerate(FC)},
-             **{f"off{i + 1}": 0.0 for i in range(7)}, "off4": 0.5}
-    centre = np.array(CENTRE)
     with jax.enable_x64(True):
-        sim = Simulator(Model(serial, MODEL), truth, substeps=2, actuator=None, q0=centre)
-        reference = Fourier(centre, amplitude=1.0, f0=0.2, harmonics=6, decay=1.5, seed=1)
+        serial, sim, reference, _ = panda_case(path)
         note(f"simulating {args.fit_seconds:g} s of the Panda (one trial, with compilation) ...")
         t0 = time.perf_counter()
         rec = record(sim, reference, args.fit_seconds)

@@ -14,6 +14,7 @@ import jax
 
 from manus.plants import Serial, recording
 from manus.plants.recording import Recording
+from manus.runs.bench import robot as robot_bench
 from manus.runs.cli import main
 from tests.plants.test_serial import PENDULUM
 
@@ -90,27 +91,20 @@ def test_bad_robots_are_one_line_errors(capsys, pendulum, tmp_path, command):
 # -- acceptance: a simulated Panda through fit and diagnose ------------------------------------------
 
 PANDA_SECONDS = 10.0  # issue 13 asks for 60 s; 10 s of a richer excitation keep the test near 30 s CPU
-FC = (0.5, 0.5, 0.4, 0.4, 0.3, 0.3, 0.2)  # Coulomb [N·m], per joint
-B = (0.3, 0.3, 0.25, 0.25, 0.15, 0.15, 0.1)  # viscous [N·m·s/rad]
-HIDDEN = {"off4": 0.5}  # one hidden effect on one joint of seven: a constant 0.5 N·m on joint 4
+HIDDEN = robot_bench.HIDDEN  # one hidden effect on one joint of seven: a constant 0.5 N·m on joint 4
 
 
 @pytest.fixture(scope="module")
 def panda_recording():
     """10 s of the Panda (example-robot-data's URDF, armatures 0.1..0.3 kg m²) with viscous and
     Coulomb friction per joint and an offset on joint 4, tracking a Fourier excitation under a
-    feed-forward controller; 1 kHz, 2 sub-steps, encoder 131072 counts/rev. (truth base parameters,
-    recording)."""
-    from manus.plants import Model, Simulator
-    from manus.plants.serial_sim import Fourier, record
+    feed-forward controller; 1 kHz, 2 sub-steps, encoder 131072 counts/rev (`manus bench
+    robot`'s case). (truth base parameters, recording)."""
+    from manus.plants.serial_sim import record
     from tests.plants.test_serial import ROBOTS, urdf
 
-    serial = Serial.from_urdf(urdf(ROBOTS["panda"][0]), armature=np.linspace(0.1, 0.3, 7))
-    truth = {**{f"b{i + 1}": v for i, v in enumerate(B)}, **{f"Fc{i + 1}": v for i, v in enumerate(FC)},
-             **{f"off{i + 1}": 0.0 for i in range(7)}, **HIDDEN}
-    centre = np.array([0.0, -0.3, 0.0, -2.0, 0.0, 1.8, 0.8])
-    sim = Simulator(Model(serial, "rigid,viscous,coulomb,offset"), truth, substeps=2, actuator=None, q0=centre)
-    rec = record(sim, Fourier(centre, amplitude=1.0, f0=0.2, harmonics=6, decay=1.5, seed=1), PANDA_SECONDS)
+    serial, sim, reference, truth = robot_bench.panda_case(urdf(ROBOTS["panda"][0]))
+    rec = record(sim, reference, PANDA_SECONDS)
     base = serial.base()
     truth.update(zip(base.rigid_names, base.values(serial.defaults)))
     return truth, rec
