@@ -194,7 +194,7 @@ def diagnose(rec: Recording | fitting.Data, model: Model | str, cutoff_hz: float
     _aliases(cols, base, cands)
     verdict = _choose(cands, alpha / m, data.cutoff_hz)
     if verdict is not None:
-        _mark_overlaps(data, cols, icols, verdict, cands, min_share)
+        _mark_overlaps(data, cols, icols, verdict, cands, min_share, starts, folds, alpha / m)
         cands.sort(key=lambda c: (c is not verdict, c.overlaps is not None, -c.cv_error_reduction))
     after = verdict.fit if verdict is not None and verdict.fit is not None else base
     unexplained = residual_structure(data, cols, icols, after, starts, folds, alpha)
@@ -407,8 +407,11 @@ def _choose(cands: list[Candidate], alpha: float, cutoff_hz: float = np.inf) -> 
     return best
 
 
-def _mark_overlaps(data, cols, icols, verdict, cands, min_share) -> None:
-    """Other significant candidates that the verdict already accounts for."""
+def _mark_overlaps(data, cols, icols, verdict, cands, min_share, starts, folds, alpha) -> None:
+    """Other significant candidates that the verdict already accounts for: added to the verdict,
+    one adds no relevant share of the torque that predicts the held-out blocks significantly
+    better (the test every candidate passed, now against the verdict). Where neither adds to the
+    other, the two are readings the recording cannot tell apart."""
     if verdict.fit is None:
         return
     with_v = verdict.fit
@@ -419,24 +422,30 @@ def _mark_overlaps(data, cols, icols, verdict, cands, min_share) -> None:
         e = c.fit.model.get(c.effect)
         if with_v.model.has(c.effect):
             continue
-        both = fitting._solve(data, cols, with_v.model.with_effect(e), {}, icols)
+        model = with_v.model.with_effect(e)
+        both = fitting._solve(data, cols, model, {}, icols)
+        st = lsq.Stats(cols.model(model), data.tau(search.delay_of(model)), starts,
+                       None if icols is None else icols.model(model))
+        both_sse = held_out(st, folds)
         extra = float(np.sqrt(max(with_v.rel_error**2 - both.rel_error**2, 0.0)))  # share of the torque it adds
-        if extra < min_share:
-            # and the verdict on top of it: when neither adds to the other, they are two readings
-            back = float(np.sqrt(max(c.fit.rel_error**2 - both.rel_error**2, 0.0)))
-            if back < min_share:
+        back = float(np.sqrt(max(c.fit.rel_error**2 - both.rel_error**2, 0.0)))  # ... and the verdict to it
+        adds = extra >= min_share and one_sided_p(verdict.cv_sse, both_sse) < alpha
+        if not adds:
+            if not (back >= min_share and one_sided_p(c.cv_sse, both_sse) < alpha):
                 same.append(c.spec)
             c.overlaps = verdict.effect
             gap = 100 * abs(1 - np.sqrt(verdict.cv_sse.sum() / c.cv_sse.sum())) if c.cv_sse.sum() > 0 else 0.0
             better = verdict.effect if verdict.cv_sse.sum() <= c.cv_sse.sum() else c.effect
-            c.note = (f"explains the same as {verdict.effect}: with {verdict.effect} in the model it accounts for only "
-                      f"{100 * extra:.2f}% more of the torque; {better} fits better held out ({gap:.1f}%)")
+            c.note = (f"explains the same as {verdict.effect}: with {verdict.effect} in the model it accounts for "
+                      f"{100 * extra:.2f}% more of the torque, which does not predict the held-out blocks "
+                      f"significantly better; {better} fits better held out ({gap:.1f}%)")
             if better == c.effect:
                 c.note += f", within one standard error, so the simpler {verdict.effect} is proposed"
     if same:
         verdict.readings = same
         verdict.note = ((verdict.note + "; ") if verdict.note else "") + (
-            f"this recording hardly tells {verdict.spec} from {' or '.join(same)}: neither adds {100 * min_share:g} % "
-            f"of the torque to the other (e.g. a small swing, where a tilted plane, a spring with its preload and "
-            f"an offset are nearly one function of position); {verdict.spec} fits best held out, or is the simplest within "
-            "one standard error. A wider motion would tell them apart")
+            f"this recording hardly tells {verdict.spec} from {' or '.join(same)}: neither adds to the other a "
+            f"share of the torque (at least {100 * min_share:g} %) that predicts the held-out blocks significantly "
+            f"better (e.g. a small swing, where a tilted plane, a spring with its preload and an offset are nearly "
+            f"one function of position); {verdict.spec} fits best held out, or is the simplest within one standard "
+            "error. A wider motion would tell them apart")

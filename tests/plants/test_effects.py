@@ -75,7 +75,7 @@ def test_effects_own_their_rules():
     delays = [e.seconds for e in Delay().space(span)]
     assert delays[0] == 0 and delays[1] == pytest.approx(1e-4) and delays[-1] == pytest.approx(0.1)  # 20 s: 100 ms
     vs = [float(e.vs) for e in Stribeck().space(span)]
-    assert vs[0] == pytest.approx(1.2e-3) and vs[-1] == pytest.approx(0.25)  # 2x resolution .. a quarter of the speed
+    assert vs[0] == pytest.approx(1.2e-3) and vs[-1] == pytest.approx(1.0)  # 2x resolution .. the high speed
     assert Stribeck.requires == ("coulomb",) and Spring.brings == ("offset",)
     assert Gravity().applies(Axis(n_joints=1), (True,)) and Gravity().applies(Axis(n_joints=1), (False,)) is None
     assert Viscous().violations(Axis(n_joints=1), {"b1": -1.0}, {"b1": 0.1})
