@@ -383,8 +383,10 @@ class Fit:
         if nonlinear:
             out["nonlinear"] = nonlinear
         combos = getattr(self.model.structure, "combinations", None)
-        if combos is not None:  # a serial chain: what each base parameter is
-            out["base_parameters"] = dict(zip(self.model.structure.rigid_names, combos))
+        if combos is not None:  # a serial chain: what each base parameter is, and its value in the URDF
+            s = self.model.structure
+            out["base_parameters"] = dict(zip(s.rigid_names, combos))
+            out["urdf_values"] = {k: float(v) for k, v in zip(s.rigid_names, s.rigid_defaults)}
         if self.redundant:
             out["redundant"] = self.redundant
         bad = self.violations()

@@ -96,15 +96,17 @@ def run(args) -> dict:
 
 def render(r: dict) -> str:
     rows = []
+    urdf = r.get("urdf_values")  # a serial chain: each rigid base parameter as its URDF has it
     for k, p in r["params"].items():
         std = p["std"]
         rel = f"{100 * std / abs(p['value']):.2f}" if std is not None and p["value"] else "-"
-        rows.append([k, f"{p['value']:.6g}", "-" if std is None else f"{std:.3g}", rel])
+        rows.append([k, f"{p['value']:.6g}", "-" if std is None else f"{std:.3g}", rel]
+                    + ([f"{urdf[k]:.6g}" if k in urdf else ""] if urdf else []))
     lines = [f"model {r['spec']}: rel_error {100 * r['rel_error']:.2f} % on {r['samples']} rows "
              f"(torque low-passed at {r['cutoff_hz']:.1f} Hz, {100 * r['standstill_excluded']:.1f} % left out at standstill)",
              f"  method {r['method']}: {r['method_why']}",
              f"  cut-off: {r['cutoff_note']}; command hold: {r['hold']}",
-             table(rows, ["parameter", "value", "std", "std %"])]
+             table(rows, ["parameter", "value", "std", "std %"] + (["in the URDF"] if urdf else []))]
     regrouped = {k: v for k, v in r.get("base_parameters", {}).items() if k != v}
     if regrouped:  # a serial chain: the base parameters that are combinations of standard ones
         lines.append("  base parameters (identifiable combinations of the standard ones; the others are themselves):")
