@@ -78,6 +78,10 @@ def run(args) -> dict:
     f = fit(rec, args.model, cutoff_hz=args.cutoff, method=args.method)
     out = f.report()
     out["fit_percent"] = {"torque": nrmse_fit(f.data.tau(f.delay), f.predicted()).tolist()}
+    if "urdf_values" in out:  # a serial chain: the physically consistent stage, reported beside the fit
+        from manus.adaptive.consistency import consistent
+
+        out["consistent"] = consistent(f).report()
     if not args.no_figures:
         if args.no_sim:
             run_ = "skipped (--no-sim)"
@@ -111,6 +115,15 @@ def render(r: dict) -> str:
     if regrouped:  # a serial chain: the base parameters that are combinations of standard ones
         lines.append("  base parameters (identifiable combinations of the standard ones; the others are themselves):")
         lines += [f"    {k} = {v}" for k, v in regrouped.items()]
+    c = r.get("consistent")
+    if c is not None:
+        far = {k: v for k, v in c["moved_std"].items() if abs(v) >= 1}
+        lines.append("  physically consistent (each link's pseudo-inertia positive semidefinite, armatures and friction "
+                     "within their bounds): " + ("the estimate is consistent already" if c["already"] else "the estimate is not consistent")
+                     + f"; the closest consistent set leaves rel_error {100 * c['rel_error']:.2f} %"
+                     + (", moving " + ", ".join(f"{k} by {v:+.1f} std" for k, v in far.items()) if far else
+                        ", every parameter within one standard deviation"))
+        lines.append("    link masses " + ", ".join(f"{x['mass']:.4g}" for x in c["links"]) + " kg (held near the URDF's)")
     for k, v in r.get("nonlinear", {}).items():
         lines.append(f"  {k} = {v:.6g} (searched or fixed)")
     for v in r.get("violations", []):

@@ -62,6 +62,10 @@ def test_fit_with_robot_reports_the_base_parameters(capsys, pendulum):
     for k, v in truth.items():
         assert r["params"][k]["value"] == pytest.approx(v, rel=1e-3, abs=1e-5), k
     assert r["rel_error"] < 1e-3
+    assert r["urdf_values"] == pytest.approx(dict(zip(base.rigid_names, base.rigid_defaults)))
+    c = r["consistent"]  # the physically consistent stage: the exact truth is consistent, nothing moves
+    assert c["already"] and max(abs(v) for v in c["moved_std"].values()) < 0.1
+    assert all(x["min_eigenvalue"] > -1e-9 for x in c["links"]) and len(c["armature"]) == 2
     # the same recording naming its robot itself (relative to the file) needs no --robot
     rec = recording.read(path, robot=robot)
     named = recording.write(rec, path.parent / "named" / "swing.csv")
@@ -151,6 +155,14 @@ def test_fit_recovers_the_pandas_base_parameters(panda_data):
     assert all(r[3] < 0.001 for r in small), [r for r in small if r[3] >= 0.001]
     assert {k for k, *_ in carrying} >= {f"{p}{i}" for p in ("b", "Fc") for i in range(1, 8)} | {"off4"}
     assert all(r[4] is not None and r[4] > 0 for r in rows)
+    # the physically consistent stage (7 pseudo-inertia LMIs): the truth is consistent, so the
+    # estimate is, nothing moves, and the masses (which no base parameter holds) are the URDF's
+    from manus.adaptive.consistency import consistent
+
+    c = consistent(f).report()
+    assert c["already"] and max(abs(v) for v in c["moved_std"].values()) < 0.1
+    serial = base.serial
+    assert [x["mass"] for x in c["links"]] == pytest.approx(np.asarray(serial.defaults)[0:70:10], rel=1e-3)
 
 
 @pytest.fixture(scope="module")
