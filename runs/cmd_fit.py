@@ -80,8 +80,12 @@ def run(args) -> dict:
     out["fit_percent"] = {"torque": nrmse_fit(f.data.tau(f.delay), f.predicted()).tolist()}
     if "urdf_values" in out:  # a serial chain: the physically consistent stage, reported beside the fit
         from manus.adaptive.consistency import consistent
+        from manus.plants.errors import ModelError
 
-        out["consistent"] = consistent(f).report()
+        try:
+            out["consistent"] = consistent(f).report()
+        except ModelError as e:  # the fit stands: the stage says why it has nothing
+            out["consistent"] = {"error": str(e)}
     if not args.no_figures:
         if args.no_sim:
             run_ = "skipped (--no-sim)"
@@ -116,7 +120,9 @@ def render(r: dict) -> str:
         lines.append("  base parameters (identifiable combinations of the standard ones; the others are themselves):")
         lines += [f"    {k} = {v}" for k, v in regrouped.items()]
     c = r.get("consistent")
-    if c is not None:
+    if c is not None and "error" in c:
+        lines.append(f"  physically consistent: none found ({c['error']})")
+    elif c is not None:
         far = {k: v for k, v in c["moved_std"].items() if abs(v) >= 1}
         lines.append("  physically consistent (each link's pseudo-inertia positive semidefinite, armatures and friction "
                      "within their bounds): " + ("the estimate is consistent already" if c["already"] else "the estimate is not consistent")
