@@ -52,7 +52,7 @@ class Consistency:
     fit: fitting.Fit
     theta: np.ndarray  # every parameter of the model, consistent
     standard: np.ndarray  # the standard parameters (10 per link, then armatures) that give them
-    already: bool  # the estimate itself admits consistent standard parameters
+    already: bool  # the estimate itself is consistent: standard parameters give its rigid part, the rest in bounds
     rel_error: float  # the torque error of the consistent set on the fit's rows
     status: str
 
@@ -129,7 +129,8 @@ def consistent(f: fitting.Fit) -> Consistency:
     ok = ("optimal", "optimal_inaccurate")
     # the estimate's own rigid part: do consistent standard parameters give it?
     x, phi, cons = problem(lambda x, phi: [x[rigid] == f.theta[rigid]])
-    already = run(tie(phi), x, phi, cons)[0] in ok
+    bounded = np.isfinite(lower)
+    already = bool(np.all(f.theta[bounded] >= lower[bounded])) and run(tie(phi), x, phi, cons)[0] in ok
     # the consistent parameters closest to the estimate in the data's metric (in units of the
     # residual's variance per row: one standard deviation of a parameter costs about 1), the
     # standard parameters the data leave free held near the URDF's
