@@ -183,8 +183,13 @@ class Effect(eqx.Module):
     rule: ClassVar[str] = ""  # what the lower bounds mean, for `violations`
 
 
-def _two(s: Structure, manus2: tuple[float, float], axis: float) -> tuple[float, ...]:
-    return manus2 if isinstance(s, Manus2) else (axis,) * s.n_joints
+def _two(s: Structure, manus2: tuple[float, float], axis: float, own: str = "") -> tuple[float, ...]:
+    """Default values per joint: MANUS-2's, or the structure's `own` (a URDF's joints' <dynamics>)
+    where it gives any, else the axis's for every joint."""
+    if isinstance(s, Manus2):
+        return manus2
+    given = tuple(getattr(getattr(s, "serial", s), own, ())) if own else ()
+    return given if any(given) else (axis,) * s.n_joints
 
 
 class Rigid(Effect):
@@ -222,7 +227,7 @@ class Viscous(Effect):
     rule: ClassVar[str] = "friction dissipates: b ≥ 0"
 
     def defaults(self, s):
-        return _two(s, (0.222, 0.181), 1.5)  # axis: b = 1.5 N·s/m, thesis eq. 4.1
+        return _two(s, (0.222, 0.181), 1.5, "damping")  # a URDF: its damping; axis: b = 1.5 N·s/m, thesis eq. 4.1
 
     def lower_bounds(self, s):
         return (0.0,) * s.n_joints
@@ -243,7 +248,7 @@ class Coulomb(Effect):
     rule: ClassVar[str] = "friction opposes motion: Fc ≥ 0"
 
     def defaults(self, s):
-        return _two(s, (0.099, 0.139), 0.5)
+        return _two(s, (0.099, 0.139), 0.5, "friction")  # a URDF: its friction
 
     def lower_bounds(self, s):
         return (0.0,) * s.n_joints

@@ -134,6 +134,8 @@ class _Joint(NamedTuple):
     axis: np.ndarray
     armature: float
     mimic: bool
+    damping: float = 0.0  # <dynamics damping> [N·m·s/rad or N·s/m]
+    friction: float = 0.0  # <dynamics friction> [N·m or N]
 
 
 def _read(path) -> tuple[dict, dict]:
@@ -156,7 +158,9 @@ def _read(path) -> tuple[dict, dict]:
         joints[j.get("name")] = _Joint(
             j.get("name"), j.get("type"), j.find("parent").get("link"), j.find("child").get("link"), R, p,
             axis / np.linalg.norm(axis), float(dynamics.get("armature", "0")) if dynamics is not None else 0.0,
-            j.find("mimic") is not None)
+            j.find("mimic") is not None,
+            *((float(dynamics.get("damping", "0")), float(dynamics.get("friction", "0"))) if dynamics is not None
+              else (0.0, 0.0)))
     return links, joints
 
 
@@ -252,6 +256,9 @@ class Serial(_Configuration):
     gravity: np.ndarray
     defaults: np.ndarray
     source: str = eqx.field(default="", static=True)  # the URDF file it was read from
+    # the joints' <dynamics damping friction>: the nominal viscous and Coulomb friction (0: none given)
+    damping: tuple[float, ...] = eqx.field(default=(), static=True)
+    friction: tuple[float, ...] = eqx.field(default=(), static=True)
 
     @classmethod
     def from_urdf(cls, path, tip: str | None = None, armature=None, gravity=GRAVITY) -> "Serial":
@@ -343,7 +350,8 @@ class Serial(_Configuration):
                    prismatic=tuple(j.kind == "prismatic" for j in chain),
                    rotation=np.stack([R for R, _ in placements]), translation=np.stack([p for _, p in placements]),
                    axis=np.stack([j.axis for j in chain]), gravity=np.asarray(gravity, dtype=float),
-                   defaults=np.concatenate([*inertials, arm]), source=str(path))
+                   defaults=np.concatenate([*inertials, arm]), source=str(path),
+                   damping=tuple(j.damping for j in chain), friction=tuple(j.friction for j in chain))
 
     # -- parameters -------------------------------------------------------------------------
     @property

@@ -7,8 +7,12 @@ from manus.plants.errors import ManusError
 THESIS_TRUTH = "rigid,viscous,coulomb,delay"  # the thesis's plant: §3.5 friction, §3.2 delay
 
 
-def add_plant_options(parser, truth_default: str = THESIS_TRUTH) -> None:
+def add_plant_options(parser, truth_default: str = THESIS_TRUTH, robot: bool = False) -> None:
     g = parser.add_argument_group("plant")
+    if robot:
+        g.add_argument("--robot", metavar="FILE.urdf",
+                       help="a serial robot from its URDF instead of --structure (its joints' <dynamics damping "
+                            "friction> are the default viscous and Coulomb levels)")
     g.add_argument("--truth", default=truth_default, metavar="EFFECTS",
                    help=f"effects of the simulated plant, e.g. rigid,viscous,coulomb,cogging:39,delay:1ms "
                         f"(default {truth_default})")
@@ -43,8 +47,17 @@ def build_plant(args):
 
     if args.rate <= 0 or args.substeps < 1:
         raise ManusError("--rate must be positive and --substeps at least 1")
-    n = 2 if args.structure == "manus2" else args.joints
-    model = Model(structure_named(args.structure, n), args.truth)
+    robot = getattr(args, "robot", None)
+    if robot:
+        from manus.plants.serial import Serial
+
+        structure = Serial.from_urdf(robot)
+    else:
+        structure = structure_named(args.structure, 2 if args.structure == "manus2" else args.joints)
+    model = Model(structure, args.truth)
     encoder = Encoder(step=2 * math.pi / args.counts) if args.counts > 0 else None
+    # a serial robot gets the torque it is commanded (the thesis's 12-bit D/A and its ±22 N·m are
+    # MANUS-2's, not a URDF robot's)
+    extra = {"actuator": None} if robot else {}
     return Simulator(model, parse_params(args.param), rate_hz=args.rate, substeps=args.substeps,
-                     encoder=encoder, torque_noise=args.torque_noise)
+                     encoder=encoder, torque_noise=args.torque_noise, **extra)

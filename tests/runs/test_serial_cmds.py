@@ -6,6 +6,7 @@ from our RNEA plus viscous friction: the recording is exact, so the fit must ret
 parameters of the URDF to rounding."""
 
 import json
+import pathlib
 
 import numpy as np
 import pytest
@@ -90,6 +91,32 @@ def test_bad_robots_are_one_line_errors(capsys, pendulum, tmp_path, command):
         assert code == 2 and out == "" and "Traceback" not in err, err
         last = err.strip().splitlines()[-1]
         assert last.startswith(f"manus {command}: ") and words in last, last
+
+
+def test_simulate_a_robot_then_fit_it(capsys, tmp_path):
+    """`manus simulate --robot`: the DFKI double pendulum's URDF (examples/) under its computed
+    torque plus a PD, its joints' <dynamics> as the friction; the recording names its robot, and
+    `manus fit` on it returns the URDF's base parameters and friction."""
+    urdf = pathlib.Path(__file__).resolve().parents[2] / "examples" / "dfki_double_pendulum" / "double_pendulum_a0.urdf"
+    out_file = tmp_path / "sim" / "swing.csv"
+    code, out, err = _run(capsys, ["simulate", "--robot", str(urdf), "--truth", "rigid,viscous,coulomb", "--seconds", "4",
+                                   "--amplitude", "0.8", "--substeps", "4", "--out", str(out_file), "--json"])
+    assert code == 0, err
+    r = json.loads(out)
+    assert r["samples"] == 4000 and max(r["tracking_rms"]) < 0.01
+    assert r["params"]["Fc1"] == 0.093 and r["params"]["b2"] == 0.001  # the URDF's <dynamics friction damping>
+    assert "# structure: urdf" in out_file.read_text()[:400] and "double_pendulum_a0.urdf" in out_file.read_text()[:400]
+    code, out, err = _run(capsys, ["fit", str(out_file), "--model", "rigid,viscous,coulomb", "--no-figures", "--json"])
+    assert code == 0, err
+    f = json.loads(out)
+    for k, v in f["urdf_values"].items():
+        if abs(v) > 1e-3:
+            assert f["params"][k]["value"] == pytest.approx(v, rel=0.01), k
+    assert f["params"]["Fc1"]["value"] == pytest.approx(0.093, rel=0.01)
+    assert f["params"]["Fc2"]["value"] == pytest.approx(0.078, rel=0.01)
+    code, out, err = _run(capsys, ["simulate", "--robot", str(tmp_path / "none.urdf"), "--seconds", "1",
+                                   "--out", str(tmp_path / "x.csv")])
+    assert code == 2 and "no such URDF file" in err and "Traceback" not in err
 
 
 # -- acceptance: a simulated Panda through fit and diagnose ------------------------------------------
