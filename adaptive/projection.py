@@ -53,6 +53,7 @@ from jax import Array
 
 from manus.plants.effects import Model
 from manus.plants.errors import ModelError
+from manus.plants.serial_pseudo import ENTRIES, SerialPseudo, entries_of_matrix, matrix
 from manus.plants.structures import Axis, Manus2
 
 NEWTON_STEPS = 10
@@ -106,6 +107,8 @@ class Projection(eqx.Module):
     lower: Array  # (P,) lower bounds: 0 for friction, ε for axis inertias, −inf otherwise
     cone: tuple[int, int, int] | None = eqx.field(static=True)  # indices of a1, a2, a3 (manus2)
     min_inertia: float = eqx.field(static=True)  # ε [kg m²]
+    # a serial chain in pseudo-inertia coordinates: per link, the indices of its 10 entries and ℓ
+    links: tuple = eqx.field(static=True, default=())
 
     def __init__(self, model: Model, min_inertia: float = 1e-3):
         if not min_inertia >= 0:
@@ -115,7 +118,12 @@ class Projection(eqx.Module):
         bounds = [lo for e in model.effects if e.kind != "inertial" for lo in e.lower_bounds(s)]
         lower[[i for i, k in enumerate(names) if k not in s.rigid_names]] = bounds  # each effect's own rules
         self.cone = None
-        if isinstance(s, Manus2):
+        self.links = ()
+        if isinstance(s, SerialPseudo):
+            self.links = tuple((tuple(names.index(f"J{i + 1}{e}") for e in ENTRIES), s.scale[i])
+                               for i in range(s.n_joints))
+            lower[[names.index(f"Ia{i + 1}") for i in range(s.n_joints)]] = 0.0
+        elif isinstance(s, Manus2):
             self.cone = tuple(names.index(k) for k in s.rigid_names)
         elif isinstance(s, Axis):
             lower[[names.index(k) for k in s.rigid_names]] = min_inertia
@@ -127,6 +135,8 @@ class Projection(eqx.Module):
     def __call__(self, theta: Array, gamma: Array) -> Array:
         """The projection of θ (P,) in the metric of Γ⁻¹ = diag(1/gamma)."""
         theta = jnp.maximum(theta, self.lower)
+        if self.links:
+            return _onto_pseudo_inertias(theta, self.links)
         if self.cone is None:
             return theta
         cone, eps = self.cone, self.min_inertia
@@ -153,6 +163,24 @@ class Projection(eqx.Module):
             return theta.T, True
 
         return onto_cone(theta, gamma)
+
+
+def _onto_pseudo_inertias(theta: Array, links: tuple) -> Array:
+    """θ with each link's pseudo-inertia J made positive semidefinite: the eigenvalues of its scaled
+    J' = S J S (S = diag(1/ℓ, 1/ℓ, 1/ℓ, 1)) below 0 set to 0, the closest point in the Frobenius
+    norm of J', which is the Γ⁻¹ metric for gains in `SerialPseudo.rigid_gains`' pattern
+    (`manus.plants.serial_pseudo`). A link already consistent comes back bit for bit."""
+    moved = {}
+    for idx, scale in links:
+        S = jnp.array([1 / scale, 1 / scale, 1 / scale, 1.0])
+        J = matrix(theta[jnp.array(idx)])
+        Js = J * S[:, None] * S[None, :]
+        w, V = jnp.linalg.eigh(Js)
+        fixed = (V * jnp.maximum(w, 0.0)) @ V.T / (S[:, None] * S[None, :])
+        fixed = 0.5 * (fixed + fixed.T)
+        new = jnp.where(w[0] < 0, entries_of_matrix(fixed), theta[jnp.array(idx)])
+        moved.update({k: new[i] for i, k in enumerate(idx)})
+    return jnp.stack([moved[m] if m in moved else theta[m] for m in range(theta.shape[-1])])
 
 
 def _outside_cone(theta: Array, cone: tuple[int, int, int], eps: float) -> Array:

@@ -96,6 +96,9 @@ class Regressor(eqx.Module):
         for e in self.model.effects:
             if e.kind == "inertial" and self.form == "slotine-li":
                 total = total + s.inertia(q, p) @ qdd_r + s.coriolis(q, qd, p) @ qd_r
+                if getattr(s, "rigid_gravity", ""):  # a serial chain's rigid effect holds gravity, g(q)
+                    zero = jnp.zeros_like(qdd_r)
+                    total = total + s.rigid_torque(q, zero, zero, p)
             else:
                 total = total + e.torque(s, q, qd_r, qdd_r, p, self.boundary)
         return total

@@ -89,11 +89,17 @@ class SlotineLiState(NamedTuple):
 
 
 def default_gains(model: Model) -> np.ndarray:
-    """Γ (P,): the thesis's for MANUS-2's a1, a2, a3, each effect's own `gain` otherwise
-    [units of the parameter² per (N·m·rad)]."""
+    """Γ (P,): the thesis's for MANUS-2's a1, a2, a3, a serial chain's in pseudo-inertia
+    coordinates in the pattern of its projection's metric (`SerialPseudo.rigid_gains`), each
+    effect's own `gain` otherwise [units of the parameter² per (N·m·rad)]."""
     gamma = np.array([e.gain for e in model.effects for _ in e.names(model.structure)], float)
     if isinstance(model.structure, Manus2) and model.has("rigid"):
         for name, g in zip(model.structure.rigid_names, THESIS_RIGID_GAINS):
+            gamma[model.names.index(name)] = g
+    own = getattr(model.structure, "rigid_gains", None)  # a chain in pseudo-inertia coordinates: its metric's pattern
+    if own is not None and model.has("rigid"):
+        rigid = model.get("rigid")
+        for name, g in own(rigid.gain).items():
             gamma[model.names.index(name)] = g
     return gamma
 

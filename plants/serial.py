@@ -551,6 +551,13 @@ class Serial(_Configuration):
         """This chain in its base parameters (`base_parameters`), the form identification uses."""
         return _base_of(self)
 
+    def pseudo(self):
+        """This chain in pseudo-inertia coordinates (`manus.plants.serial_pseudo`), the form adaptive
+        control uses: its links are consistent exactly when each pseudo-inertia is PSD."""
+        from manus.plants.serial_pseudo import SerialPseudo
+
+        return SerialPseudo(self)
+
 
 # -- base parameters -----------------------------------------------------------------------------------
 

@@ -55,7 +55,7 @@ def add_arguments(p) -> None:
     p.add_argument("--gamma", action="append", default=[], metavar="PARAM=VALUE",
                    help="the adaptation gain of one parameter, e.g. --gamma b1=30 (repeatable)")
     add_common(p)
-    add_plant_options(p, truth_default="rigid,viscous,coulomb")
+    add_plant_options(p, truth_default="rigid,viscous,coulomb", robot=True)
     p.set_defaults(torque_noise=0.005)
 
 
@@ -110,6 +110,8 @@ def controller_for(plant, model, law: str, estimator, form: str = "slotine-li", 
     knobs = {"lead": 0.0, "velocity_lag": 0.0} if uncompensated else {"lead": 0.5 * plant.dt + plant.delay}
     if plant.actuator is not None:
         knobs["limit"] = plant.actuator.limit
+    elif hasattr(plant.model.structure, "pseudo"):  # a serial robot: the torque it is commanded, no D/A's limit
+        knobs["limit"] = float("inf")
     name = "slotine-li-composite" if law == "composite" else "slotine-li"
     return make_controller(name, model, plant.dt, estimator, form=form, **{**knobs, **gains})
 
@@ -136,7 +138,11 @@ def run_trials(plant, controller, reference, trials: int, seconds: float, init_s
     arrays = (jnp.asarray(theta0), *(jnp.asarray(np.asarray(x) * np.exp(rng.uniform(-g, g, (trials,) + x.shape)))
                                      for x in (controller.gamma, controller.lam, controller.kd)))
     keys = jax.random.split(jax.random.PRNGKey(seed), trials)
-    truth = np.array([float(plant.params.get(k, 0.0)) for k in controller.names])
+    known = dict(plant.params)
+    to_mine = getattr(mine, "values", None)  # a chain adapted in pseudo-inertia coordinates: the truth in them
+    if to_mine is not None and hasattr(theirs, "pseudo"):
+        known.update(to_mine(plant.params))
+    truth = np.array([float(known.get(k, 0.0)) for k in controller.names])
     log = rollout_batch(plant, controller, reference, arrays, keys, steps, EVERY, record, truth)
     return Trials(log.t, log.q_err, log.tau, log.theta, (np.arange(steps // EVERY) + 1) * EVERY * plant.dt,
                   log.grams, log.stopped, tuple(controller.names), truth, log.theta_final, log.q_err_ms, log.tau_max,
@@ -178,6 +184,27 @@ def summarize(tr: Trials) -> dict:
             "tau_max": tr.tau_max[ok].max(axis=0).tolist()}
 
 
+def base_summary(tr: Trials, pseudo) -> dict:
+    """A serial chain adapted in pseudo-inertia coordinates: its base parameters (K φ, the
+    combinations the torque determines; `SerialBase`) from the final estimates, beside the truth's."""
+    base = pseudo.serial.base()
+    ok = ~tr.stopped
+    names = list(tr.names)
+
+    def based(theta):
+        p = dict(zip(names, theta))
+        return base.values(np.asarray(pseudo.standard({k: p[k] for k in pseudo.rigid_names})))
+
+    truth = based(tr.truth)
+    finals = np.array([based(t) for t in tr.theta_final[ok]])
+    out = {}
+    for i, name in enumerate(base.base_names):
+        f = finals[:, i]
+        err = float((f.mean() - truth[i]) / abs(truth[i])) if abs(truth[i]) > 1e-12 else None
+        out[name] = {"truth": float(truth[i]), "final": float(f.mean()), "final_std": float(f.std()), "error": err}
+    return out
+
+
 def _pairs(items: list[str], flag: str) -> dict[str, float]:
     from manus.plants.errors import ManusError
 
@@ -197,7 +224,9 @@ def run(args) -> dict:
     from manus.runs.converge_figures import plot_estimates, plot_tracking
 
     plant = build_plant(args)
-    model = Model(plant.model.structure, args.model)
+    structure = plant.model.structure
+    # a serial robot adapts in pseudo-inertia coordinates, where its projection keeps every link consistent
+    model = Model(structure.pseudo() if hasattr(structure, "pseudo") else structure, args.model)
     reference = reference_named(args.trajectory, model)
     gains = _pairs(args.gain, "--gain")
     if args.gamma:
@@ -212,6 +241,8 @@ def run(args) -> dict:
     if tr.stopped.all():
         raise ManusError("every trial stopped itself on a non-finite value: nothing to report")
     result = summarize(tr)
+    if hasattr(model.structure, "values"):  # a serial chain: its identifiable combinations, the base parameters
+        result["base_params"] = base_summary(tr, model.structure)
     title = f"{args.trajectory}: truth {plant.model.spec}, model {model.spec}, {args.law}, {args.estimator}"
     result["figures"] = {"tracking": plot_tracking(tr, args.out / f"converge_{args.trajectory}_tracking.png", title),
                          "estimates": plot_estimates(tr, args.out / f"converge_{args.trajectory}_estimates.png", title)}
@@ -238,6 +269,11 @@ def render(r: dict) -> str:
              f"excitation: smallest eigenvalue of ∫YᵀY dt = {ex['lambda_min']:.3g} at the end"
              + (f", {ex['lambda_min_at_1s']:.3g} after 1 s" if ex["lambda_min_at_1s"] is not None else ""),
              "tracking error RMS per joint: " + ", ".join(f"{x:.4f} rad" for x in r["tracking_rms"])]
+    if "base_params" in r:  # a serial chain: what the torque can determine
+        rows = [[k, f"{b['truth']:.4g}", f"{b['final']:.4g} ± {b['final_std']:.2g}",
+                 "" if b["error"] is None else f"{100 * b['error']:+.2f} %"] for k, b in r["base_params"].items()]
+        lines += ["base parameters (the combinations the torque determines) of the final estimates:",
+                  table(rows, ["base", "truth", "final (mean ± std)", "error"])]
     if r["stopped_trials"]:
         lines.append(f"{r['stopped_trials']} trial(s) stopped on a non-finite value (left out above)")
     lines += [f"figures: {r['figures']['tracking']}", f"         {r['figures']['estimates']}"]
