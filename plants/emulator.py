@@ -28,6 +28,7 @@ import select
 import socket
 import time
 from collections import Counter
+from pathlib import Path
 
 import numpy as np
 
@@ -88,6 +89,7 @@ class Emulator:
             self._writer = RecordingWriter(log, cols, {"sample_rate_hz": f"{sim.rate_hz:g}",
                                                        "counts_per_rev": f"{self.info.counts_per_rev:g}",
                                                        "structure": sim.model.structure.name,
+                                                       **_robot_of(sim.model.structure),
                                                        "truth": sim.model.spec, "source": "manus emulate (device side)",
                                                        "streamed": "true"})
         self._warm_up()
@@ -299,3 +301,9 @@ class Emulator:
                 self._rows.clear()
             self._writer.close()
         self.sock.close()
+
+
+def _robot_of(structure) -> dict:
+    """A serial chain's log names its URDF (absolute: the log may go anywhere)."""
+    source = getattr(getattr(structure, "serial", structure), "source", "")
+    return {"robot": str(Path(source).absolute())} if source else {}

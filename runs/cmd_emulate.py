@@ -26,7 +26,9 @@ def add_arguments(p) -> None:
                    help="busy-wait this long before each tick instead of sleeping (a sleeping vCPU wakes late; default 2)")
     p.add_argument("--seed", type=int, default=0, help="seed of the fault injection")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout at exit")
-    add_plant_options(p)
+    p.add_argument("--torque-limit", type=float, default=100.0,
+                   help="with --robot: the largest torque its (ideal, 24-bit) D/A reaches [N·m] (default 100)")
+    add_plant_options(p, robot=True)
 
 
 def run(args) -> dict:
@@ -40,7 +42,9 @@ def run(args) -> dict:
         raise ManusError("--watchdog-ms must be positive")
     if args.counts <= 0:
         raise ManusError("--counts must be positive: a rig's encoder has a resolution")
-    plant = build_plant(args)
+    if args.robot and not args.torque_limit > 0:
+        raise ManusError("--torque-limit must be positive")
+    plant = build_plant(args, robot_torque_limit=args.torque_limit if args.robot else None)
     emu = Emulator(plant, args.port, args.host, watchdog=args.watchdog_ms / 1e3, drop=args.drop,
                    garbage=args.garbage, log=args.log, seed=args.seed,
                    spin=args.spin_ms / 1e3)

@@ -16,6 +16,9 @@ def add_arguments(p) -> None:
     p.add_argument("--controller", default="slotine-li", help="impedance, slotine-li or slotine-li-composite")
     p.add_argument("--estimator", default="kalman_cv", help="velocity estimator (see `manus estimators`)")
     p.add_argument("--model", default="rigid,viscous,coulomb", help="the controller's model (adaptive ones)")
+    p.add_argument("--robot", metavar="FILE.urdf", default=None,
+                   help="the rig is this serial robot (its joints the device's; adaptive controllers adapt in "
+                        "pseudo-inertia coordinates, manus.plants.serial_pseudo)")
     p.add_argument("--structure", choices=("manus2", "axis"), default=None,
                    help="default: manus2 for a 2-joint device, axis otherwise")
     p.add_argument("--reference", choices=("benign", "complex", "hold", "multisine"), default="benign")
@@ -41,7 +44,7 @@ def reference_for(name: str, structure: str, n: int):
 
 
 def build_stepper(info, controller: str, estimator: str, model_spec: str, structure: str | None, reference: str,
-                  torque_limit: float | None = None):
+                  torque_limit: float | None = None, robot: str | None = None):
     """The compiled tick of `controller` + `estimator` for the device described by `info`, warmed up."""
     from manus.adaptive.controllers import make_controller
     from manus.plants import Model, structure_named
@@ -49,11 +52,21 @@ def build_stepper(info, controller: str, estimator: str, model_spec: str, struct
     from manus.plants.hardware import CompiledTick
 
     n = info.n_joints
-    structure = structure or ("manus2" if n == 2 else "axis")
-    if structure == "manus2" and n != 2:
-        raise ManusError(f"the device has {n} joint(s); manus2 has 2 (use --structure axis)")
+    if robot is not None:
+        from manus.plants.serial import Serial
+
+        chain = Serial.from_urdf(robot)
+        if chain.n_joints != n:
+            raise ManusError(f"the device has {n} joint(s); the robot {robot} has {chain.n_joints} "
+                             f"({', '.join(chain.joint_names)})")
+        shape, structure = chain.pseudo(), "urdf"
+    else:
+        structure = structure or ("manus2" if n == 2 else "axis")
+        if structure == "manus2" and n != 2:
+            raise ManusError(f"the device has {n} joint(s); manus2 has 2 (use --structure axis)")
+        shape = structure_named(structure, n)
     dt = 1.0 / info.rate_hz
-    model = Model(structure_named(structure, n), model_spec)
+    model = Model(shape, model_spec)
     limit = info.torque_limit if torque_limit is None else min(torque_limit, info.torque_limit)
     if not limit > 0:
         raise ManusError(f"--torque-limit must be positive, got {torque_limit}")
@@ -82,10 +95,12 @@ def run(args) -> dict:
         note(f"{args.device}: {info.n_joints} joints at {info.rate_hz:g} Hz, {info.counts_per_rev:g} counts/rev; "
              f"compiling {args.controller} + {args.estimator} ...")
         stepper = build_stepper(info, args.controller, args.estimator, args.model, args.structure, args.reference,
-                                args.torque_limit)
+                                args.torque_limit, args.robot)
         meta = {"controller": args.controller, "estimator": args.estimator, "model": args.model,
                 "reference": args.reference, "device": args.device,
-                "structure": args.structure or ("manus2" if info.n_joints == 2 else "axis")}
+                "structure": "urdf" if args.robot else (args.structure or ("manus2" if info.n_joints == 2 else "axis"))}
+        if args.robot:
+            meta["robot"] = str(Path(args.robot).absolute())
         note(f"running {args.seconds:g} s ...")
         result = run_loop(device, stepper, args.seconds, args.record, watchdog=args.watchdog_ms / 1e3,
                           torque_limit=args.torque_limit, volts=not args.torque, meta=meta).as_dict()

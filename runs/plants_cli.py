@@ -39,8 +39,10 @@ def parse_params(items: list[str]) -> dict[str, float]:
     return out
 
 
-def build_plant(args):
-    """The simulator the options describe."""
+def build_plant(args, robot_torque_limit: float | None = None):
+    """The simulator the options describe. A serial robot gets the torque it is commanded, or,
+    with `robot_torque_limit` [N·m] (a rig behind the device protocol needs a D/A), an ideal
+    24-bit ±10 V D/A reaching that torque."""
     import math
 
     from manus.plants import Encoder, Model, Simulator, structure_named
@@ -58,6 +60,11 @@ def build_plant(args):
     encoder = Encoder(step=2 * math.pi / args.counts) if args.counts > 0 else None
     # a serial robot gets the torque it is commanded (the thesis's 12-bit D/A and its ±22 N·m are
     # MANUS-2's, not a URDF robot's)
-    extra = {"actuator": None} if robot else {}
+    extra = {}
+    if robot:
+        from manus.plants.simulator import Actuator
+
+        extra["actuator"] = None if robot_torque_limit is None else Actuator(
+            dac_bits=24, volts=10.0, amps_per_volt=1.0, torque_constant=robot_torque_limit / 10.0)
     return Simulator(model, parse_params(args.param), rate_hz=args.rate, substeps=args.substeps,
                      encoder=encoder, torque_noise=args.torque_noise, **extra)

@@ -140,6 +140,49 @@ def test_converge_on_a_robot(capsys, tmp_path):
     assert code == 2 and "the complex trajectory is the thesis's for the manus2 arm" in err
 
 
+def test_hardware_loop_on_a_robot(capsys, tmp_path):
+    """`manus emulate --robot` plays the double pendulum behind the device protocol (an ideal D/A);
+    `manus run-hardware --robot` runs Slotine–Li on it, adapted in pseudo-inertia coordinates, and
+    streams a recording that names its robot; `manus fit` on that recording returns the URDF."""
+    import re
+    import subprocess
+    import sys
+    import time
+
+    urdf = pathlib.Path(__file__).resolve().parents[2] / "examples" / "dfki_double_pendulum" / "double_pendulum_a0.urdf"
+    err_file = tmp_path / "emu.err"
+    emu = subprocess.Popen([sys.executable, "-m", "manus.runs.cli", "emulate", "--port", "0", "--robot", str(urdf),
+                            "--truth", "rigid,viscous,coulomb", "--watchdog-ms", "300", "--seconds", "120"],
+                           stdout=subprocess.DEVNULL, stderr=open(err_file, "w"))
+    try:
+        port, end = None, time.monotonic() + 90
+        while port is None and time.monotonic() < end:
+            m = re.search(r"on udp://127\.0\.0\.1:(\d+)", err_file.read_text())
+            port = int(m.group(1)) if m else None
+            assert emu.poll() is None, err_file.read_text()
+            time.sleep(0.05)
+        assert port is not None, "the emulator did not start"
+        record = tmp_path / "run.csv"
+        code, out, err = _run(capsys, ["run-hardware", "--device", f"udp://127.0.0.1:{port}", "--robot", str(urdf),
+                                       "--controller", "slotine-li", "--model", "rigid,viscous,coulomb",
+                                       "--reference", "multisine", "--seconds", "3", "--torque", "--record", str(record),
+                                       "--watchdog-ms", "300", "--json"])
+        assert code == 0, err
+        r = json.loads(out)
+        assert max(r["tracking_rms"]) < 0.005, r["tracking_rms"]
+    finally:
+        emu.terminate()
+        emu.wait(10)
+    code, out, err = _run(capsys, ["fit", str(record), "--model", "rigid,viscous,coulomb", "--no-figures", "--json"])
+    assert code == 0, err
+    f = json.loads(out)
+    for k in ("mz1R", "Iyy1R", "mz2", "Iyy2"):
+        assert f["params"][k]["value"] == pytest.approx(f["urdf_values"][k], rel=0.02), k
+    code, out, err = _run(capsys, ["run-hardware", "--device", "udp://127.0.0.1:9", "--robot", str(urdf),
+                                   "--seconds", "1"])
+    assert code == 2 and "Traceback" not in err
+
+
 # -- acceptance: a simulated Panda through fit and diagnose ------------------------------------------
 
 PANDA_SECONDS = 10.0  # issue 13 asks for 60 s; 10 s of a richer excitation keep the test near 30 s CPU
