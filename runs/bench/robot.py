@@ -117,16 +117,44 @@ def panda_case(path: str):
     return serial, sim, Fourier(centre, amplitude=1.0, f0=0.2, harmonics=6, decay=1.5, seed=1), truth
 
 
+def accuracy(f, truth: dict, columns=None) -> dict:
+    """How well the fit `f` of the Panda case recovered `truth` (base parameters and effects by
+    name): per parameter, the most of a joint's torque (RMS over its used equations) it carries
+    and its relative error; the acceptance asks those carrying at least 1 % within 1 % (`worst`),
+    and the others to add under 0.1 % of every joint's torque in error (`others_add`)."""
+    from manus.adaptive import fit as fitting
+
+    data = f.data
+    cols = columns or fitting.Columns(data)
+    Y, tau = cols.model(f.model), data.tau(f.delay)
+    used = np.maximum(data.mask.sum(0), 1) if data.mask is not None else np.full(data.n_joints, len(tau))
+    rms_tau = np.sqrt((tau**2).sum(0) / used)
+    rms_col = np.sqrt((Y**2).sum(0) / used[:, None])  # (n, P)
+    rows = []
+    for i, k in enumerate(f.names):
+        share = float(np.max(abs(truth[k]) * rms_col[:, i] / rms_tau))
+        err = f.params[k] - truth[k]
+        rows.append({"name": k, "share": share, "error": abs(err) / abs(truth[k]) if truth[k] else float("inf"),
+                     "adds": float(np.max(abs(err) * rms_col[:, i] / rms_tau))})
+    carrying = [r for r in rows if r["share"] >= 0.01]
+    others = [r for r in rows if r["share"] < 0.01]
+    worst = max(carrying, key=lambda r: r["error"])
+    return {"carrying": [r["name"] for r in carrying], "worst": worst["error"], "worst_name": worst["name"],
+            "others": len(others), "others_add": max((r["adds"] for r in others), default=0.0), "rows": rows}
+
+
 def _loop(path: str, args, note) -> dict:
     """The Panda simulated (one trial, then a vmapped batch) and fitted: seconds and rates."""
     import jax
 
+    from manus.adaptive.diagnose import diagnose
     from manus.adaptive.fit import fit
+    from manus.plants.errors import ManusError
     from manus.plants.closed_loop import simulate_batch
     from manus.plants.serial_sim import Feedforward, record
 
     with jax.enable_x64(True):
-        serial, sim, reference, _ = panda_case(path)
+        serial, sim, reference, truth = panda_case(path)
         note(f"simulating {args.fit_seconds:g} s of the Panda (one trial, with compilation) ...")
         t0 = time.perf_counter()
         rec = record(sim, reference, args.fit_seconds)
@@ -136,6 +164,16 @@ def _loop(path: str, args, note) -> dict:
         fitted = fit(rec, MODEL)
         fit_first = time.perf_counter() - t0
         fit_s = best_time(lambda: fit(rec, MODEL), args.repeats)
+        note("the acceptance on it: the base parameters against the truth, and diagnose from rigid,viscous,coulomb ...")
+        base = serial.base()
+        acc = accuracy(fitted, {**truth, **dict(zip(base.rigid_names, base.values(serial.defaults)))})
+        t0 = time.perf_counter()
+        try:
+            verdict = diagnose(fitted.data, "rigid,viscous,coulomb").verdict
+        except ManusError as e:  # too short a recording: said, not a crash of the bench
+            note(f"diagnose: {e}")
+            verdict = None
+        diagnose_s = time.perf_counter() - t0
         note(f"{args.trials} trials of {args.batch_seconds:g} s vmapped ...")
         keys = jax.random.split(jax.random.PRNGKey(0), args.trials)
         controller = Feedforward(serial, sim.dt)
@@ -144,7 +182,11 @@ def _loop(path: str, args, note) -> dict:
         batch_s = best_time(batch, max(1, args.repeats - 1))
     steps = int(round(args.batch_seconds * sim.rate_hz))
     return {"simulate_one_trial_steps_per_s": len(rec) / sim_s, "fit_first_call_s": fit_first, "fit_s": fit_s,
-            "fit_rel_error": fitted.rel_error, "batch_trial_steps_per_s": args.trials * steps / batch_s}
+            "fit_rel_error": fitted.rel_error, "batch_trial_steps_per_s": args.trials * steps / batch_s,
+            "fit_method": fitted.method, "base_worst_error": acc["worst"], "base_worst_name": acc["worst_name"],
+            "base_carrying": len(acc["carrying"]), "base_others_add": acc["others_add"],
+            "diagnose_verdict": None if verdict is None else verdict.spec,
+            "diagnose_joint": None if verdict is None else int(verdict.joint), "diagnose_s": diagnose_s}
 
 
 def render(r: dict) -> str:
@@ -162,4 +204,8 @@ def render(r: dict) -> str:
         f"  batch of {r['trials']} trials of {r['batch_seconds']:g} s, vmapped: {f['batch_trial_steps_per_s']:.3g} trial-steps/s",
         f"  manus fit on the {r['fit_seconds']:g} s: {f['fit_s']:.2f} s (first call {f['fit_first_call_s']:.2f} s), "
         f"rel_error {100 * f['fit_rel_error']:.3g} %",
+        f"  the acceptance ({f['fit_method']}): the {f['base_carrying']} parameters carrying >= 1 % of a joint's torque "
+        f"within {100 * f['base_worst_error']:.2g} % ({f['base_worst_name']} the worst), the others adding under "
+        f"{100 * f['base_others_add']:.2g} % of a joint's torque; diagnose from rigid,viscous,coulomb: "
+        f"{f['diagnose_verdict']} on joint {f['diagnose_joint']} (the hidden: offset on joint 4) in {f['diagnose_s']:.1f} s",
     ] if "fit_s" in f else []))

@@ -29,6 +29,7 @@ def test_bench_robot_times_the_simulated_panda_and_its_fit(capsys):
     f = json.loads(captured.out)["figures"]
     assert f["simulate_one_trial_steps_per_s"] > 0 and f["batch_trial_steps_per_s"] > 0 and f["fit_s"] > 0
     assert f["fit_rel_error"] < 0.01  # the truth's own model on a noiseless simulation
+    assert f["base_carrying"] > 0 and f["diagnose_s"] > 0 and "diagnose_verdict" in f
 
 
 def test_bench_robot_refuses_bad_sizes(capsys):

@@ -226,26 +226,15 @@ def test_fit_recovers_the_pandas_base_parameters(panda_data):
     report = f.report()
     base = f.model.structure
     assert list(report["base_parameters"]) == list(base.rigid_names) and len(base.rigid_names) == 48
-    Y, tau = cols.model(f.model), data.tau(f.delay)
-    used = np.maximum(data.mask.sum(0), 1)
-    rms_tau = np.sqrt((tau**2).sum(0) / used)
-    rms_col = np.sqrt((Y**2).sum(0) / used[:, None])  # (n, P)
-    rows = []
-    for i, k in enumerate(f.names):
-        share = float(np.max(abs(truth[k]) * rms_col[:, i] / rms_tau))  # the most of a joint's torque it carries
-        err = f.params[k] - truth[k]
-        rows.append((k, share, abs(err) / abs(truth[k]) if truth[k] else np.inf,
-                     float(np.max(abs(err) * rms_col[:, i] / rms_tau)), report["params"][k]["std"]))
-    carrying = [r for r in rows if r[1] >= 0.01]
-    small = [r for r in rows if r[1] < 0.01]
+    a = robot_bench.accuracy(f, truth, cols)
     print(f"Panda {PANDA_SECONDS:g} s: rel_error {f.rel_error:.2e}, {data.rows.size} rows, {100 * data.standstill:.0f} % of "
-          f"the equations left out near reversals; {len(carrying)} parameters carry >= 1 % of a joint's torque, worst "
-          f"{max(r[2] for r in carrying):.2%} off ({max(carrying, key=lambda r: r[2])[0]}); the {len(small)} others add at "
-          f"most {max(r[3] for r in small):.3%} of a joint's torque in error")
-    assert all(r[2] < 0.01 for r in carrying), [r for r in carrying if r[2] >= 0.01]
-    assert all(r[3] < 0.001 for r in small), [r for r in small if r[3] >= 0.001]
-    assert {k for k, *_ in carrying} >= {f"{p}{i}" for p in ("b", "Fc") for i in range(1, 8)} | {"off4"}
-    assert all(r[4] is not None and r[4] > 0 for r in rows)
+          f"the equations left out near reversals; {len(a['carrying'])} parameters carry >= 1 % of a joint's torque, "
+          f"worst {a['worst']:.2%} off ({a['worst_name']}); the {a['others']} others add at most "
+          f"{a['others_add']:.3%} of a joint's torque in error")
+    assert a["worst"] < 0.01, [r for r in a["rows"] if r["share"] >= 0.01 and r["error"] >= 0.01]
+    assert a["others_add"] < 0.001, [r for r in a["rows"] if r["share"] < 0.01 and r["adds"] >= 0.001]
+    assert set(a["carrying"]) >= {f"{p}{i}" for p in ("b", "Fc") for i in range(1, 8)} | {"off4"}
+    assert all(report["params"][k]["std"] is not None and report["params"][k]["std"] > 0 for k in f.names)
     # the physically consistent stage (7 pseudo-inertia LMIs): the truth is consistent, so the
     # estimate is, nothing moves, and the masses (which no base parameter holds) are the URDF's
     from manus.adaptive.consistency import consistent
