@@ -630,7 +630,43 @@ def _base_of(serial: Serial) -> "SerialBase":
                       base_names=names, combinations=b.names, K=b.K)
 
 
-class SerialBase(_Configuration):
+class _Reparametrized(_Configuration):
+    """A chain in other rigid parameters than the standard ones (base parameters, pseudo-inertia
+    entries): `self.serial` and `self.standard(p)`, the standard vector of its parameters, give
+    H, C and the simulator's joint-tuple form."""
+
+    def inertia(self, q, p):
+        return self.serial.mass_matrix(q, self.standard(p))
+
+    def coriolis(self, q, qd, p):
+        theta = self.standard(p)
+        return jax.jacfwd(lambda v: self.serial.coriolis_times(q, qd, v, theta))(jnp.zeros_like(qd))
+
+    def solve(self, H, r):
+        return jnp.linalg.solve(H, r)
+
+    @property
+    def prismatic(self) -> tuple[bool, ...]:
+        return self.serial.prismatic
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return self.serial.joint_names
+
+    # -- the simulator's joint-tuple form (see `Serial`) -----------------------------------------
+    def mass(self, pose, p):
+        return Dense(self.serial.mass_matrix(jnp.stack(pose), self.standard(p)))
+
+    def bias(self, pose, qd, p):
+        q = jnp.stack(pose)
+        tau = self.serial.rnea(q, jnp.stack(qd), jnp.zeros_like(q), self.standard(p))
+        return tuple(tau[i] for i in range(self.n_joints))
+
+    def _closed_form(self, H):
+        return Dense(H)
+
+
+class SerialBase(_Reparametrized):
     """A serial chain in its base parameters: what inverse-dynamics identification can know.
 
     Its rigid parameters are θ_b = K θ (`BaseParameters`, Gautier's numerical QR), each named
@@ -661,14 +697,6 @@ class SerialBase(_Configuration):
     def rigid_defaults(self):
         return tuple(float(v) for v in self.K @ np.asarray(self.serial.defaults))
 
-    @property
-    def prismatic(self) -> tuple[bool, ...]:
-        return self.serial.prismatic
-
-    @property
-    def joint_names(self) -> tuple[str, ...]:
-        return self.serial.joint_names
-
     def values(self, theta) -> np.ndarray:
         """The base parameters (r,) of standard parameters θ (11 n,)."""
         return self.K @ np.asarray(theta, float)
@@ -687,16 +715,6 @@ class SerialBase(_Configuration):
         theta_b = jnp.stack([jnp.asarray(p[k]) for k in self.base_names])
         return self.regressor(q, qd, qdd) @ theta_b
 
-    def inertia(self, q, p):
-        return self.serial.mass_matrix(q, self.standard(p))
-
-    def coriolis(self, q, qd, p):
-        theta = self.standard(p)
-        return jax.jacfwd(lambda v: self.serial.coriolis_times(q, qd, v, theta))(jnp.zeros_like(qd))
-
-    def solve(self, H, r):
-        return jnp.linalg.solve(H, r)
-
     def violations(self, p):
         """Base parameters are combinations, so the pseudo-inertia of a link cannot be checked;
         what can: H(q) positive definite (on `CHECK_STATES` random configurations)."""
@@ -712,15 +730,3 @@ class SerialBase(_Configuration):
             return []
         return [f"the base parameters give an inertia matrix H(q) that is not positive definite (in {bad} of "
                 f"{len(q)} random configurations, smallest eigenvalue {low.min():.3g}): no physical robot has them"]
-
-    # -- the simulator's joint-tuple form (see `Serial`) -----------------------------------------
-    def mass(self, pose, p):
-        return Dense(self.serial.mass_matrix(jnp.stack(pose), self.standard(p)))
-
-    def bias(self, pose, qd, p):
-        q = jnp.stack(pose)
-        tau = self.serial.rnea(q, jnp.stack(qd), jnp.zeros_like(q), self.standard(p))
-        return tuple(tau[i] for i in range(self.n_joints))
-
-    def _closed_form(self, H):
-        return Dense(H)

@@ -28,8 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from manus.plants.serial import GRAVITY_IN_RIGID, Serial, _Configuration
-from manus.plants.serial_friction import Dense
+from manus.plants.serial import GRAVITY_IN_RIGID, Serial, _Reparametrized
 
 ENTRIES = ("m", "hx", "hy", "hz", "xx", "yy", "zz", "xy", "xz", "yz")
 OFF_DIAGONAL = ("hx", "hy", "hz", "xy", "xz", "yz")
@@ -60,7 +59,7 @@ def entries_of_matrix(J) -> jax.Array:
     return jnp.stack([J[3, 3], J[0, 3], J[1, 3], J[2, 3], J[0, 0], J[1, 1], J[2, 2], J[0, 1], J[0, 2], J[1, 2]])
 
 
-class SerialPseudo(_Configuration):
+class SerialPseudo(_Reparametrized):
     """A serial chain in pseudo-inertia coordinates (module docstring). `serial.pseudo()`."""
 
     name: ClassVar[str] = "urdf"
@@ -90,14 +89,6 @@ class SerialPseudo(_Configuration):
         n = self.n_joints
         links = [entries_of(d[10 * i:10 * i + 10]) for i in range(n)]
         return tuple(float(x) for x in np.concatenate([*links, d[10 * n:]]))
-
-    @property
-    def prismatic(self):
-        return self.serial.prismatic
-
-    @property
-    def joint_names(self):
-        return self.serial.joint_names
 
     def rigid_gains(self, gain: float) -> dict[str, float]:
         """Adaptation gains for which the Γ⁻¹ metric on a link's entries is the Frobenius norm of
@@ -129,28 +120,6 @@ class SerialPseudo(_Configuration):
     def rigid_torque(self, q, qd, qdd, p):
         return self.serial.rnea(q, qd, qdd, self.standard(p))
 
-    def inertia(self, q, p):
-        return self.serial.mass_matrix(q, self.standard(p))
-
-    def coriolis(self, q, qd, p):
-        theta = self.standard(p)
-        return jax.jacfwd(lambda v: self.serial.coriolis_times(q, qd, v, theta))(jnp.zeros_like(qd))
-
-    def solve(self, H, r):
-        return jnp.linalg.solve(H, r)
-
     def violations(self, p):
         standard = np.asarray(self.standard({k: float(p[k]) for k in self.rigid_names}))
         return self.serial.violations(dict(zip(self.serial.rigid_names, standard)))
-
-    # -- the simulator's joint-tuple form ------------------------------------------------------
-    def mass(self, pose, p):
-        return Dense(self.serial.mass_matrix(jnp.stack(pose), self.standard(p)))
-
-    def bias(self, pose, qd, p):
-        q = jnp.stack(pose)
-        tau = self.serial.rnea(q, jnp.stack(qd), jnp.zeros_like(q), self.standard(p))
-        return tuple(tau[i] for i in range(self.n_joints))
-
-    def _closed_form(self, H):
-        return Dense(H)
