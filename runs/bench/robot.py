@@ -169,7 +169,9 @@ def _loop(path: str, args, note) -> dict:
         acc = accuracy(fitted, {**truth, **dict(zip(base.rigid_names, base.values(serial.defaults)))})
         t0 = time.perf_counter()
         try:
-            verdict = diagnose(fitted.data, "rigid,viscous,coulomb").verdict
+            # with the method the fit chose on this recording (diagnose's own choice would run IV's
+            # simulations again for the smaller model)
+            verdict = diagnose(fitted.data, "rigid,viscous,coulomb", method=fitted.method).verdict
         except ManusError as e:  # too short a recording: said, not a crash of the bench
             note(f"diagnose: {e}")
             verdict = None
