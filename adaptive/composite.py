@@ -156,6 +156,9 @@ class Composite(eqx.Module):
         H, H_dot = jax.jvp(lambda x: s.inertia(x, p), (q,), (qd,))
         z1 = H @ qd
         z2 = -H_dot @ qd + s.coriolis(q, qd, p) @ qd
+        if getattr(s, "rigid_gravity", ""):  # a serial chain's rigid effect holds gravity, g(q)
+            zero = jnp.zeros_like(qd)
+            z2 = z2 + s.rigid_torque(q, zero, zero, p)
         for e in model.effects:
             if e.name != "rigid":
                 z2 = z2 + e.torque(s, q, qd, jnp.zeros_like(qd), p, regressor.boundary)

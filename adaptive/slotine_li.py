@@ -178,11 +178,6 @@ class SlotineLi(Controller):
                  lam=LAMBDA, kd=KD, theta0=None, form: str = "slotine-li", boundary: float = DEFAULT_BOUNDARY,
                  project: bool = True, min_inertia: float = 1e-3, composite: Composite | None = None,
                  lead: float | None = None, velocity_lag: float | None = None, limit: float = LIMIT):
-        if composite is not None and hasattr(model.structure, "rigid_gains"):
-            raise ManusError("composite adaptation needs identifiable parameters (its least-squares gain grows without "
-                             "bound along the others), and a serial chain's pseudo-inertia entries are not: only their "
-                             "base combinations are (measured: the double pendulum's tracking error went from 8 mrad to "
-                             "1 rad in 4 s). Use the gradient law (slotine-li)")
         self.regressor = Regressor(model, form, boundary)
         names, joints = model.names, tuple(f"joint{i + 1}" for i in range(model.n_joints))
         if not dt > 0:
