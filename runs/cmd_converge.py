@@ -32,8 +32,9 @@ RECORD = 10  # ticks between the recorded rows of the figures (the statistics co
 
 
 def add_arguments(p) -> None:
-    p.add_argument("--trajectory", choices=TRAJECTORIES, default="complex",
-                   help="thesis eqs. C.13-C.14 (complex), C.11-C.12 (benign), or a multi-sine")
+    p.add_argument("--trajectory", choices=TRAJECTORIES, default=None,
+                   help="thesis eqs. C.13-C.14 (complex, the default on manus2), C.11-C.12 (benign), or a "
+                        "multi-sine (the default elsewhere)")
     p.add_argument("--model", default="rigid", metavar="EFFECTS",
                    help="effects in the controller's regressor, e.g. rigid,viscous,coulomb (default rigid)")
     p.add_argument("--law", choices=("gradient", "composite"), default="gradient",
@@ -227,6 +228,8 @@ def run(args) -> dict:
     structure = plant.model.structure
     # a serial robot adapts in pseudo-inertia coordinates, where its projection keeps every link consistent
     model = Model(structure.pseudo() if hasattr(structure, "pseudo") else structure, args.model)
+    if args.trajectory is None:
+        args.trajectory = "complex" if model.structure.name == "manus2" else "multisine"
     reference = reference_named(args.trajectory, model)
     gains = _pairs(args.gain, "--gain")
     if args.gamma:

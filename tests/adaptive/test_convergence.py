@@ -100,7 +100,7 @@ def test_bad_gains_and_trial_settings_fail_before_the_run(tmp_path, capsys):
     assert converge("--trials", "2", "--gain", "kd=-1", "--out", str(tmp_path))[0] == 2
     assert "kd must be positive definite" in capsys.readouterr().err
     assert converge("--trials", "0", "--out", str(tmp_path))[0] == 2
-    assert converge("--structure", "axis", "--out", str(tmp_path))[0] == 2
+    assert converge("--structure", "axis", "--trajectory", "complex", "--out", str(tmp_path))[0] == 2
     assert "complex trajectory is the thesis's for the manus2 arm" in capsys.readouterr().err
 
 

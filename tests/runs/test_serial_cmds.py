@@ -117,6 +117,9 @@ def test_simulate_a_robot_then_fit_it(capsys, tmp_path):
     code, out, err = _run(capsys, ["simulate", "--robot", str(tmp_path / "none.urdf"), "--seconds", "1",
                                    "--out", str(tmp_path / "x.csv")])
     assert code == 2 and "no such URDF file" in err and "Traceback" not in err
+    code, out, err = _run(capsys, ["simulate", "--robot", str(urdf), "--truth", "rigid,gravity", "--seconds", "1",
+                                   "--out", str(tmp_path / "y.csv")])
+    assert code == 2 and "gravity is part of rigid" in err and "Traceback" not in err  # not twice
 
 
 def test_converge_on_a_robot(capsys, tmp_path):
