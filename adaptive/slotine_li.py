@@ -88,6 +88,24 @@ class SlotineLiState(NamedTuple):
     qdd_ref: Array  # the reference acceleration of the last tick (n,)
 
 
+KD_BANDWIDTH = 14.0  # [rad/s] K_D/H of the thesis's gains on MANUS-2 (K_D = 5 on H ≈ 0.35 kg m²)
+
+
+def default_kd(model: Model) -> list[float]:
+    """K_D per joint: the thesis's 5 N·m·s/rad on MANUS-2 and single axes; on a serial chain
+    `KD_BANDWIDTH` times each joint's own inertia (the URDF's H(0) diagonal), since a fixed 5 on a
+    light link is a loop far faster than the sample rate allows (measured: the DFKI pendulum's
+    elbow, H = 0.027 kg m², diverged at 250 Hz with 5 and tracked within 1 mrad with 0.37)."""
+    s = model.structure
+    chain = getattr(s, "serial", None)
+    if chain is None:
+        return [KD] * model.n_joints
+    import jax.numpy as jnp
+
+    H = np.asarray(chain.mass_matrix(jnp.zeros(chain.n_joints), jnp.asarray(chain.defaults)))
+    return (KD_BANDWIDTH * np.maximum(np.diag(H), 1e-9)).tolist()
+
+
 def default_gains(model: Model) -> np.ndarray:
     """Γ (P,): the thesis's for MANUS-2's a1, a2, a3, a serial chain's in pseudo-inertia
     coordinates in the pattern of its projection's metric (`SerialPseudo.rigid_gains`), each
@@ -175,7 +193,7 @@ class SlotineLi(Controller):
     dt: float = eqx.field(static=True)
 
     def __init__(self, model: Model, dt: float = 1e-3, estimator: Estimator | None = None, *, gamma=None,
-                 lam=LAMBDA, kd=KD, theta0=None, form: str = "slotine-li", boundary: float = DEFAULT_BOUNDARY,
+                 lam=LAMBDA, kd=None, theta0=None, form: str = "slotine-li", boundary: float = DEFAULT_BOUNDARY,
                  project: bool = True, min_inertia: float = 1e-3, composite: Composite | None = None,
                  lead: float | None = None, velocity_lag: float | None = None, limit: float = LIMIT):
         self.regressor = Regressor(model, form, boundary)
@@ -190,7 +208,7 @@ class SlotineLi(Controller):
                              f"at {dt:g} s")
         self.gamma = jnp.asarray(_positive("gamma", _per("gamma", gamma, names, default_gains(model)), names))
         self.lam = jnp.asarray(_positive("lam", _per("lam", lam, joints, [LAMBDA] * len(joints)), joints))
-        self.kd = jnp.asarray(_positive("kd", _per("kd", kd, joints, [KD] * len(joints)), joints))
+        self.kd = jnp.asarray(_positive("kd", _per("kd", kd, joints, default_kd(model)), joints))
         defaults = model.defaults()
         theta = _per("theta0", theta0, names, [defaults[k] for k in names])
         if not np.all(np.isfinite(theta)):
