@@ -87,9 +87,15 @@ def _recording(c: dict):
 def _run(rec, start: str, what: str, direct: bool = True) -> list[str]:
     """discover (and diagnose itself when `direct`); returns the ManusError messages (each checked),
     fails on anything else."""
-    refused = []
     calls = (("diagnose", lambda: diagnose(rec, start)),) if direct else ()
     calls += (("discover", lambda: discover(rec, start, max_steps=MAX_STEPS)),)
+    return answers(what, calls)
+
+
+def answers(what: str, calls) -> list[str]:
+    """Each (name, call): it answers (its `report()` too), or refuses with a `ManusError` whose
+    message says what is wrong; returns those messages, fails the test on anything else."""
+    refused = []
     for name, call in calls:
         try:
             out = call()
@@ -100,7 +106,7 @@ def _run(rec, start: str, what: str, direct: bool = True) -> list[str]:
             assert not PYTHON_TEXT.search(message), f"{what}: {name} refused with a bare Python error: {message!r}"
             refused.append(f"{name}: {message}")
         except Exception:
-            pytest.fail(f"{what}: {name}({start!r}) crashed:\n{traceback.format_exc()}")
+            pytest.fail(f"{what}: {name} crashed:\n{traceback.format_exc()}")
     return refused
 
 

@@ -5,7 +5,6 @@ they answer, or they refuse with a `ManusError` whose message says what is wrong
 error passed on); any other exception fails the test with its trace."""
 
 import pathlib
-import traceback
 
 import jax.numpy as jnp
 import numpy as np
@@ -15,10 +14,9 @@ from manus.adaptive.diagnose import diagnose
 from manus.adaptive.discover import discover
 from manus.adaptive.fit import fit
 from manus.plants import Model, Serial, Simulator
-from manus.plants.errors import ManusError
 from manus.plants.references import MultiSine
 from manus.plants.serial_sim import record
-from tests.adaptive.test_no_crash import PYTHON_TEXT
+from tests.adaptive.test_no_crash import answers
 
 URDF = pathlib.Path(__file__).resolve().parents[2] / "examples" / "dfki_double_pendulum" / "double_pendulum_a0.urdf"
 SEED = 11
@@ -51,23 +49,11 @@ def _case(chain, index: int):
     return rec, f"case {index}: {hidden} x{scale:.3g} on joint {joint + 1}, {len(rec)} samples, noise {noise:.2f}"
 
 
-def _answers(what, calls):
-    for name, call in calls:
-        try:
-            out = call()
-            out.report()
-        except ManusError as e:
-            message = str(e).strip()
-            assert message and not PYTHON_TEXT.search(message), f"{what}: {name} refused with {message!r}"
-        except Exception:
-            pytest.fail(f"{what}: {name} crashed:\n{traceback.format_exc()}")
-
-
 @pytest.mark.parametrize("index", range(CASES))
 def test_no_crash_on_a_serial_chain(chain, index):
     rec, what = _case(chain, index)
     start = "rigid,viscous,coulomb"
-    _answers(what, (("diagnose", lambda: diagnose(rec, start)), ("discover", lambda: discover(rec, start, max_steps=1))))
+    answers(what, (("diagnose", lambda: diagnose(rec, start)), ("discover", lambda: discover(rec, start, max_steps=1))))
 
 
 def test_degenerate_serial_recordings(chain):
@@ -75,5 +61,5 @@ def test_degenerate_serial_recordings(chain):
     still = rec.window(0, len(rec))
     still.q = np.c_[still.q[:, 0], np.full(len(still), still.q[0, 1])]  # the elbow never moves
     for name, r in (("the elbow never moves", still), ("40 samples", rec.window(0, 40))):
-        _answers(f"{what}, {name}", (("fit", lambda: fit(r, "rigid,viscous,coulomb")),
+        answers(f"{what}, {name}", (("fit", lambda: fit(r, "rigid,viscous,coulomb")),
                                      ("diagnose", lambda: diagnose(r, "rigid,viscous,coulomb"))))
