@@ -297,6 +297,12 @@ def _effect_columns(effect: Effect, structure, q, qd, qdd):
     return jax.vmap(model.regressor)(q, qd, qdd)
 
 
+@eqx.filter_jit
+def _batch_columns(effects: Effect, structure, q, qd, qdd):
+    """`_effect_columns` of a stack of one effect's values (array fields with a leading axis)."""
+    return jax.vmap(lambda e: jax.vmap(Model(structure, (e,)).regressor)(q, qd, qdd))(effects)
+
+
 class Columns:
     """Regressor columns of effects on prepared data, cached by effect spec. `kinematics` (q, q̇,
     q̈ at full rate) replaces the measured ones: the instruments of IDIM-IV are the same columns
@@ -315,12 +321,34 @@ class Columns:
     def effect(self, e: Effect) -> np.ndarray:
         """(rows, n, p) columns of one linear effect, low-passed like the torque."""
         if e.spec not in self._cache:
-            d = self.data
-            full = np.asarray(_effect_columns(e, self.structure, *self._args))
-            self._cache[e.spec] = lowpass(full, d.dt, d.cutoff_hz)[self.rows]
-            if self.mask is not None:
-                self._cache[e.spec] *= self.mask
+            self._cache[e.spec] = self._filtered(np.asarray(_effect_columns(e, self.structure, *self._args))[None])[0]
         return self._cache[e.spec]
+
+    def _filtered(self, full: np.ndarray) -> np.ndarray:
+        """Columns (V, T, n, p) at full rate -> low-passed on the used rows (V, rows, n, p); the
+        entries that are zero throughout (a joint's own parameter on another joint) not filtered."""
+        d = self.data
+        on = np.any(full, axis=(0, 1))  # (n, p)
+        out = np.zeros((full.shape[0], self.rows.size) + full.shape[2:])
+        if on.any():
+            low = lowpass(np.moveaxis(full[:, :, on], 0, 1), d.dt, d.cutoff_hz)[self.rows]  # (rows, V, m)
+            out[:, :, on] = np.moveaxis(low, 1, 0)
+        return out if self.mask is None else out * self.mask
+
+    def prefetch(self, effects, batch: int = 32) -> None:
+        """The columns of many values of one effect (a search's grid: the same effect with other
+        non-linear parameters, array fields) computed together: one compiled call and one
+        filter pass per `batch` of them."""
+        todo = list({e.spec: e for e in effects if e.spec not in self._cache}.values())
+        for i in range(0, len(todo), batch):
+            part = todo[i:i + batch]
+            if len(part) == 1:
+                self.effect(part[0])
+                continue
+            stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *part)
+            low = self._filtered(np.asarray(_batch_columns(stacked, self.structure, *self._args)))
+            for j, e in enumerate(part):
+                self._cache[e.spec] = low[j]
 
     def screen(self, e: Effect) -> np.ndarray:
         """The columns of `e` on the used rows without the low-pass: a cheap stand-in to rank

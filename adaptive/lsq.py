@@ -11,6 +11,10 @@ on a busy 2-core machine BLAS threads spin-wait far longer than these tall, thin
 `solve` is the full fit on every row, with what a report needs: redundant columns named (those
 the earlier ones explain: the regressor's rank deficiency), each parameter's standard deviation
 from a heteroscedasticity- and autocorrelation-consistent (Newey–West) covariance, the residual.
+
+The same statistics test whether columns are missing from a model (`block_scores`, `score_p`:
+their score per block, Wald's statistic with the blocks as clusters, its null distribution by
+sign flips of the blocks), and `correlation_time` says how long a residual stays correlated.
 """
 
 from __future__ import annotations
@@ -94,7 +98,14 @@ class Stats:
         (the same minimum-norm solution as `coef`'s, to rounding)."""
         A, b = (self.H, self.h) if self.iv else (self.G, self.g)
         m = np.asarray(masks, float)
-        return np.einsum("fpq,fq->fp", np.linalg.pinv(np.einsum("fs,spq->fpq", m, A), rcond=RCOND), m @ b)
+        M, r = np.einsum("fs,spq->fpq", m, A), m @ b
+        if self.iv:
+            return np.einsum("fpq,fq->fp", np.linalg.pinv(M, rcond=RCOND), r)
+        # least squares: M is symmetric, its pseudo-inverse from its eigenvectors (cheaper than an SVD)
+        lam, U = np.linalg.eigh(M)
+        keep = lam > RCOND * np.abs(lam).max(axis=1, keepdims=True)
+        inv = np.where(keep, 1.0 / np.where(keep, lam, 1.0), 0.0)
+        return np.einsum("fpk,fk->fp", U, inv * np.einsum("fpk,fp->fk", U, r))
 
     def sses(self, C: np.ndarray, masks: np.ndarray) -> np.ndarray:
         """Squared error of the coefficients C (F, P) on the segments of each mask (F, S), summed
@@ -203,6 +214,166 @@ def _newey_west(A: np.ndarray, W: np.ndarray, e: np.ndarray, n: int, lags: int) 
         a, b = g[lag * n:], g[:-lag * n]  # the same joint, `lag` rows apart
         meat += w * (a.T @ b + b.T @ a)
     return A_inv @ meat @ A_inv.T
+
+
+def block_scores(st: Stats, test: np.ndarray, blocks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The score of the columns `test` (a bool mask over the columns of `st`: a candidate's, on
+    top of a model of the others) per block, (G, k), and each block's share of their
+    information, (G, k, k).
+
+    The model of the other columns is fitted on every row (least squares, or IV when `st` has
+    instruments); each tested column's score is its (instrument's) product with that residual,
+    summed over a block, with the part the model's parameters would absorb taken out
+    (partialled: the instrument Z̃ = Z_E − Z_X C, C = H_XX⁻¹ᵀ H_EXᵀ with H = ZᵀX over every row,
+    so that Z̃ᵀX = 0; Z = X for least squares). Their sum is what the tested columns would
+    explain; a block's information Q_b = (Z̃ᵀE)_b is its share of the signal they carry: fitted,
+    they take Q_b β̂ out of block b's score. `blocks` (G, S): the segments each block holds."""
+    A, b = (st.H, st.h) if st.iv else (st.G, st.g)
+    test = np.asarray(test, bool)
+    idx = np.r_[np.flatnonzero(~test), np.flatnonzero(test)]
+    A, b = A[:, idx][:, :, idx], b[:, idx]
+    p = int((~test).sum())
+    Asum = A.sum(0)
+    theta = np.linalg.lstsq(Asum[:p, :p], b[:, :p].sum(0), rcond=RCOND)[0] if p else np.zeros(0)
+    u = b - A[:, :, :p] @ theta  # (S, P): each instrument against the model's residual, per segment
+    T = np.eye(len(idx))[:, p:]  # the instruments Z̃ as combinations of Z's columns: (P, k)
+    if p:
+        T[:p] = -np.linalg.lstsq(Asum[:p, :p].T, Asum[p:, :p].T, rcond=RCOND)[0]
+    masks = np.asarray(blocks, float)
+    k = T.shape[1]
+    TA = (T.T[None] @ A[:, :, p:]).reshape(A.shape[0], k * k)  # (S, k·k): each segment's Z̃ᵀE
+    return masks @ (u @ T), (masks @ TA).reshape(-1, k, k)
+
+
+FLIPS = 2000  # sign-flip draws of `score_p` at least (its smallest p: 1/(draws + 1)) ...
+FLIPS_PER_ALPHA = 4  # ... and at least this many over the level a p is judged at
+FLIP_CHUNK = 250
+MIN_EFFECTIVE_BLOCKS = 12.0  # below this many blocks sharing the information, the exact flips (see score_p)
+
+
+def score_p(scores: list[tuple[np.ndarray, np.ndarray]], alpha: float = 0.05, seed: int = 0,
+            stop_above: float = 0.1) -> tuple[float, int, str]:
+    """p of 'the candidate's columns are missing from the model', from their block scores (one
+    `block_scores` per value of the candidate's searched parameter; one: nothing searched).
+
+    Per value, Wald's statistic with the blocks as clusters: W = (Σ s)ᵀ Ω⁻¹ (Σ s), Ω = Σ d dᵀ the
+    spread of the blocks' scores once the candidate is fitted without each (d_b = L_b (s_b −
+    Q_b β̂), β̂ = Q⁻¹ Σ s, L_b = (I − Q_b Q⁻¹)⁻¹: the cluster jackknife; noise only, a missing
+    effect's own signal, large in some blocks and small in others, does not count as noise);
+    over a search, its largest over the values. Its null distribution comes from random sign
+    flips of whole blocks, the statistic computed again from the flipped scores exactly as from
+    the data (β̂, the jackknife and Ω included). What is flipped depends on how many blocks
+    share the columns' information (the effective number k² / Σ_b tr(Q_b Q⁻¹)², over the values
+    searched, the smallest): at least `MIN_EFFECTIVE_BLOCKS`, the blocks' noise scores d (the
+    wild cluster bootstrap, Cameron, Gelbach & Miller 2008: the null's spread whatever the
+    signal); fewer, the scores s themselves (an exact randomization test where the blocks are
+    independent and their scores symmetric under the null: with the information in a few
+    blocks, their noise cannot be told from their signal, and the wild bootstrap's p would be
+    too small; measured in tests/adaptive/test_score_test.py). The same flips serve every value
+    searched: the search is redone in each draw, so what it buys is paid for. p = (1 + draws at
+    least as large)/(1 + draws), with enough draws that a p below `alpha` (the level it is
+    judged at) can show (`FLIPS`, at least `FLIPS_PER_ALPHA`/alpha); they stop early once p is
+    surely above `stop_above`. Returns (p, the index of the value with the largest W, "wild" or
+    "exact")."""
+    draws = max(FLIPS, int(np.ceil(FLIPS_PER_ALPHA / alpha)))
+    prepared, effective = [], np.inf
+    observed = np.full(len(scores), -np.inf)
+    for v, (s, Q) in enumerate(scores):
+        Qs = Q.sum(0)
+        lam, U = np.linalg.eigh(0.5 * (Qs + Qs.T))
+        keep = lam > 1e-10 * max(lam.max(initial=0.0), 1e-300)
+        k = int(keep.sum())
+        if k == 0 or s.shape[0] <= 2 * k:
+            continue
+        R = U[:, keep]
+        sr, Qr = s @ R, np.einsum("ki,gkl,lj->gij", R, Q, R)
+        Qi = np.linalg.pinv(Qr.sum(0))
+        # each block's noise score as if the candidate were fitted without it (the cluster
+        # jackknife, CR3): a block that holds much of the columns' information pulls the fit
+        # toward itself, and its own residual score would understate its noise
+        L = np.linalg.pinv(np.eye(k)[None] - Qr @ Qi)
+        dj = (L @ (sr - Qr @ (Qi @ sr.sum(0)))[..., None])[..., 0]
+        observed[v] = sr.sum(0) @ _solve_psd((dj.T @ dj)[None], sr.sum(0)[None])[0]
+        lev = np.einsum("gij,ji->g", Qr, Qi)  # each block's share of the information (Σ = k)
+        effective = min(effective, k * k / max(float(np.sum(lev**2)), 1e-300))
+        prepared.append((k, sr, dj, Qr, Qi, L))
+    if not prepared:
+        return 1.0, 0, "none"
+    # the blocks' noise scores flipped where many blocks share the information (the wild
+    # bootstrap's power); the scores themselves where a few hold most of it (an exact
+    # randomization test: the noise of those few cannot be told from their signal)
+    wild = effective >= MIN_EFFECTIVE_BLOCKS
+    by_k: dict[int, list] = {}  # the values, grouped by how many identifiable directions they have
+    for k, sr, dj, Qr, Qi, L in prepared:
+        by_k.setdefault(k, []).append((dj if wild else sr, Qr, Qi, L))
+    G = scores[0][0].shape[0]
+    # A draw's pseudo-scores are w_b d_b (d: the jackknifed noise scores, or the scores s
+    # themselves for the exact flips, signs flipped); its statistic is computed from them as from
+    # the data: m = Σ w d, β = Q⁻¹ m, the blocks'
+    # jackknifed scores L_b (w_b d_b − Q_b β) = w_b d2_b − Q2_b β (d2 = L d, Q2 = L Q), and per k,
+    # the values stacked, their Ω = D − T·β − (T·β)ᵀ + S·β·β with D = Σ d2 d2ᵀ (signs squared
+    # away), T = Σ w_b d2_b ⊗ Q2_b (one matrix product over the blocks), S = Σ Q2_b ⊗ Q2_b
+    pre = []
+    for k, vals in by_k.items():
+        d = np.stack([x[0] for x in vals])  # (V, G, k)
+        Qi = np.stack([x[2] for x in vals])
+        L = np.stack([x[3] for x in vals])
+        d2 = (L @ d[..., None])[..., 0]
+        Q2 = L @ np.stack([x[1] for x in vals])  # (V, G, k, k)
+        D = np.einsum("vgi,vgj->vij", d2, d2)
+        T = np.einsum("vgi,vgjl->gvijl", d2, Q2).reshape(G, -1)
+        S = np.einsum("vgil,vgjm->vlmij", Q2, Q2).reshape(len(vals), k * k, k * k)
+        pre.append((k, len(vals), d.transpose(1, 0, 2).reshape(G, -1), Qi, D, T, S))
+    best = int(np.argmax(observed))
+    rng = np.random.default_rng(seed)
+    exceed = done = 0
+    while done < draws:
+        n = min(FLIP_CHUNK, draws - done)
+        w = rng.choice((-1.0, 1.0), size=(n, G))
+        top = np.full(n, -np.inf)
+        for k, V, dflat, Qi, D, T, S in pre:
+            m = (w @ dflat).reshape(n, V, k)
+            beta = (Qi[None] @ m[..., None])[..., 0]  # (n, V, k)
+            tb = ((w @ T).reshape(n, V, k * k, k) @ beta[..., None]).reshape(n, V, k, k)
+            bb = (beta[..., :, None] * beta[..., None, :]).reshape(n, V, 1, k * k)
+            omega = D[None] - tb - tb.transpose(0, 1, 3, 2) + (bb @ S[None]).reshape(n, V, k, k)
+            W = np.sum(m * _solve_psd(omega.reshape(-1, k, k), m.reshape(-1, k)).reshape(n, V, k), axis=2)
+            top = np.maximum(top, W.max(1))
+        exceed += int(np.sum(top >= observed[best] * (1 - 1e-9)))
+        done += n
+        if (1 + exceed) / (1 + draws) > stop_above:  # surely above it, whatever the rest would give
+            break
+    return (1 + exceed) / (1 + done), best, "wild" if wild else "exact"
+
+
+def _solve_psd(omega: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """Ω⁻¹ m for a batch of positive semi-definite Ω (B, k, k) and m (B, k) (a tiny ridge where
+    Ω is singular)."""
+    k = omega.shape[1]
+    ridge = (1e-12 * np.trace(omega, axis1=1, axis2=2) + 1e-300)[:, None, None] * np.eye(k)
+    return np.linalg.solve(omega + ridge, m[..., None])[..., 0]
+
+
+def correlation_time(x: np.ndarray, dt: float) -> float:
+    """The integrated autocorrelation time of the columns of x (rows, n) [s], the largest: 1 +
+    2 Σ ρ_k over the lags up to Sokal's window (five times the running estimate), times dt.
+    The variance of a mean over T seconds of such a series is that of T / τ independent values."""
+    out = 0.0
+    for y in np.asarray(x, float).T:
+        y = y - y.mean()
+        n = y.size
+        if n < 8 or not np.any(y):
+            continue
+        f = np.fft.rfft(y, 2 * n)
+        ac = np.fft.irfft(f * np.conj(f))[:n]
+        ac = ac / ac[0]
+        tau = 1.0
+        for m in range(1, n // 4):
+            tau = 1 + 2 * ac[1:m + 1].sum()
+            if m >= 5 * tau:
+                break
+        out = max(out, tau * dt)
+    return out
 
 
 def one_sided_p(base_sse: np.ndarray, sse: np.ndarray) -> float:

@@ -57,7 +57,7 @@ class Grid:
         chooses on its own training segments): the best value per mask (F,) and the errors (F, V)."""
         F, V = masks.shape[0], len(self.values)
         errs = np.full((F, V), np.inf)
-        if self.screen is not None:
+        if self.screen is not None and any(st is None for st in self.stats):  # (once all are built: exact)
             rough = np.stack([st.sses(st.coefs(masks), masks) for st in self.screen], 1)  # (F, V)
             keep = np.zeros((F, V), bool)
             np.put_along_axis(keep, np.argsort(rough, axis=1)[:, :SCREEN_KEEP], True, axis=1)
@@ -70,10 +70,12 @@ class Grid:
 
 
 def grid(data: "Data", cols: "Columns", rest: Model, effect: Effect, starts: np.ndarray,
-         values: tuple | None = None, icols: Columns | None = None, keep: np.ndarray | None = None) -> Grid:
+         values: tuple | None = None, icols: Columns | None = None, keep: np.ndarray | None = None,
+         exact: bool = False) -> Grid:
     """The grid search of `effect`'s non-linear parameter on top of `rest` (see `Grid`): a linear
     effect changes the columns, a timing effect the torque. `icols`: instruments (IV). `keep`: a
-    mask over the effect's columns (the others held at 0, their physical bound)."""
+    mask over the effect's columns (the others held at 0, their physical bound). `exact`: every
+    value's statistics built now, their columns computed together (no screening)."""
     values = list(values if values is not None else effect.space(data.span()))
     if keep is not None:
         cols, icols = _Kept(cols, keep), (None if icols is None else _Kept(icols, keep))
@@ -85,6 +87,11 @@ def grid(data: "Data", cols: "Columns", rest: Model, effect: Effect, starts: np.
         build = lambda i: lsq.Stats(Y, data.tau(_timing(values[i], rest, delay)), starts, Z)
         return Grid(values, [None] * len(values), None, build)
     build = lambda i: base.extend(cols.effect(values[i]), icols.effect(values[i]) if icols is not None else None)
+    if exact:
+        for c in (cols, icols):
+            if c is not None:
+                c.prefetch(values)
+        return Grid(values, [build(i) for i in range(len(values))], None, build)
     screen = None
     if len(values) > SCREEN_ABOVE:
         rough = lsq.Stats(Y, data.tau(delay), starts)
@@ -112,3 +119,6 @@ class _Kept:
 
     def screen(self, e):
         return self.cols.screen(e)[..., self.keep]
+
+    def prefetch(self, effects):
+        self.cols.prefetch(effects)

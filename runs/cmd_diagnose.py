@@ -43,12 +43,16 @@ def run(args) -> dict:
 def candidate_rows(candidates: list[dict], verdict: str | None) -> list[list]:
     rows = []
     for c in candidates:
-        detail = {k: v for k, v in c["detail"].items() if k != "per_joint_error_reduction"}
+        skip = ("per_joint_error_reduction", "p_values", "score_test")
+        detail = {k: v for k, v in c["detail"].items() if k not in skip}
         text = ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in detail.items())
         flag = ("<- verdict" if c["effect"] == verdict else f"overlaps {c['overlaps']}" if c.get("overlaps")
                 else "not proposed" if c.get("not_proposed") else "")
+        tests = c["detail"].get("p_values", {})
+        each = lambda k: f"{tests[k]:.2g}" if k in tests else "-"
         rows.append([c["effect"], f"{100 * c['error_reduction']:.1f}", f"{100 * c['cv_error_reduction']:.1f}",
-                     f"{c['p_value']:.2g}", "yes" if c["significant"] else "no", c["joint"], text, flag])
+                     f"{c['p_value']:.2g}", each("score"), each("held_out"), "yes" if c["significant"] else "no",
+                     c["joint"], text, flag])
     return rows
 
 
@@ -57,8 +61,9 @@ def render(r: dict) -> str:
 
     lines = [f"model {r['spec']}: rel_error {100 * r['rel_error']:.2f} % (torque low-passed at {r['cutoff_hz']:.1f} Hz; "
              f"{r['method']}; command hold {r['hold']})",
-             table(left([row[:6] + row[7:] + row[6:7] for row in candidate_rows(r["candidates"], r["verdict"])], (6, 7)),
-                   ["candidate", "removes %", "held out %", "p", "significant", "joint", "", "detail"])]
+             table(left([row[:8] + row[9:] + row[8:9] for row in candidate_rows(r["candidates"], r["verdict"])], (8, 9)),
+                   ["candidate", "removes %", "held out %", "p", "p score", "p held out", "significant", "joint", "",
+                    "detail"])]
     notes = [f"  {c['effect']}: {c['note']}" for c in r["candidates"] if c.get("note")] + [f"  {x}" for x in r["notes"]]
     notes += [f"  {c['effect']}: not proposed: {'; '.join(c['not_proposed'])}" for c in r["candidates"]
               if c.get("not_proposed") and c["significant"]]

@@ -118,7 +118,9 @@ def test_calibration_bench_runs_in_worker_processes():
     r = bench.calibrate(args)
     assert [x["hidden"] for x in r["results"]] == [None, "offset"]
     assert all(x["outcome"] in ("quiet", "false alarm", "named", "reading", "missed", "wrong") for x in r["results"]), r["results"]
-    assert r["crashes"] == {} and r["jobs"] == 2 and r["alpha"] == pytest.approx(0.05)
+    from manus.adaptive.diagnose import ALPHA
+
+    assert r["crashes"] == {} and r["jobs"] == 2 and r["alpha"] == pytest.approx(ALPHA)
     assert all("p_value" in c for x in r["results"] for c in x["candidates"])
     s = r["calibration"]
     assert {"false_alarm", "detection", "detection_where_distinct", "per_effect", "per_condition"} <= set(s)
