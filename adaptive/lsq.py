@@ -242,7 +242,7 @@ def block_scores(st: Stats, test: np.ndarray, blocks: np.ndarray) -> tuple[np.nd
     masks = np.asarray(blocks, float)
     k = T.shape[1]
     TA = (T.T[None] @ A[:, :, p:]).reshape(A.shape[0], k * k)  # (S, k·k): each segment's Z̃ᵀE
-    return masks @ (u @ T), (masks @ TA).reshape(-1, k, k)
+    return masks @ (u @ T), (masks @ TA).reshape(masks.shape[0], k, k)
 
 
 FLIPS = 2000  # sign-flip draws of `score_p` at least (its smallest p: 1/(draws + 1)) ...

@@ -125,3 +125,13 @@ def test_correlation_time_of_an_ar1_process():
     for t in range(1, n):
         x[t] = rho * x[t - 1] + e[t]
     assert lsq.correlation_time(x[:, None], 0.01) == pytest.approx(0.01 * (1 + rho) / (1 - rho), rel=0.1)
+
+
+def test_nothing_to_test_gives_p_one():
+    """A candidate whose columns all vanish (or are the model's own) has no score: p = 1."""
+    rng = np.random.default_rng(5)
+    X, _ = _design(rng)
+    starts, blocks = _segments(X.shape[0], 10)
+    st = lsq.Stats(np.concatenate([X, X[:, :, :1]], 2), rng.normal(size=X.shape[:2]), starts)
+    assert lsq.score_p([lsq.block_scores(st, np.array([False, False, False, True]), blocks)])[0] == 1.0
+    assert lsq.score_p([lsq.block_scores(st, np.zeros(4, bool), blocks)])[0] == 1.0
