@@ -106,7 +106,8 @@ class Data:
         q = self.q[self.rows] if self.rows.size else self.q
         qd = self.qd[self.rows] if self.rows.size else self.qd
         return Span(self.dt, len(self.rec) * self.dt, np.ptp(q, axis=0), self.step,
-                    np.percentile(np.abs(qd), 95, axis=0), self.rec.prismatic, self.step * self.cutoff_hz)
+                    np.percentile(np.abs(qd), 95, axis=0), self.rec.prismatic, self.step * self.cutoff_hz,
+                    self.cutoff_hz, np.median(np.abs(qd), axis=0))
 
     @property
     def dt(self) -> float:
