@@ -247,7 +247,8 @@ def block_scores(st: Stats, test: np.ndarray, blocks: np.ndarray) -> tuple[np.nd
 
 FLIPS = 2000  # sign-flip draws of `score_p` at least (its smallest p: 1/(draws + 1)) ...
 FLIPS_PER_ALPHA = 4  # ... and at least this many over the level a p is judged at
-FLIP_CHUNK = 250
+FLIP_CHUNK = 250  # draws at a time, at most ...
+FLIP_MEMORY = 4_000_000  # ... and at most this many floats of a chunk's T·w (a 7-joint chain's 14 cogging columns)
 MIN_EFFECTIVE_BLOCKS = 12.0  # below this many blocks sharing the information, the exact flips (see score_p)
 
 
@@ -327,8 +328,10 @@ def score_p(scores: list[tuple[np.ndarray, np.ndarray]], alpha: float = 0.05, se
     best = int(np.argmax(observed))
     rng = np.random.default_rng(seed)
     exceed = done = 0
+    per_draw = sum(V * k**3 for k, V, *_ in pre)  # floats a draw's T·w takes
+    chunk = int(np.clip(FLIP_MEMORY // max(per_draw, 1), 1, FLIP_CHUNK))
     while done < draws:
-        n = min(FLIP_CHUNK, draws - done)
+        n = min(chunk, draws - done)
         w = rng.choice((-1.0, 1.0), size=(n, G))
         top = np.full(n, -np.inf)
         for k, V, dflat, Qi, D, T, S in pre:
