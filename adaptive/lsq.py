@@ -370,11 +370,9 @@ def correlation_time(x: np.ndarray, dt: float) -> float:
         f = np.fft.rfft(y, 2 * n)
         ac = np.fft.irfft(f * np.conj(f))[:n]
         ac = ac / ac[0]
-        tau = 1.0
-        for m in range(1, n // 4):
-            tau = 1 + 2 * ac[1:m + 1].sum()
-            if m >= 5 * tau:
-                break
+        taus = 1 + 2 * np.cumsum(ac[1:n // 4])  # the estimate summed up to each lag m = 1, 2, ...
+        window = np.flatnonzero(np.arange(1, taus.size + 1) >= 5 * taus)
+        tau = taus[window[0]] if window.size else taus[-1]
         out = max(out, tau * dt)
     return out
 
