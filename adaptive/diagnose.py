@@ -17,7 +17,8 @@ contiguous blocks of the recording, honestly:
   the statistic computed again in each (the blocks' noise scores flipped where many blocks
   share the columns' information, the wild cluster bootstrap; the scores themselves where a few
   hold most of it, an exact randomization test). A candidate with a non-linear parameter (a
-  cogging order, a Stribeck velocity) takes the largest statistic over its search space, and so
+  cogging order, a Stribeck velocity) takes the largest statistic over its search space (the
+  values where its fit within its physical bounds leaves something off them), and so
   does every flip: the search is redone in each, and what it buys is paid for. Where the
   residual is correlated for longer than a block (a slow, unrecorded disturbance), blocks are
   merged until each spans `SPAN` correlation times. And the *held-out errors*: for each block,
@@ -291,7 +292,10 @@ def _judge(data, cols, icols, base, base_sse, starts, folds, whole, e0, values, 
         names = list(under.names) + [k for k in chosen.names(s) if k not in held]
         test = np.array([k not in base.model.names for k in names])
         groups = _test_blocks(folds, data, f.residual)
-        tests["score"], _, how = lsq.score_p([lsq.block_scores(g.exact(i), test, groups) for i in range(len(values))],
+        # the values searched whose fit leaves some of the candidate's columns off their physical
+        # bound (the others explain nothing physical: their statistic would be the wrong sign's)
+        free = np.flatnonzero(g.free(whole))
+        tests["score"], _, how = lsq.score_p([lsq.block_scores(g.exact(i), test, groups) for i in free],
                                              alpha / len(SIGNIFICANCE))
     p = _combined(tests)
     own = [chosen, *brought]

@@ -93,12 +93,33 @@ class Stats:
             A, b = self.H[use].sum(0), self.h[use].sum(0)
         return np.linalg.lstsq(A, b, rcond=RCOND)[0]
 
-    def coefs(self, masks: np.ndarray) -> np.ndarray:
+    def coefs(self, masks: np.ndarray, lower: np.ndarray | None = None) -> np.ndarray:
         """`coef` on each of the segment masks (F, S) at once: (F, P), one batched pseudo-inverse
-        (the same minimum-norm solution as `coef`'s, to rounding)."""
+        (the same minimum-norm solution as `coef`'s, to rounding). `lower` (P,): a lower bound
+        per parameter (−inf: none); a coefficient that falls below its bound is held there and
+        the others fitted again, until none does (an active set that only grows: exact where the
+        bounded columns are nearly orthogonal, as per-joint friction columns are)."""
         A, b = (self.H, self.h) if self.iv else (self.G, self.g)
         m = np.asarray(masks, float)
         M, r = np.einsum("fs,spq->fpq", m, A), m @ b
+        C = self._solve(M, r)
+        if lower is None or not np.isfinite(lower).any():
+            return C
+        low = np.where(np.isfinite(lower), lower * self.scale, -np.inf)  # in the scaled units of C
+        held = np.zeros(C.shape, bool)
+        for _ in range(C.shape[1]):
+            more = (C < low) & ~held
+            if not more.any():
+                break
+            held |= more
+            x = np.where(held, low, 0.0)
+            free = (~held).astype(float)
+            r2 = (r - np.einsum("fpq,fq->fp", M, x)) * free
+            C = np.where(held, low, self._solve(M * free[:, :, None] * free[:, None, :], r2))
+        return C
+
+    def _solve(self, M: np.ndarray, r: np.ndarray) -> np.ndarray:
+        """Minimum-norm solutions of M c = r for a batch (F, P, P), (F, P)."""
         if self.iv:
             return np.einsum("fpq,fq->fp", np.linalg.pinv(M, rcond=RCOND), r)
         # least squares: M is symmetric, its pseudo-inverse from its eigenvectors (cheaper than an SVD)

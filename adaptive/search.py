@@ -40,6 +40,8 @@ class Grid:
     stats: list  # lsq.Stats of the rest of the model plus that value (exact columns), or None until needed
     screen: list | None  # lsq.Stats on unfiltered columns (long grids), else None
     build: object  # value index -> exact lsq.Stats
+    lower: np.ndarray | None = None  # each column's lower bound (the effect's physical ones; −inf: none)
+    own: np.ndarray | None = None  # which columns are the effect's (the last ones)
 
     def exact(self, i: int) -> lsq.Stats:
         if self.stats[i] is None:
@@ -48,7 +50,10 @@ class Grid:
 
     def choose(self, use: np.ndarray) -> tuple[int, np.ndarray]:
         """The value with the least squared error on the segments `use` (those a fit sees), and
-        every value's error there (inf where not evaluated exactly)."""
+        every value's error there (inf where not evaluated exactly). Each value is fitted within
+        its effect's physical bounds: a value is chosen for what it explains as the physics
+        allows (a Stribeck velocity where the fitted static friction falls below the Coulomb
+        level is no Stribeck velocity), not for a term of the wrong sign."""
         best, errs = self.choose_each(use[None])
         return int(best[0]), errs[0]
 
@@ -58,15 +63,29 @@ class Grid:
         F, V = masks.shape[0], len(self.values)
         errs = np.full((F, V), np.inf)
         if self.screen is not None and any(st is None for st in self.stats):  # (once all are built: exact)
-            rough = np.stack([st.sses(st.coefs(masks), masks) for st in self.screen], 1)  # (F, V)
+            rough = np.stack([st.sses(st.coefs(masks, self.lower), masks) for st in self.screen], 1)  # (F, V)
             keep = np.zeros((F, V), bool)
             np.put_along_axis(keep, np.argsort(rough, axis=1)[:, :SCREEN_KEEP], True, axis=1)
         else:
             keep = np.ones((F, V), bool)
         for i in np.flatnonzero(keep.any(0)):
             st, on = self.exact(i), keep[:, i]
-            errs[on, i] = st.sses(st.coefs(masks[on]), masks[on])
+            errs[on, i] = st.sses(st.coefs(masks[on], self.lower), masks[on])
         return np.argmin(errs, axis=1), errs
+
+    def free(self, use: np.ndarray) -> np.ndarray:
+        """Per value (V,): does its fit on the segments `use`, within the bounds, leave any of
+        the effect's own columns (the last ones) off its bound? A value whose every column is
+        held there adds nothing physical."""
+        own = 0 if self.lower is None else int(np.sum(self.own))
+        if own == 0 or not np.isfinite(self.lower[-own:]).any():
+            return np.ones(len(self.values), bool)
+        out = np.zeros(len(self.values), bool)
+        for i in range(len(self.values)):
+            st = self.exact(i)
+            c = st.coefs(use[None], self.lower)[0][-own:]
+            out[i] = bool(np.any(c > self.lower[-own:] * st.scale[-own:]))
+        return out
 
 
 def grid(data: "Data", cols: "Columns", rest: Model, effect: Effect, starts: np.ndarray,
@@ -87,16 +106,19 @@ def grid(data: "Data", cols: "Columns", rest: Model, effect: Effect, starts: np.
         build = lambda i: lsq.Stats(Y, data.tau(_timing(values[i], rest, delay)), starts, Z)
         return Grid(values, [None] * len(values), None, build)
     build = lambda i: base.extend(cols.effect(values[i]), icols.effect(values[i]) if icols is not None else None)
+    own = np.asarray(effect.lower_bounds(rest.structure), float)
+    own = own if keep is None else own[np.asarray(keep, bool)]
+    lower, mine = np.r_[np.full(Y.shape[2], -np.inf), own], np.r_[np.zeros(Y.shape[2], bool), np.ones(own.size, bool)]
     if exact:
         for c in (cols, icols):
             if c is not None:
                 c.prefetch(values)
-        return Grid(values, [build(i) for i in range(len(values))], None, build)
+        return Grid(values, [build(i) for i in range(len(values))], None, build, lower, mine)
     screen = None
     if len(values) > SCREEN_ABOVE:
         rough = lsq.Stats(Y, data.tau(delay), starts)
         screen = [rough.extend(cols.screen(v)) for v in values]
-    return Grid(values, [None] * len(values), screen, build)
+    return Grid(values, [None] * len(values), screen, build, lower, mine)
 
 
 def _timing(value: Effect, rest: Model, delay) -> float | np.ndarray:

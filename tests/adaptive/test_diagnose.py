@@ -148,15 +148,17 @@ def test_emps_discovery_from_rigid():
 
 
 def test_emps_physics_rules_and_joint_kinds():
-    """From the published model: gravity is not tried on a prismatic axis; a Stribeck term that
-    would make friction fall at low speed (Fs < Fc) is reported, not proposed."""
+    """From the published model: gravity is not tried on a prismatic axis; the Stribeck velocity
+    is searched where static friction stays at least the Coulomb level (unconstrained, the
+    search took a velocity where friction falls at low speed, dFs < 0), and what is left of it
+    is not proposed."""
     d = diagnose(hidden.emps(), "rigid,viscous,coulomb,offset")
     assert d.verdict.effect == "asymmetry"
     assert all(c.effect != "gravity" for c in d.candidates)
     assert any(n.startswith("gravity: not tried") and "prismatic" in n for n in d.notes)
     strib = next(c for c in d.candidates if c.effect == "stribeck")
-    assert strib.detail["dFs1"] < 0 and any("Fs ≥ Fc" in p for p in strib.problems)
-    assert not strib.proposable
+    assert strib.detail["dFs1"] >= 0 or any("Fs ≥ Fc" in p for p in strib.problems)
+    assert not strib.proposable and not strib.significant
 
 
 # -- compliance ----------------------------------------------------------------------------------
