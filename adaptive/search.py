@@ -41,7 +41,7 @@ class Grid:
     screen: list | None  # lsq.Stats on unfiltered columns (long grids), else None
     build: object  # value index -> exact lsq.Stats
     lower: np.ndarray | None = None  # each column's lower bound (the effect's physical ones; −inf: none)
-    own: np.ndarray | None = None  # which columns are the effect's (the last ones)
+    own: np.ndarray | None = None  # which columns are the effect's (a mask: the last ones)
 
     def exact(self, i: int) -> lsq.Stats:
         if self.stats[i] is None:
@@ -75,16 +75,15 @@ class Grid:
 
     def free(self, use: np.ndarray) -> np.ndarray:
         """Per value (V,): does its fit on the segments `use`, within the bounds, leave any of
-        the effect's own columns (the last ones) off its bound? A value whose every column is
+        the effect's own columns off its bound? A value whose every column is
         held there adds nothing physical."""
-        own = 0 if self.lower is None else int(np.sum(self.own))
-        if own == 0 or not np.isfinite(self.lower[-own:]).any():
+        if self.lower is None or not np.isfinite(self.lower[self.own]).any():
             return np.ones(len(self.values), bool)
         out = np.zeros(len(self.values), bool)
         for i in range(len(self.values)):
             st = self.exact(i)
-            c = st.coefs(use[None], self.lower)[0][-own:]
-            out[i] = bool(np.any(c > self.lower[-own:] * st.scale[-own:]))
+            c = st.coefs(use[None], self.lower)[0]
+            out[i] = bool(np.any(c[self.own] > (self.lower * st.scale)[self.own]))
         return out
 
 
@@ -106,9 +105,10 @@ def grid(data: "Data", cols: "Columns", rest: Model, effect: Effect, starts: np.
         build = lambda i: lsq.Stats(Y, data.tau(_timing(values[i], rest, delay)), starts, Z)
         return Grid(values, [None] * len(values), None, build)
     build = lambda i: base.extend(cols.effect(values[i]), icols.effect(values[i]) if icols is not None else None)
-    own = np.asarray(effect.lower_bounds(rest.structure), float)
-    own = own if keep is None else own[np.asarray(keep, bool)]
-    lower, mine = np.r_[np.full(Y.shape[2], -np.inf), own], np.r_[np.zeros(Y.shape[2], bool), np.ones(own.size, bool)]
+    bounds = np.asarray(effect.lower_bounds(rest.structure), float)  # the effect's own columns' physical bounds
+    bounds = bounds if keep is None else bounds[np.asarray(keep, bool)]
+    lower = np.r_[np.full(Y.shape[2], -np.inf), bounds]
+    mine = np.r_[np.zeros(Y.shape[2], bool), np.ones(bounds.size, bool)]
     if exact:
         for c in (cols, icols):
             if c is not None:
