@@ -514,8 +514,8 @@ def _on_top(data, cols, icols, model, fitted, both, starts, folds, alpha) -> boo
 
 def _combined(tests: dict) -> float:
     """One p of a candidate from its tests (`SIGNIFICANCE`; a delay, which has no columns, only
-    the held-out one): the smallest, times their number (Bonferroni: either may decide). The score test is the more powerful where the model is
-    nearly right and the residual noisy; the held-out errors where the model is far from the
+    the held-out one): the smallest, times their number (Bonferroni: either may decide). The
+    score test is the more powerful where the model is nearly right and the residual noisy; the held-out errors where the model is far from the
     data (several large effects missing: what is left is not noise, and a score's yardstick
     is swamped by it, while a better prediction of every held-out block still shows)."""
     return float(min(1.0, len(tests) * min(tests.values())))
