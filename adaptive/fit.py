@@ -292,16 +292,37 @@ def identified(structure):
 
 # -- regressor columns, computed once per effect ------------------------------------------
 
-@eqx.filter_jit
-def _effect_columns(effect: Effect, structure, q, qd, qdd):
-    model = Model(structure, (effect,))
-    return jax.vmap(model.regressor)(q, qd, qdd)
+SUBSAMPLES = 16  # points per sample period over which a friction column is averaged
+
+
+def _columns_of(effect: Effect, structure, q, qd, qdd, dt):
+    """One effect's columns at every sample. A friction effect switches with the sign of q̇, and
+    near a reversal it does so within a sample period: what the recorded motion integrates over
+    the period is the torque's average there, not its value at the sample (at 200 Hz a Stribeck
+    hump a few milliseconds wide falls between samples or on one). Its columns are averaged over
+    the period [t_k − T/2, t_k + T/2] along the motion q + q̇ s + q̈ s²/2 (`SUBSAMPLES` midpoints);
+    smooth effects' columns are their values at the samples."""
+    reg = jax.vmap(Model(structure, (effect,)).regressor)
+    if effect.kind != "friction" or not dt > 0:
+        return reg(q, qd, qdd)
+    offsets = ((jnp.arange(SUBSAMPLES) + 0.5) / SUBSAMPLES - 0.5) * dt
+
+    def add(total, s):
+        return total + reg(q + qd * s + 0.5 * qdd * s**2, qd + qdd * s, qdd), None
+
+    total, _ = jax.lax.scan(add, jnp.zeros_like(reg(q, qd, qdd)), offsets)
+    return total / SUBSAMPLES
 
 
 @eqx.filter_jit
-def _batch_columns(effects: Effect, structure, q, qd, qdd):
+def _effect_columns(effect: Effect, structure, q, qd, qdd, dt):
+    return _columns_of(effect, structure, q, qd, qdd, dt)
+
+
+@eqx.filter_jit
+def _batch_columns(effects: Effect, structure, q, qd, qdd, dt):
     """`_effect_columns` of a stack of one effect's values (array fields with a leading axis)."""
-    return jax.vmap(lambda e: jax.vmap(Model(structure, (e,)).regressor)(q, qd, qdd))(effects)
+    return jax.vmap(lambda e: _columns_of(e, structure, q, qd, qdd, dt))(effects)
 
 
 class Columns:
@@ -322,7 +343,7 @@ class Columns:
     def effect(self, e: Effect) -> np.ndarray:
         """(rows, n, p) columns of one linear effect, low-passed like the torque."""
         if e.spec not in self._cache:
-            self._cache[e.spec] = self._filtered(np.asarray(_effect_columns(e, self.structure, *self._args))[None])[0]
+            self._cache[e.spec] = self._filtered(np.asarray(_effect_columns(e, self.structure, *self._args, self.data.dt))[None])[0]
         return self._cache[e.spec]
 
     def _filtered(self, full: np.ndarray) -> np.ndarray:
@@ -347,7 +368,7 @@ class Columns:
                 self.effect(part[0])
                 continue
             stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *part)
-            low = self._filtered(np.asarray(_batch_columns(stacked, self.structure, *self._args)))
+            low = self._filtered(np.asarray(_batch_columns(stacked, self.structure, *self._args, self.data.dt)))
             for j, e in enumerate(part):
                 self._cache[e.spec] = low[j]
 
@@ -355,7 +376,7 @@ class Columns:
         """The columns of `e` on the used rows without the low-pass: a cheap stand-in to rank
         the many values of a grid search before the best few are evaluated exactly."""
         args = tuple(jnp.asarray(x[self.rows]) for x in self._kin)
-        out = np.asarray(_effect_columns(e, self.structure, *args))
+        out = np.asarray(_effect_columns(e, self.structure, *args, self.data.dt))
         return out if self.mask is None else out * self.mask
 
     def model(self, model: Model) -> np.ndarray:

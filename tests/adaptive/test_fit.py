@@ -154,3 +154,31 @@ def test_unknown_effect_and_impossible_models_are_refused(nominal):
     one = Recording(nominal.t, nominal.q[:, :1], nominal.tau[:, :1], None, {"sample_rate_hz": "1000"}, {})
     with pytest.raises(ManusError, match="recording 1"):
         fit(one, hidden.Model(hidden.STRUCTURE, "rigid"))
+
+
+def test_friction_columns_are_the_average_over_the_sample_period():
+    """Near a reversal a friction torque switches within a sample period; the columns are its
+    average over [t_k - T/2, t_k + T/2] along v + a s, against the closed forms: the mean of
+    sgn is (|v+| - |v-|)/(v+ - v-), of Stribeck's exp(-(v/vs)^2) sgn(v) it is
+    vs sqrt(pi)/2 (erf(|v+|/vs) - erf(|v-|/vs))/(v+ - v-) (v± = v ± a T/2). A smooth effect's
+    column stays its value at the sample."""
+    from scipy.special import erf
+
+    from manus.adaptive.fit import SUBSAMPLES, _effect_columns
+    from manus.plants.effects import Coulomb, Stribeck, Viscous
+    from manus.plants.structures import Axis
+
+    dt, a, vs = 0.005, 8.0, 0.02
+    v = np.linspace(-2.5, 2.5, 41) * a * dt / 2  # reversals inside, at and outside the period
+    q, qd, qdd = (x[:, None] for x in (np.zeros_like(v), v, np.full_like(v, a)))
+    hi, lo = v + a * dt / 2, v - a * dt / 2
+    tol = 1.0 / SUBSAMPLES  # the midpoint rule resolves a switch to one sub-interval
+    sgn = np.asarray(_effect_columns(Coulomb(), Axis(), q, qd, qdd, dt))[:, 0, 0]
+    np.testing.assert_allclose(sgn, (np.abs(hi) - np.abs(lo)) / (hi - lo), atol=tol)
+    strib = np.asarray(_effect_columns(Stribeck(vs=vs), Axis(), q, qd, qdd, dt))[:, 0, 0]
+    exact = vs * np.sqrt(np.pi) / 2 * (erf(np.abs(hi) / vs) - erf(np.abs(lo) / vs)) / (hi - lo)
+    np.testing.assert_allclose(strib, exact, atol=tol)
+    point = np.sign(v) * np.exp(-(v / vs) ** 2)
+    assert np.max(np.abs(point - exact)) > 0.3  # (the point values would fail: the test can tell)
+    visc = np.asarray(_effect_columns(Viscous(), Axis(), q, qd, qdd, dt))[:, 0, 0]
+    np.testing.assert_allclose(visc, v, rtol=1e-12)
