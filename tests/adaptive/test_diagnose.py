@@ -177,6 +177,69 @@ def test_compliance_is_found_from_an_open_loop_square_wave():
     assert v.error_reduction > 0.5
 
 
+def test_a_resonant_mode_comes_before_the_other_significant_candidates():
+    """The square wave with Coulomb friction left out of the start: Coulomb is significant too,
+    but the mode's resonance peak is evidence no other effect leaves, and a mode leaves residuals
+    that other candidates fit: the mode is proposed first, the others named in its note."""
+    d = diagnose(hidden.square_wave_recording(), "rigid,viscous")
+    coulomb = next(c for c in d.candidates if c.effect == "coulomb")
+    assert coulomb.proposable
+    assert d.verdict is not None and d.verdict.effect == "compliance"
+    assert "coulomb" in d.verdict.note and "proposed first" in d.verdict.note
+
+
+def _motor_response(f, f_mode, zeta, r, inertia=1.0):
+    """|θ̈_m/τ| of a motor (share r of the inertia) driving its link through a spring and damper
+    (J_m s² θ_m = τ − (k + c s)(θ_m − θ_L), J_L s² θ_L = (k + c s)(θ_m − θ_L)), the mode at f_mode."""
+    jm, jl = r * inertia, (1 - r) * inertia
+    mu = jm * jl / inertia
+    w = 2 * np.pi * f_mode
+    k, c = w**2 * mu, 2 * zeta * w * mu
+    s = 2j * np.pi * f
+    return np.abs((jl * s**2 + c * s + k) / (jm * jl * s**2 + inertia * (c * s + k)))
+
+
+def test_a_mode_near_the_top_of_a_slow_recordings_band_shows_its_peak():
+    """At 200 Hz (Welch bins of 3.125 Hz, band to 80 Hz) a shaft mode at 0.29 fs leaves one bin
+    of its falling flank (1.3–1.6 f) inside the band: enough to see the peak. A response rising
+    steadily to the top of the band (closed loop answering encoder noise) has no peak, and a
+    mode whose flank lies wholly above the band cannot be shown."""
+    from manus.adaptive import modes
+
+    fs = 200.0
+    f = np.arange(0, fs / 2 + 1e-9, fs / 64)
+    top = modes.band(fs)[1]
+    for f_mode in (0.2 * fs, 0.29 * fs):
+        assert ((f >= 1.3 * f_mode) & (f <= 1.6 * f_mode) & (f <= top)).sum() >= 1
+        assert modes._peaks(f, _motor_response(f, f_mode, 0.02, 0.1), f_mode, top), f_mode
+    assert not modes._peaks(f, 1 + (f / 20) ** 2, 0.29 * fs, top)  # rising to the band's top
+    assert not modes._peaks(f, _motor_response(f, 0.35 * fs, 0.02, 0.1), 0.35 * fs, top)  # flank above the band
+
+
+
+def test_a_response_falling_with_frequency_is_no_peak_and_every_physical_mode_is():
+    """A recorded torque with white noise biases H1 = S_τθ̈/S_ττ down where the command's spectrum
+    falls (a square wave's, as 1/f): |θ̈/τ| falls steadily, and one bin of flank 1.3 f above any
+    frequency sits lower. That is no resonance: a peak must also stand above the rise into it
+    (0.6–0.8 f). Every physical mode (motor share 0.02–0.9, ζ ≤ 0.2) does, on 3.125 Hz bins."""
+    from manus.adaptive import modes
+
+    fs = 200.0
+    f = np.arange(0, fs / 2 + 1e-9, fs / 64)
+    top = modes.band(fs)[1]
+    falling = 1 / (1 + (f / 25) ** 2)  # S_ττ of the command over S_ττ + noise: 1.27 down over 15.6–21.9 Hz
+    assert not modes._peaks(f, falling, 15.4, top)  # a seed-5 null that the flank test alone passed
+    for r in (0.02, 0.1, 0.5, 0.9):
+        for zeta in (0.005, 0.05, 0.2):
+            for f_mode in (15.0, 31.9, 45.0):
+                fine = np.linspace(0.5 * f_mode, 1.7 * f_mode, 4000)  # the peak sampled finely enough
+                mag = _motor_response(fine, f_mode, zeta, r)
+                peak = mag[(fine >= 0.9 * f_mode) & (fine <= 1.1 * f_mode)].max()
+                assert peak > modes.PEAK * np.median(mag[(fine >= 0.6 * f_mode) & (fine <= 0.8 * f_mode)]), (r, zeta)
+                if zeta <= 0.05:  # (heavily damped modes on a heavy motor can fail the flank test, as before)
+                    assert modes._peaks(fine, mag, f_mode, np.inf), (r, zeta, f_mode)
+
+
 # -- bad input -----------------------------------------------------------------------------------
 
 def test_a_model_holding_every_effect_is_refused():
