@@ -61,13 +61,25 @@ def add_arguments(p) -> None:
                    help="with --calibrate: worker processes (default: one per core)")
 
 
-def arm_torque(theta: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
-    """τ of the absolute-angle MANUS-2 arm (thesis eqs. C.1–C.2) with viscous and Coulomb friction."""
+def mean_sign(v: np.ndarray, a: np.ndarray, dt: float) -> np.ndarray:
+    """sgn(q̇) averaged over the sample period along q̇ + q̈ s, s in [−T/2, T/2] (as `fit` averages
+    its friction columns), in closed form: (|v₊| − |v₋|)/(v₊ − v₋), v± = v ± a T/2."""
+    hi, lo = v + a * dt / 2, v - a * dt / 2
+    span = hi - lo
+    crossing = (hi > 0) != (lo > 0)
+    safe = np.where(crossing, span, 1.0)
+    return np.where(crossing, (np.abs(hi) - np.abs(lo)) / safe, np.sign(v))
+
+
+def arm_torque(theta: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, dt: float = 0.0) -> np.ndarray:
+    """τ of the absolute-angle MANUS-2 arm (thesis eqs. C.1–C.2) with viscous and Coulomb friction
+    (sgn averaged over the sample period `dt`)."""
     a1, a2, a3, b1, b2, f1, f2 = theta
     d = q[:, 1] - q[:, 0]
     c, s = np.cos(d), np.sin(d)
-    t1 = a1 * qdd[:, 0] + a2 * c * qdd[:, 1] - a2 * s * qd[:, 1] ** 2 + b1 * qd[:, 0] + f1 * np.sign(qd[:, 0])
-    t2 = a2 * c * qdd[:, 0] + a3 * qdd[:, 1] + a2 * s * qd[:, 0] ** 2 + b2 * qd[:, 1] + f2 * np.sign(qd[:, 1])
+    sg = mean_sign(qd, qdd, dt)
+    t1 = a1 * qdd[:, 0] + a2 * c * qdd[:, 1] - a2 * s * qd[:, 1] ** 2 + b1 * qd[:, 0] + f1 * sg[:, 0]
+    t2 = a2 * c * qdd[:, 0] + a3 * qdd[:, 1] + a2 * s * qd[:, 0] ** 2 + b2 * qd[:, 1] + f2 * sg[:, 1]
     return np.stack([t1, t2], 1)
 
 
@@ -82,7 +94,7 @@ def scipy_fit(data, delay: float = 0.0) -> tuple[np.ndarray, float]:
     tau = data.tau(delay)
 
     def residual(th):
-        full = arm_torque(th, data.q, data.qd, data.qdd)
+        full = arm_torque(th, data.q, data.qd, data.qdd, data.dt)
         return (lowpass(full, data.dt, data.cutoff_hz)[data.rows] - tau).ravel()
 
     res = least_squares(residual, np.full(7, 0.1))
