@@ -310,13 +310,11 @@ def _columns_of(effect: Effect, structure, q, qd, qdd, dt):
     def add(total, s):
         return total + reg(q + qd * s + 0.5 * qdd * s**2, qd + qdd * s, qdd), None
 
-    total, _ = jax.lax.scan(add, jnp.zeros_like(reg(q, qd, qdd)), offsets)
+    total, _ = jax.lax.scan(add, jnp.zeros(jax.eval_shape(reg, q, qd, qdd).shape), offsets)
     return total / SUBSAMPLES
 
 
-@eqx.filter_jit
-def _effect_columns(effect: Effect, structure, q, qd, qdd, dt):
-    return _columns_of(effect, structure, q, qd, qdd, dt)
+_effect_columns = eqx.filter_jit(_columns_of)
 
 
 @eqx.filter_jit

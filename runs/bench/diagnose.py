@@ -65,10 +65,8 @@ def mean_sign(v: np.ndarray, a: np.ndarray, dt: float) -> np.ndarray:
     """sgn(q̇) averaged over the sample period along q̇ + q̈ s, s in [−T/2, T/2] (as `fit` averages
     its friction columns), in closed form: (|v₊| − |v₋|)/(v₊ − v₋), v± = v ± a T/2."""
     hi, lo = v + a * dt / 2, v - a * dt / 2
-    span = hi - lo
     crossing = (hi > 0) != (lo > 0)
-    safe = np.where(crossing, span, 1.0)
-    return np.where(crossing, (np.abs(hi) - np.abs(lo)) / safe, np.sign(v))
+    return np.where(crossing, (np.abs(hi) - np.abs(lo)) / np.where(crossing, hi - lo, 1.0), np.sign(v))
 
 
 def arm_torque(theta: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, dt: float = 0.0) -> np.ndarray:

@@ -216,7 +216,6 @@ def test_a_mode_near_the_top_of_a_slow_recordings_band_shows_its_peak():
     assert not modes._peaks(f, _motor_response(f, 0.35 * fs, 0.02, 0.1), 0.35 * fs, top)  # flank above the band
 
 
-
 def test_a_response_falling_with_frequency_is_no_peak_and_every_physical_mode_is():
     """A recorded torque with white noise biases H1 = S_τθ̈/S_ττ down where the command's spectrum
     falls (a square wave's, as 1/f): |θ̈/τ| falls steadily, and one bin of flank 1.3 f above any
