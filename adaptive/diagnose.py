@@ -44,7 +44,10 @@ offset are one constant), the verdict names both readings and proposes the one w
 physical assumptions once.
 
 The verdict is the significant, proposable candidate with the lowest held-out error; a simpler
-one (fewer parameters, searched ones counted) within one standard error of it is preferred.
+one (fewer parameters, searched ones counted) within one standard error of it is preferred,
+unless the better-fitting one encompasses it: adds a relevant share of the torque, significantly,
+on top of the simpler one, which adds nothing on top of it (a delay mimics an inertia through the
+viscous term; the data decide which holds the other).
 
 After the verdict, the residual (of the model plus the verdict) is tested for structure no
 effect of the vocabulary explains (`unexplained`, `manus.adaptive.leftover`): a smooth function
@@ -213,6 +216,7 @@ def diagnose(rec: Recording | fitting.Data, model: Model | str, cutoff_hz: float
     _aliases(cols, base, cands)
     verdict = _choose(cands, alpha / m, data.cutoff_hz)
     if verdict is not None:
+        verdict = _encompassing(data, cols, icols, verdict, cands, min_share, starts, folds, alpha / m)
         _mark_overlaps(data, cols, icols, verdict, cands, min_share, starts, folds, alpha / m)
         cands.sort(key=lambda c: (c is not verdict, c.overlaps is not None, -c.cv_error_reduction))
     after = verdict.fit if verdict is not None and verdict.fit is not None else base
@@ -454,6 +458,40 @@ def _choose(cands: list[Candidate], alpha: float, cutoff_hz: float = np.inf) -> 
                      "in both directions to tell them apart")
         best = pick
     return best
+
+
+def _encompassing(data, cols, icols, verdict, cands, min_share, starts, folds, alpha) -> Candidate:
+    """The verdict must account for what its better-fitting rivals explain (the encompassing
+    principle). Where a simpler candidate was preferred within one standard error, or one that
+    another brings (an offset before the spring that brings it), a rival with the lower held-out
+    error that adds a relevant, significant share of the torque on top of the verdict, while the
+    verdict adds nothing on top of it, explains everything the verdict does and more: it is
+    proposed instead. (A delay and an inertia, with viscous friction in the model, are nearly
+    one column: b·q̇(t + d) ≈ b·q̇ + b·d·q̈; the data decide which holds the other.)"""
+    if verdict.fit is None or verdict.mode is not None:
+        return verdict
+    rivals = sorted((c for c in cands if c is not verdict and c.proposable and c.mode is None and c.fit is not None
+                     and c.effect not in verdict.aliases and c.cv_sse.sum() < verdict.cv_sse.sum()),
+                    key=lambda c: c.cv_sse.sum())
+    for c in rivals:
+        if verdict.fit.model.has(c.effect):
+            continue
+        model = verdict.fit.model
+        for e in c.fit.model.effects:  # the rival with what it brings
+            model = model if model.has(e.name) else model.with_effect(e)
+        both = fitting._solve(data, cols, model, {}, icols)
+        extra = float(np.sqrt(max(verdict.fit.rel_error**2 - both.rel_error**2, 0.0)))  # what c adds to the verdict
+        back = float(np.sqrt(max(c.fit.rel_error**2 - both.rel_error**2, 0.0)))  # ... and the verdict to c
+        if not (extra >= min_share and _on_top(data, cols, icols, model, verdict.fit, both, starts, folds, alpha)):
+            continue
+        nested = set(model.names) == set(c.fit.model.names)
+        if nested or not (back >= min_share and _on_top(data, cols, icols, model, c.fit, both, starts, folds, alpha)):
+            c.note = ((c.note + "; ") if c.note else "") + (
+                f"it accounts for what {verdict.spec} explains and more: on top of {verdict.spec} it adds "
+                f"{100 * extra:.2f}% of the torque, significantly, while {verdict.spec} adds nothing significant on "
+                f"top of it; {c.spec} is proposed, although {verdict.spec} is simpler")
+            return c
+    return verdict
 
 
 def _mark_overlaps(data, cols, icols, verdict, cands, min_share, starts, folds, alpha) -> None:
