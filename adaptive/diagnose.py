@@ -44,10 +44,10 @@ offset are one constant), the verdict names both readings and proposes the one w
 physical assumptions once.
 
 The verdict is the significant, proposable candidate with the lowest held-out error; a simpler
-one (fewer parameters, searched ones counted) within one standard error of it is preferred,
-unless the better-fitting one encompasses it: adds a relevant share of the torque, significantly,
-on top of the simpler one, which adds nothing on top of it (a delay mimics an inertia through the
-viscous term; the data decide which holds the other).
+one (fewer parameters, searched ones counted) within one standard error of it is preferred.
+The verdict must then encompass its rivals: a significant rival that adds a relevant share of the
+torque, significantly, on top of it, while it adds nothing on top of the rival, takes its place
+(a delay mimics an inertia through the viscous term; the data decide which holds the other).
 
 After the verdict, the residual (of the model plus the verdict) is tested for structure no
 effect of the vocabulary explains (`unexplained`, `manus.adaptive.leftover`): a smooth function
@@ -462,17 +462,17 @@ def _choose(cands: list[Candidate], alpha: float, cutoff_hz: float = np.inf) -> 
 
 def _encompassing(data, cols, icols, verdict, cands, min_share, starts, folds, alpha) -> Candidate:
     """The verdict must account for what its better-fitting rivals explain (the encompassing
-    principle). Where a simpler candidate was preferred within one standard error, or one that
-    another brings (an offset before the spring that brings it), a rival with the lower held-out
-    error that adds a relevant, significant share of the torque on top of the verdict, while the
-    verdict adds nothing on top of it, explains everything the verdict does and more: it is
-    proposed instead. (A delay and an inertia, with viscous friction in the model, are nearly
+    principle). A significant rival that adds a relevant, significant share of the torque on top
+    of the verdict, while the verdict adds nothing on top of it, explains everything the verdict
+    does and more: it is proposed instead (the one with the lowest held-out error first). So a
+    simpler candidate preferred within one standard error, one that another brings (an offset
+    before the spring that brings it), or one that fits a few held-out blocks a little better
+    (an offset before a viscous asymmetry, whose |q̇| has a mean) gives way. (A delay and an inertia, with viscous friction in the model, are nearly
     one column: b·q̇(t + d) ≈ b·q̇ + b·d·q̈; the data decide which holds the other.)"""
     if verdict.fit is None or verdict.mode is not None:
         return verdict
     rivals = sorted((c for c in cands if c is not verdict and c.proposable and c.mode is None and c.fit is not None
-                     and c.effect not in verdict.aliases and c.cv_sse.sum() < verdict.cv_sse.sum()),
-                    key=lambda c: c.cv_sse.sum())
+                     and c.effect not in verdict.aliases), key=lambda c: c.cv_sse.sum())
     for c in rivals:
         if verdict.fit.model.has(c.effect):
             continue
@@ -489,7 +489,7 @@ def _encompassing(data, cols, icols, verdict, cands, min_share, starts, folds, a
             c.note = ((c.note + "; ") if c.note else "") + (
                 f"it accounts for what {verdict.spec} explains and more: on top of {verdict.spec} it adds "
                 f"{100 * extra:.2f}% of the torque, significantly, while {verdict.spec} adds nothing significant on "
-                f"top of it; {c.spec} is proposed, although {verdict.spec} is simpler")
+                f"top of it; {c.spec} is proposed in its place")
             return c
     return verdict
 

@@ -62,12 +62,16 @@ def test_calibration_a_hidden_effect_is_named(effect):
 
 
 # where a simpler rival was within one standard error (a delay, which with viscous friction in the
-# model mimics an inertia: b·q̇(t + d) ≈ b·q̇ + b·d·q̈), or an offset came before the spring that
-# brings it: the calibration's cases (seed 5) that named the rival before the encompassing rule
+# model mimics an inertia: b·q̇(t + d) ≈ b·q̇ + b·d·q̈), an offset came before the spring that
+# brings it, or an offset fitted the held-out blocks a little better than a viscous asymmetry
+# (|q̇| has a mean): the calibration's cases (seeds 0, 5) that named the rival before the
+# encompassing rule
 ENCOMPASSED = [
     (157331075, "rigid", dict(structure="arm", rate=1000, excitation="multisine", torque="white", hold="stated")),
     (2020960705, "spring", dict(structure="axis", rate=200, excitation="multisine", torque="coloured",
                                 hold="not stated")),
+    (557679455, "asymmetry", dict(structure="axis", rate=200, excitation="multisine", torque="coloured",
+                                  hold="not stated")),
 ]
 
 
@@ -78,7 +82,7 @@ def test_calibration_the_verdict_encompasses_its_simpler_rival(seed, effect, con
     c = calibration.case(seed, effect, **condition)
     d = diagnose(c.rec, c.start)
     assert d.verdict is not None and d.verdict.effect == effect, f"{c.describe()}: verdict {_verdict(d)}"
-    assert "accounts for what" in d.verdict.note and "is simpler" in d.verdict.note, d.verdict.note
+    assert "accounts for what" in d.verdict.note and "in its place" in d.verdict.note, d.verdict.note
 
 
 def test_calibration_pendulum_inertia_and_gravity_within_ten_percent():
