@@ -216,6 +216,24 @@ def test_a_mode_near_the_top_of_a_slow_recordings_band_shows_its_peak():
     assert not modes._peaks(f, _motor_response(f, 0.35 * fs, 0.02, 0.1), 0.35 * fs, top)  # flank above the band
 
 
+def test_the_band_scales_with_the_rate():
+    """The band is fixed in fractions of the rate above its 40 Hz floor: a shaft mode at 15–30 %
+    of a 2 kHz rate (300–600 Hz) keeps its falling flank (1.3–1.6 f) inside it and shows its
+    peak on 2 kHz's Welch bins, as one at 1 kHz does. (A fixed 450 Hz top, chosen at 1 kHz, left
+    modes above ~350 Hz at 2 kHz without a flank.)"""
+    from manus.adaptive import modes
+
+    for fs in (1000.0, 2000.0, 4000.0):
+        lo, top = modes.band(fs)
+        assert lo == 40.0 and top == pytest.approx(0.4 * fs)
+        f = np.arange(0, fs / 2 + 1e-9, fs / 256)
+        for share in (0.15, 0.22, 0.30):
+            f_mode = share * fs
+            assert ((f >= 1.3 * f_mode) & (f <= 1.6 * f_mode) & (f <= top)).sum() >= 2, (fs, share)
+            assert modes._peaks(f, _motor_response(f, f_mode, 0.02, 0.1), f_mode, top), (fs, share)
+    assert modes.band(200.0) == (20.0, 80.0)
+
+
 def test_a_response_falling_with_frequency_is_no_peak_and_every_physical_mode_is():
     """A recorded torque with white noise biases H1 = S_τθ̈/S_ττ down where the command's spectrum
     falls (a square wave's, as 1/f): |θ̈/τ| falls steadily, and one bin of flank 1.3 f above any
