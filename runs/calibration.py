@@ -4,7 +4,8 @@ Every recording is made with the project's simulator, under one *condition* draw
 
 - structure: the MANUS-2 arm (`arm`: 2 joints, radians, 131072 counts/rev) or a prismatic axis
   (`axis`: 1 joint in metres, a 1 µm encoder, a few kg, forces in N);
-- rate: 1000 or 200 Hz;
+- rate: 1000 or 200 Hz (or drawn from the rates a user asks for: `--rates`; 12 s at 1 kHz and
+  faster, 20 s below);
 - excitation: `multisine` (closed loop, impedance control following a multi-sine), `reaching`
   (closed loop: smooth moves between random targets with rests in between) or `steps` (open
   loop: a replayed schedule of torque steps, zero-mean doublets in both directions with rests);
@@ -18,8 +19,8 @@ a hidden-effect case, one effect the analysis does not start from. A linear effe
 generically from `Model(structure, effect).defaults()`: on the chosen joint (or on all) every
 parameter is scaled by one factor so that the effect's torque along the recorded motion has an
 RMS of `AMPLITUDE` (5 %) of the recorded torque's (simulate with it absent, measure, rescale,
-simulate; once more if the result is off by more than `TOLERANCE`). `delay` is 1–3 ms at 1 kHz,
-one or two samples at 200 Hz; `compliance` is a lightly damped shaft mode at 15–30 % of the
+simulate; once more if the result is off by more than `TOLERANCE`). `delay` is 1–3 ms at 1 kHz and faster,
+one or two samples below (200 Hz: 5 or 10 ms); `compliance` is a lightly damped shaft mode at 15–30 % of the
 sample rate (inside the band the recording resolves), drawn only under the open-loop steps,
 which ring it. Hidden `rigid`, `viscous` or `coulomb` replace the nominal term (start without it).
 
@@ -63,14 +64,13 @@ RATES = (1000, 200)
 EXCITATIONS = ("multisine", "reaching", "steps")
 TORQUES = ("exact", "white", "coloured")
 HOLDS = ("stated", "not stated")
-SECONDS = {1000: 12.0, 200: 20.0}  # length of a recording per rate [s]
+FAST = 1000  # Hz: a recording at this rate or faster lasts 12 s, a slower one 20 s
 NOMINAL = ("rigid", "viscous", "coulomb")  # what the truth always holds (the thesis's model)
 AMPLITUDE = 0.05  # a hidden effect's torque RMS, as a fraction of the recorded torque's (per joint)
 TOLERANCE = 0.1  # re-scale once more when the achieved fraction is off by more than this (relative)
 WHITE = (0.10, 0.30)  # white noise on the recorded torque: std as a fraction of its RMS
 COLOURED = (0.03, 0.08)  # the unrecorded disturbance: RMS as a fraction of the torque's RMS (the size of the hidden effect) ...
 COLOURED_HZ = (1.0, 5.0)  # ... low-passed (2nd-order Butterworth) at a corner in this range [Hz]
-DELAY_MS = {1000: (1.0, 2.0, 3.0), 200: (5.0, 10.0)}  # hidden delay: ≥ 1 ms, ≥ 1 sample at 200 Hz
 COMPLIANCE_BAND = (0.15, 0.30)  # hidden shaft mode: f as a fraction of the sample rate
 COMPLIANCE_ZETA = (0.005, 0.03)
 
@@ -388,11 +388,34 @@ def distinct(setup: Setup, effect, params: dict, start: str, traj, dt: float, ot
 
 
 # -- the calibration cases -----------------------------------------------------------------------
-def draw_condition(seed: int, hidden: str | None = None, **overrides) -> dict:
-    """The condition of case `seed` (overrides win). A hidden `compliance` is drawn only under
-    the open-loop steps; an effect that does not apply to the axis (gravity) only on the arm."""
+def seconds_at(rate: float) -> float:
+    """The length of a calibration recording at `rate` [s]."""
+    return 12.0 if rate >= FAST else 20.0
+
+
+def delays_ms(rate: float) -> tuple[float, ...]:
+    """A hidden delay's values at `rate`: 1–3 ms at 1 kHz and faster, else one and two samples
+    (at least 1 ms, at least one sample)."""
+    return (1.0, 2.0, 3.0) if rate >= FAST else (1000.0 / rate, 2000.0 / rate)
+
+
+def check_rates(rates) -> tuple[int, ...]:
+    """Sample rates a calibration may draw from [Hz]: whole numbers from 100 Hz (a slower
+    recording is too coarse for the set's effects: a cogging or a mode needs samples) to 20 kHz."""
+    out = tuple(int(r) for r in rates)
+    bad = [r for r, o in zip(rates, out) if o != r or not 100 <= o <= 20000]
+    if not out or bad:
+        raise ValueError(f"sample rates must be whole numbers of Hz from 100 to 20000 (got {list(rates)})")
+    return out
+
+
+def draw_condition(seed: int, hidden: str | None = None, rates: tuple = RATES, **overrides) -> dict:
+    """The condition of case `seed` (overrides win), its rate drawn from `rates`. A hidden
+    `compliance` is drawn only under the open-loop steps; an effect that does not apply to the
+    axis (gravity) only on the arm."""
+    rates = check_rates(rates)
     rng = np.random.default_rng([seed, 7])
-    c = {"structure": str(rng.choice(STRUCTURES)), "rate": int(rng.choice(RATES)),
+    c = {"structure": str(rng.choice(STRUCTURES)), "rate": int(rng.choice(rates)),
          "excitation": str(rng.choice(EXCITATIONS)), "torque": str(rng.choice(TORQUES)), "hold": str(rng.choice(HOLDS))}
     if hidden == "compliance":
         c["excitation"] = "steps"
@@ -402,7 +425,8 @@ def draw_condition(seed: int, hidden: str | None = None, **overrides) -> dict:
     if unknown:
         raise ValueError(f"unknown condition key(s) {sorted(unknown)}: {', '.join(c)}")
     c.update(overrides)
-    for key, allowed in (("structure", STRUCTURES), ("rate", RATES), ("excitation", EXCITATIONS),
+    check_rates((c["rate"],))
+    for key, allowed in (("structure", STRUCTURES), ("excitation", EXCITATIONS),
                          ("torque", TORQUES), ("hold", HOLDS)):
         if c[key] not in allowed:
             raise ValueError(f"condition {key}={c[key]!r}: one of {allowed}")
@@ -419,17 +443,17 @@ def start_model(hidden: str | None) -> str:
     return ",".join(e for e in NOMINAL if e != hidden)
 
 
-def case(seed: int, hidden: str | None = None, **overrides) -> Case:
+def case(seed: int, hidden: str | None = None, rates: tuple = RATES, **overrides) -> Case:
     """Calibration recording `seed`: nothing hidden (`hidden=None`) or one effect of the
-    vocabulary hidden at `AMPLITUDE` of the torque. Keyword overrides fix condition values
-    (structure, rate, excitation, torque, hold)."""
+    vocabulary hidden at `AMPLITUDE` of the torque, its rate drawn from `rates`. Keyword
+    overrides fix condition values (structure, rate, excitation, torque, hold)."""
     import time
 
     t_start = time.perf_counter()
-    c = draw_condition(seed, hidden, **overrides)
+    c = draw_condition(seed, hidden, rates, **overrides)
     setup = SETUPS[c["structure"]]
     rate, dt = c["rate"], 1.0 / c["rate"]
-    seconds = SECONDS[rate]
+    seconds = seconds_at(rate)
     steps = int(round(seconds * rate))
     rng = np.random.default_rng([seed, 11])
     sim_seed = int(rng.integers(2**31))
@@ -441,7 +465,7 @@ def case(seed: int, hidden: str | None = None, **overrides) -> Case:
     joint: int | None = None
     info: dict = {}
     if hidden == "delay":
-        ms = float(rng.choice(DELAY_MS[rate]))
+        ms = float(rng.choice(delays_ms(rate)))
         extra = (Delay(seconds=ms * 1e-3),)
         info["delay_ms"] = ms
     elif hidden == "compliance":

@@ -59,6 +59,9 @@ def add_arguments(p) -> None:
                         "manus.adaptive.diagnose.BLOCKS)")
     p.add_argument("--jobs", type=int, default=0,
                    help="with --calibrate: worker processes (default: one per core)")
+    p.add_argument("--rates", default="",
+                   help="with --calibrate: comma-separated sample rates [Hz] the recordings are drawn at (default: "
+                        "the set's own, 1000,200), e.g. your rig's")
 
 
 def mean_sign(v: np.ndarray, a: np.ndarray, dt: float) -> np.ndarray:
@@ -198,7 +201,8 @@ def case_seed(seed: int, effect_index: int, i: int) -> int:
     return int(np.random.SeedSequence([seed, effect_index, i]).generate_state(1)[0] % 2**31)
 
 
-def run_one(seed: int, hidden: str | None, alpha: float | None = None, blocks: int | None = None) -> dict:
+def run_one(seed: int, hidden: str | None, alpha: float | None = None, blocks: int | None = None,
+            rates: tuple | None = None) -> dict:
     """Simulate one calibration recording and diagnose it; never raises (a ManusError is an
     `error`, anything else a `crash`, both reported)."""
     import traceback
@@ -209,7 +213,7 @@ def run_one(seed: int, hidden: str | None, alpha: float | None = None, blocks: i
 
     out = {"seed": seed, "hidden": hidden}
     try:
-        c = calibration.case(seed, hidden)
+        c = calibration.case(seed, hidden, rates or calibration.RATES)
     except Exception as e:  # the simulator: a bug of the bench, reported as a crash
         out.update(outcome="crash", error=f"case: {type(e).__name__}: {e}", trace=traceback.format_exc(limit=6))
         return out
@@ -342,6 +346,13 @@ def calibrate(args) -> dict:
         if bad:
             raise ManusError(f"--effects: unknown effect(s) {', '.join(bad)}: the vocabulary is {', '.join(effects)}")
         effects = tuple(chosen)
+    rates = calibration.RATES
+    if getattr(args, "rates", ""):
+        try:
+            rates = calibration.check_rates([float(r) for r in args.rates.split(",") if r.strip()])
+        except ValueError:
+            raise ManusError(f"--rates {args.rates!r}: comma-separated sample rates, whole numbers of Hz from 100 "
+                             "to 20000 (e.g. 500,2000)") from None
     plan = [(case_seed(args.seed, 0, i), None) for i in range(n)]
     plan += [(case_seed(args.seed, 1 + calibration.hidden_effects().index(e), i), e) for e in effects for i in range(n)]
     note(f"calibration: {n} recordings with nothing missing and {n} per hidden effect ({', '.join(effects)}): "
@@ -356,7 +367,7 @@ def calibrate(args) -> dict:
     blocks = getattr(args, "blocks", None)
     if blocks is not None and blocks < 3:
         raise ManusError(f"--blocks must be at least 3 (got {blocks})")
-    for k, r in enumerate(_each(plan, args.alpha, blocks, jobs), 1):
+    for k, r in enumerate(_each(plan, args.alpha, blocks, jobs, rates), 1):
         seed, hidden = r["seed"], r["hidden"]
         results.append(r)
         if r["outcome"] in ("crash", "error", "false alarm", "missed", "wrong", "reading"):
@@ -382,23 +393,23 @@ def calibrate(args) -> dict:
                         "wall_s": wall},
             "calibration": summary, "crashes": crashes, "recordings": n, "seed": args.seed, "effects": list(effects),
             "amplitude": calibration.AMPLITUDE, "alpha": args.alpha if args.alpha is not None else ALPHA, "jobs": jobs,
-            "blocks": blocks if blocks is not None else BLOCKS,
+            "blocks": blocks if blocks is not None else BLOCKS, "rates": list(rates),
             "results": [{k: v for k, v in r.items() if k != "trace"} for r in results],
             "load_average": os.getloadavg()[0], "cpu_count": os.cpu_count()}
 
 
-def _each(plan: list, alpha: float | None, blocks: int | None, jobs: int):
+def _each(plan: list, alpha: float | None, blocks: int | None, jobs: int, rates: tuple | None = None):
     """`run_one` over the plan, in order: in this process (one job) or in `jobs` fresh worker
     processes (spawned, not forked: JAX is not fork-safe), each compiling its own simulations."""
     if jobs == 1 or len(plan) < 2:
         for seed, hidden in plan:
-            yield run_one(seed, hidden, alpha, blocks)
+            yield run_one(seed, hidden, alpha, blocks, rates)
         return
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
     with ProcessPoolExecutor(min(jobs, len(plan)), mp_context=multiprocessing.get_context("spawn")) as pool:
-        yield from pool.map(run_one, *zip(*plan), [alpha] * len(plan), [blocks] * len(plan))
+        yield from pool.map(run_one, *zip(*plan), [alpha] * len(plan), [blocks] * len(plan), [rates] * len(plan))
 
 
 def _pct(r: dict) -> str:
@@ -409,7 +420,8 @@ def _pct(r: dict) -> str:
 
 def render_calibration(r: dict) -> str:
     s = r["calibration"]
-    lines = [f"calibration: {r['recordings']} recordings per row, seed {r['seed']}, hidden at "
+    at = f", at {'/'.join(str(x) for x in r['rates'])} Hz" if r.get("rates") and tuple(r["rates"]) != (1000, 200) else ""
+    lines = [f"calibration: {r['recordings']} recordings per row, seed {r['seed']}{at}, hidden at "
              f"{100 * r['amplitude']:g} % of the torque RMS, alpha {r.get('alpha', '-')}, {r.get('blocks', '-')} held-out blocks; rates with Wilson 95 % intervals",
              f"  false alarms (verdict on nothing missing):  {_pct(s['false_alarm'])}"
              + (f"  verdicts: {s['false_alarm_verdicts']}" if s["false_alarm_verdicts"] else "")

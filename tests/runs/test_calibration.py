@@ -150,3 +150,21 @@ def test_calibration_bench_runs_in_worker_processes():
     assert {"false_alarm", "detection", "detection_where_distinct", "per_effect", "per_condition"} <= set(s)
     assert "distinct_fraction" in r["results"][1]["condition"]
     assert "named where distinct" in bench.render_calibration(r)
+
+
+def test_calibration_at_a_rate_of_the_users_choice():
+    """`--rates`: a case drawn at another rate is sampled at it, lasts 12 s at 1 kHz and faster
+    (20 s below), and a hidden delay is 1–3 ms there or one or two samples below; a rate that is
+    no whole number of Hz, or outside 100 Hz–20 kHz, is refused by name."""
+    import numpy as np
+
+    c = calibration.case(SEED, "delay", rates=(2000,), structure="axis", excitation="reaching", torque="exact",
+                         hold="stated")
+    assert c.condition["rate"] == 2000 and np.median(np.diff(c.rec.t)) == pytest.approx(5e-4)
+    assert len(c.rec) == pytest.approx(12.0 * 2000, abs=2) and c.condition["delay_ms"] in (1.0, 2.0, 3.0)
+    assert calibration.delays_ms(500) == (2.0, 4.0) and calibration.delays_ms(200) == (5.0, 10.0)
+    assert calibration.seconds_at(500) == 20.0 and calibration.seconds_at(1000) == 12.0
+    assert {calibration.draw_condition(SEED + i, None, rates=(500, 2000))["rate"] for i in range(20)} == {500, 2000}
+    for bad in ((50,), (500.5,), ()):
+        with pytest.raises(ValueError, match="whole numbers of Hz"):
+            calibration.check_rates(bad)
