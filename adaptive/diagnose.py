@@ -205,8 +205,8 @@ def diagnose(rec: Recording | fitting.Data, model: Model | str, cutoff_hz: float
     for e0, values, brought in tried:
         if e0.kind == "mode":
             c = _compliance(data, base, k, alpha / m, min_share)
-            if c is None:
-                notes.append("compliance: the recording cannot show a structural mode (sampled too slowly or too short)")
+            if isinstance(c, str):
+                notes.append(f"compliance: the recording cannot show a structural mode: {c}")
             else:
                 cands.append(c)
             continue
@@ -374,18 +374,22 @@ def _own_joint(cols, f, own, n: int) -> int | None:
     return int(np.argmax(score)) if score.max() > 0 else None
 
 
-def _compliance(data, base, blocks, alpha, min_share) -> Candidate | None:
+def _compliance(data, base, blocks, alpha, min_share) -> Candidate | str:
     q = data.rec.q
     tau = fitting.align(data.rec.tau, base.delay / data.dt)  # (the hold is part of `modes.sampling`)
     mode = modes.detect(q, tau, data.dt)  # its own blocks: the frequency resolution needs long ones
-    if mode is None:
-        return None
+    if isinstance(mode, str):
+        return mode
     p = one_sided_p(mode.err_rigid, mode.err_mode)
     significant = bool(mode.resonant and p < alpha and mode.reduction >= MODE_MIN_REDUCTION)
     detail = {"f_hz": round(mode.f_hz, 1), "zeta": mode.zeta, "motor_fraction": round(mode.motor_fraction, 3),
               "measured_in": "frequency response {:g}-{:g} Hz".format(*modes.band(1 / data.dt)),
-              "resonance_peak": mode.resonant}
+              "resonance_peak": mode.resonant, "coherent_to_hz": round(mode.coherent_hz, 1)}
+    hi = modes.band(1 / data.dt)[1]
     note = "" if mode.resonant else "no resonance peak in the measured response: no evidence of a mode"
+    if not mode.resonant and mode.coherent_hz < 0.75 * hi:
+        note += (f"; the response is coherent only up to {mode.coherent_hz:.3g} Hz of its band's {hi:.3g} Hz (above, "
+                 "the encoder's resolution or noise on the torque swamps the motion): a mode above that cannot show")
     return Candidate(mode.effect().name, mode.effect().spec, mode.reduction, mode.reduction, p, significant,
                      mode.joint + 1, detail, 2, mode.err_mode, mode=mode, note=note)
 

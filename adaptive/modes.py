@@ -81,6 +81,7 @@ class Mode:
     measured: np.ndarray  # (F, n) |θ̈/τ|
     rigid: np.ndarray  # (F, n)
     fitted: np.ndarray  # (F, n)
+    coherent_hz: float = np.inf  # the highest frequency of the band where the response is coherent
 
     @property
     def reduction(self) -> float:
@@ -150,9 +151,9 @@ def _columns(f, fz, zeta):
     return one, np.concatenate([one, link_response(f, 2 * np.pi * fz, zeta)[None]])
 
 
-def detect(q: np.ndarray, tau: np.ndarray, dt: float, blocks: int = 8) -> Mode | None:
+def detect(q: np.ndarray, tau: np.ndarray, dt: float, blocks: int = 8) -> Mode | str:
     """Look for a shaft mode; q (T, n) measured positions, tau (T, n) the torque acting on the
-    joints (aligned). None when the recording cannot show one (sampled too slowly, too short).
+    joints (aligned). Where the recording cannot show one, why (a sentence).
 
     The anti-resonance and damping are searched on the whole recording; the significance comes
     from held-out blocks: each block's misfit with coefficients fitted on the other blocks."""
@@ -161,7 +162,7 @@ def detect(q: np.ndarray, tau: np.ndarray, dt: float, blocks: int = 8) -> Mode |
     nper = int(2 ** np.floor(np.log2(max(T / blocks / 4, 64))))
     lo, hi = band(fs)
     if T < blocks * nper:
-        return None
+        return f"too short: {blocks} blocks of {nper} samples are needed for its frequency response"
     acc = np.gradient(np.gradient(q, dt, axis=0), dt, axis=0)
     edges = np.linspace(0, T, blocks + 1).astype(int)
     parts = [_spectra(tau[a:b], acc[a:b], fs, nper) for a, b in zip(edges[:-1], edges[1:])]
@@ -170,7 +171,10 @@ def detect(q: np.ndarray, tau: np.ndarray, dt: float, blocks: int = 8) -> Mode |
     h, z, coh = _frf(*total)
     w = _weights(f, coh, fs)
     if not np.any(w > 0):
-        return None
+        return (f"no frequency in its band ({lo:.3g}-{hi:.3g} Hz) where the torque explains the measured "
+                f"acceleration (coherence below {MIN_COHERENCE:g} throughout: the encoder's resolution or noise "
+                "on the torque swamps the motion there)")
+    coherent = float(f[np.any(w > 0, axis=1)].max())
     best = None
     one = _columns(f, 1.0, 0.1)[0]
     for fz in np.geomspace(lo / 4, hi, 60):
@@ -187,7 +191,9 @@ def detect(q: np.ndarray, tau: np.ndarray, dt: float, blocks: int = 8) -> Mode |
             if best is None or misfit < best[0]:
                 best = (misfit, fz, zeta, joint, float(r))
     if best is None:
-        return None
+        return ("no mode of a plausible motor share of the inertia fits its frequency response"
+                + (f", coherent only up to {coherent:.3g} Hz of its band's {hi:.3g} Hz (above, the encoder's "
+                   "resolution or noise on the torque swamps the motion)" if coherent < 0.75 * hi else ""))
     _, fz, zeta, joint, r = best
     one, g = _columns(f, fz, zeta)
     err_rigid, err_mode = np.zeros(blocks), np.zeros(blocks)
@@ -207,7 +213,7 @@ def detect(q: np.ndarray, tau: np.ndarray, dt: float, blocks: int = 8) -> Mode |
     fitted = np.stack([mag(i, g) for i in range(n)], 1)
     f_mode = float(fz / np.sqrt(r))
     return Mode(f_mode, float(zeta), r, joint, _peaks(f, np.abs(h[:, joint]), f_mode, hi), err_rigid, err_mode,
-                f, np.abs(h), rigid, fitted)
+                f, np.abs(h), rigid, fitted, coherent)
 
 
 def _peaks(f, mag, f_mode, top) -> bool:
