@@ -443,10 +443,14 @@ def start_model(hidden: str | None) -> str:
     return ",".join(e for e in NOMINAL if e != hidden)
 
 
-def case(seed: int, hidden: str | None = None, rates: tuple = RATES, **overrides) -> Case:
+def case(seed: int, hidden: str | None = None, rates: tuple = RATES, amplitude: float = AMPLITUDE,
+         **overrides) -> Case:
     """Calibration recording `seed`: nothing hidden (`hidden=None`) or one effect of the
-    vocabulary hidden at `AMPLITUDE` of the torque, its rate drawn from `rates`. Keyword
-    overrides fix condition values (structure, rate, excitation, torque, hold)."""
+    vocabulary hidden at `amplitude` of the torque (RMS; a delay and a mode have their own
+    sizes), its rate drawn from `rates`. Keyword overrides fix condition values (structure, rate,
+    excitation, torque, hold)."""
+    if not 0 < amplitude < 1:
+        raise ValueError(f"a hidden effect's amplitude is a fraction of the torque's RMS, between 0 and 1 (got {amplitude})")
     import time
 
     t_start = time.perf_counter()
@@ -499,15 +503,15 @@ def case(seed: int, hidden: str | None = None, rates: tuple = RATES, **overrides
         base = first
         if c["torque"] == "coloured":  # measure on the motion the disturbance shapes too
             base = simulate_case(setup, rate, c["excitation"], params, (), seconds, sim_seed, d_coloured, nonlinear)
-        hp, _ = scale_hidden(setup, effect, unit, joint, base, AMPLITUDE, dt)
+        hp, _ = scale_hidden(setup, effect, unit, joint, base, amplitude, dt)
         for attempt in range(2):
             traj = simulate_case(setup, rate, c["excitation"], {**params, **hp}, extra, seconds, sim_seed, d_coloured,
                                  nonlinear)
             got = achieved(setup, effect, hp, traj, dt, joint)
             on = [i for i in range(setup.n) if joint is None or i == joint - 1]
-            if attempt or all(abs(got[i] / AMPLITUDE - 1) <= TOLERANCE for i in on if got[i] > 0):
+            if attempt or all(abs(got[i] / amplitude - 1) <= TOLERANCE for i in on if got[i] > 0):
                 break
-            hp, _ = scale_hidden(setup, effect, hp, joint, traj, AMPLITUDE, dt)
+            hp, _ = scale_hidden(setup, effect, hp, joint, traj, amplitude, dt)
         params = {**params, **hp}
         info["hidden_fraction"] = [round(g, 4) for g in got]
         info["distinct_fraction"] = round(distinct(setup, effect, hp, start_model(hidden), traj, dt, nonlinear), 4)

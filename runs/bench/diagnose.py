@@ -59,6 +59,9 @@ def add_arguments(p) -> None:
                         "manus.adaptive.diagnose.BLOCKS)")
     p.add_argument("--jobs", type=int, default=0,
                    help="with --calibrate: worker processes (default: one per core)")
+    p.add_argument("--amplitude", type=float, default=None,
+                   help="with --calibrate: a hidden effect's torque RMS as a fraction of the recorded torque's "
+                        "(default: the set's own, 0.05); a detection curve is one run per amplitude")
     p.add_argument("--rates", default="",
                    help="with --calibrate: comma-separated sample rates [Hz] the recordings are drawn at (default: "
                         "the set's own, 1000,200), e.g. your rig's")
@@ -202,7 +205,7 @@ def case_seed(seed: int, effect_index: int, i: int) -> int:
 
 
 def run_one(seed: int, hidden: str | None, alpha: float | None = None, blocks: int | None = None,
-            rates: tuple | None = None) -> dict:
+            rates: tuple | None = None, amplitude: float | None = None) -> dict:
     """Simulate one calibration recording and diagnose it; never raises (a ManusError is an
     `error`, anything else a `crash`, both reported)."""
     import traceback
@@ -213,7 +216,7 @@ def run_one(seed: int, hidden: str | None, alpha: float | None = None, blocks: i
 
     out = {"seed": seed, "hidden": hidden}
     try:
-        c = calibration.case(seed, hidden, rates or calibration.RATES)
+        c = calibration.case(seed, hidden, rates or calibration.RATES, amplitude or calibration.AMPLITUDE)
     except Exception as e:  # the simulator: a bug of the bench, reported as a crash
         out.update(outcome="crash", error=f"case: {type(e).__name__}: {e}", trace=traceback.format_exc(limit=6))
         return out
@@ -353,6 +356,10 @@ def calibrate(args) -> dict:
         except ValueError:
             raise ManusError(f"--rates {args.rates!r}: comma-separated sample rates, whole numbers of Hz from 100 "
                              "to 20000 (e.g. 500,2000)") from None
+    amplitude = getattr(args, "amplitude", None)
+    amplitude = calibration.AMPLITUDE if amplitude is None else amplitude
+    if not 0 < amplitude < 1:
+        raise ManusError(f"--amplitude is a fraction of the recorded torque's RMS, between 0 and 1 (got {amplitude:g})")
     plan = [(case_seed(args.seed, 0, i), None) for i in range(n)]
     plan += [(case_seed(args.seed, 1 + calibration.hidden_effects().index(e), i), e) for e in effects for i in range(n)]
     note(f"calibration: {n} recordings with nothing missing and {n} per hidden effect ({', '.join(effects)}): "
@@ -367,7 +374,7 @@ def calibrate(args) -> dict:
     blocks = getattr(args, "blocks", None)
     if blocks is not None and blocks < 3:
         raise ManusError(f"--blocks must be at least 3 (got {blocks})")
-    for k, r in enumerate(_each(plan, args.alpha, blocks, jobs, rates), 1):
+    for k, r in enumerate(_each(plan, args.alpha, blocks, jobs, rates, amplitude), 1):
         seed, hidden = r["seed"], r["hidden"]
         results.append(r)
         if r["outcome"] in ("crash", "error", "false alarm", "missed", "wrong", "reading"):
@@ -392,24 +399,26 @@ def calibrate(args) -> dict:
                         "diagnose_s_per_recording": summary["diagnose_s_per_recording"]["mean"],
                         "wall_s": wall},
             "calibration": summary, "crashes": crashes, "recordings": n, "seed": args.seed, "effects": list(effects),
-            "amplitude": calibration.AMPLITUDE, "alpha": args.alpha if args.alpha is not None else ALPHA, "jobs": jobs,
+            "amplitude": amplitude, "alpha": args.alpha if args.alpha is not None else ALPHA, "jobs": jobs,
             "blocks": blocks if blocks is not None else BLOCKS, "rates": list(rates),
             "results": [{k: v for k, v in r.items() if k != "trace"} for r in results],
             "load_average": os.getloadavg()[0], "cpu_count": os.cpu_count()}
 
 
-def _each(plan: list, alpha: float | None, blocks: int | None, jobs: int, rates: tuple | None = None):
+def _each(plan: list, alpha: float | None, blocks: int | None, jobs: int, rates: tuple | None = None,
+          amplitude: float | None = None):
     """`run_one` over the plan, in order: in this process (one job) or in `jobs` fresh worker
     processes (spawned, not forked: JAX is not fork-safe), each compiling its own simulations."""
     if jobs == 1 or len(plan) < 2:
         for seed, hidden in plan:
-            yield run_one(seed, hidden, alpha, blocks, rates)
+            yield run_one(seed, hidden, alpha, blocks, rates, amplitude)
         return
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
     with ProcessPoolExecutor(min(jobs, len(plan)), mp_context=multiprocessing.get_context("spawn")) as pool:
-        yield from pool.map(run_one, *zip(*plan), [alpha] * len(plan), [blocks] * len(plan), [rates] * len(plan))
+        yield from pool.map(run_one, *zip(*plan), [alpha] * len(plan), [blocks] * len(plan), [rates] * len(plan),
+                            [amplitude] * len(plan))
 
 
 def _pct(r: dict) -> str:

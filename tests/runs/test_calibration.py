@@ -188,3 +188,13 @@ def test_calibration_a_mode_the_encoder_cannot_resolve_is_said_so():
     else:
         assert not comp.proposable and comp.detail["coherent_to_hz"] < 100.0
         assert "coherent only up to" in comp.note and "cannot show" in comp.note, comp.note
+
+
+def test_calibration_at_another_amplitude():
+    """`--amplitude`: the hidden effect's torque RMS is that share of the recorded torque's
+    (within the set's re-scaling tolerance); outside (0, 1) it is refused."""
+    c = calibration.case(SEED + 100, "offset", amplitude=0.1, **EASY)
+    got = [g for g in c.condition["hidden_fraction"] if g > 0]
+    assert got and all(g == pytest.approx(0.1, rel=calibration.TOLERANCE) for g in got), c.condition
+    with pytest.raises(ValueError, match="between 0 and 1"):
+        calibration.case(SEED + 100, "offset", amplitude=1.5, **EASY)
