@@ -71,7 +71,7 @@ def simulate(plant: Plant, controller: Controller, reference: Reference, seconds
     steps = int(round(seconds / plant.dt))
     if not progress:
         traj = eqx.filter_jit(rollout, )(plant, controller, reference, steps, key)
-        return Trajectory(*map(np.asarray, traj))
+        return _finite(Trajectory(*map(np.asarray, traj)), plant.dt)
     chunk = max(1, int(round(chunk_seconds / plant.dt)))
     carry = eqx.filter_jit(start)(plant, controller, reference, key)
     parts = []
@@ -93,7 +93,24 @@ def simulate(plant: Plant, controller: Controller, reference: Reference, seconds
             progress(done / steps)
     if bar is not None:
         bar.close()
-    return Trajectory(*(np.concatenate(x)[:steps] for x in zip(*parts)))
+    return _finite(Trajectory(*(np.concatenate(x)[:steps] for x in zip(*parts))), plant.dt)
+
+
+def _finite(traj: Trajectory, dt: float) -> Trajectory:
+    """The run, or a `ModelError` where the loop diverged (an unstable discrete loop: gains too
+    stiff for the sample rate or for a light plant), instead of a recording of NaN."""
+    bad = ~(np.isfinite(traj.q_true).all(axis=-1) & np.isfinite(traj.tau).all(axis=-1)) if traj.q_true.ndim > 1 else \
+        ~(np.isfinite(traj.q_true) & np.isfinite(traj.tau))
+    if bad.any():
+        from manus.plants.errors import ModelError
+
+        k = int(np.argmax(bad))
+        peak = float(np.nanmax(np.abs(traj.tau[:k]))) if k else float("nan")
+        raise ModelError(f"the closed loop diverged: positions or torques are not finite from t = {k * dt:.4g} s "
+                         f"(tick {k}; the largest torque before, {peak:.3g}): the loop is unstable at {1 / dt:g} Hz, "
+                         "its gains too stiff for the sample rate or the plant too light for them (lower the "
+                         "stiffness and damping, raise the rate or the physics sub-steps, or limit the torque)")
+    return traj
 
 
 def simulate_batch(plant: Plant, controller: Controller, reference: Reference, seconds: float, keys: Array,

@@ -120,6 +120,13 @@ def test_simulate_a_robot_then_fit_it(capsys, tmp_path):
     code, out, err = _run(capsys, ["simulate", "--robot", str(urdf), "--truth", "rigid,gravity", "--seconds", "1",
                                    "--out", str(tmp_path / "y.csv")])
     assert code == 2 and "gravity is part of rigid" in err and "Traceback" not in err  # not twice
+    # a PD far too stiff for 200 Hz on the light pendulum (K T² / J ≫ 4): the discrete loop diverges
+    # within a few ticks; said, and no recording of NaN written
+    code, out, err = _run(capsys, ["simulate", "--robot", str(urdf), "--truth", "rigid,viscous,coulomb", "--seconds", "1",
+                                   "--stiffness", "100000", "--damping", "100", "--rate", "200",
+                                   "--out", str(tmp_path / "z.csv")])
+    assert code == 2 and "the closed loop diverged" in err and "unstable at 200 Hz" in err and "Traceback" not in err
+    assert not (tmp_path / "z.csv").exists()
 
 
 def test_converge_on_a_robot(capsys, tmp_path):
