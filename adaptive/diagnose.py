@@ -488,7 +488,7 @@ def _encompassing(data, cols, icols, verdict, cands, min_share, starts, folds, a
         back = float(np.sqrt(max(c.fit.rel_error**2 - both.rel_error**2, 0.0)))  # ... and the verdict to c
         if not (extra >= min_share and _on_top(data, cols, icols, model, verdict.fit, both, starts, folds, alpha)):
             continue
-        nested = set(model.names) == set(c.fit.model.names)
+        nested = {e.name for e in model.effects} == {e.name for e in c.fit.model.effects}  # (a delay has no columns)
         if nested or not (back >= min_share and _on_top(data, cols, icols, model, c.fit, both, starts, folds, alpha)):
             c.note = ((c.note + "; ") if c.note else "") + (
                 f"it accounts for what {verdict.spec} explains and more: on top of {verdict.spec} it adds "
