@@ -465,14 +465,15 @@ def _choose(cands: list[Candidate], alpha: float, cutoff_hz: float = np.inf) -> 
 
 
 def _encompassing(data, cols, icols, verdict, cands, min_share, starts, folds, alpha) -> Candidate:
-    """The verdict must account for what its better-fitting rivals explain (the encompassing
-    principle). A significant rival that adds a relevant, significant share of the torque on top
-    of the verdict, while the verdict adds nothing on top of it, explains everything the verdict
-    does and more: it is proposed instead (the one with the lowest held-out error first). So a
-    simpler candidate preferred within one standard error, one that another brings (an offset
-    before the spring that brings it), or one that fits a few held-out blocks a little better
-    (an offset before a viscous asymmetry, whose |q̇| has a mean) gives way. (A delay and an inertia, with viscous friction in the model, are nearly
-    one column: b·q̇(t + d) ≈ b·q̇ + b·d·q̈; the data decide which holds the other.)"""
+    """The verdict must account for what its rivals explain (the encompassing principle). A
+    significant rival that adds a relevant, significant share of the torque on top of the
+    verdict, while the verdict adds nothing on top of it, explains everything the verdict does
+    and more: it is proposed instead (the one with the lowest held-out error first). So a simpler
+    candidate preferred within one standard error, one that another brings (an offset before the
+    spring that brings it), or one that fits a few held-out blocks a little better (an offset
+    before a viscous asymmetry, whose |q̇| has a mean) gives way. (A delay and an inertia, with
+    viscous friction in the model, are nearly one column: b·q̇(t + d) ≈ b·q̇ + b·d·q̈; the data
+    decide which holds the other.)"""
     if verdict.fit is None or verdict.mode is not None:
         return verdict
     rivals = sorted((c for c in cands if c is not verdict and c.proposable and c.mode is None and c.fit is not None
@@ -484,12 +485,11 @@ def _encompassing(data, cols, icols, verdict, cands, min_share, starts, folds, a
         for e in c.fit.model.effects:  # the rival with what it brings
             model = model if model.has(e.name) else model.with_effect(e)
         both = fitting._solve(data, cols, model, {}, icols)
-        extra = float(np.sqrt(max(verdict.fit.rel_error**2 - both.rel_error**2, 0.0)))  # what c adds to the verdict
-        back = float(np.sqrt(max(c.fit.rel_error**2 - both.rel_error**2, 0.0)))  # ... and the verdict to c
-        if not (extra >= min_share and _on_top(data, cols, icols, model, verdict.fit, both, starts, folds, alpha)):
+        extra, adds = _adds(data, cols, icols, model, verdict.fit, both, min_share, starts, folds, alpha)
+        if not adds:
             continue
         nested = {e.name for e in model.effects} == {e.name for e in c.fit.model.effects}  # (a delay has no columns)
-        if nested or not (back >= min_share and _on_top(data, cols, icols, model, c.fit, both, starts, folds, alpha)):
+        if nested or not _adds(data, cols, icols, model, c.fit, both, min_share, starts, folds, alpha)[1]:
             c.note = ((c.note + "; ") if c.note else "") + (
                 f"it accounts for what {verdict.spec} explains and more: on top of {verdict.spec} it adds "
                 f"{100 * extra:.2f}% of the torque, significantly, while {verdict.spec} adds nothing significant on "
@@ -515,11 +515,9 @@ def _mark_overlaps(data, cols, icols, verdict, cands, min_share, starts, folds, 
             continue
         model = with_v.model.with_effect(e)
         both = fitting._solve(data, cols, model, {}, icols)
-        extra = float(np.sqrt(max(with_v.rel_error**2 - both.rel_error**2, 0.0)))  # share of the torque it adds
-        back = float(np.sqrt(max(c.fit.rel_error**2 - both.rel_error**2, 0.0)))  # ... and the verdict to it
-        adds = extra >= min_share and _on_top(data, cols, icols, model, with_v, both, starts, folds, alpha)
+        extra, adds = _adds(data, cols, icols, model, with_v, both, min_share, starts, folds, alpha)
         if not adds:
-            if not (back >= min_share and _on_top(data, cols, icols, model, c.fit, both, starts, folds, alpha)):
+            if not _adds(data, cols, icols, model, c.fit, both, min_share, starts, folds, alpha)[1]:  # nor back
                 same.append(c.spec)
             c.overlaps = verdict.effect
             gap = 100 * abs(1 - np.sqrt(verdict.cv_sse.sum() / c.cv_sse.sum())) if c.cv_sse.sum() > 0 else 0.0
@@ -537,6 +535,13 @@ def _mark_overlaps(data, cols, icols, verdict, cands, min_share, starts, folds, 
             f"(e.g. a small swing, where a tilted plane, a spring with its preload and an offset are nearly "
             f"one function of position); {verdict.spec} fits best held out, or is the simplest within one standard "
             "error. A wider motion would tell them apart")
+
+
+def _adds(data, cols, icols, model, fitted, both, min_share, starts, folds, alpha) -> tuple[float, bool]:
+    """The share of the torque (RMS, in rel_error units) that `model` (fitted: `both`) accounts for
+    beyond `fitted`, and whether it is relevant and significantly there (`_on_top`)."""
+    share = float(np.sqrt(max(fitted.rel_error**2 - both.rel_error**2, 0.0)))
+    return share, share >= min_share and _on_top(data, cols, icols, model, fitted, both, starts, folds, alpha)
 
 
 def _on_top(data, cols, icols, model, fitted, both, starts, folds, alpha) -> bool:
