@@ -385,11 +385,10 @@ def _compliance(data, base, blocks, alpha, min_share) -> Candidate | str:
     detail = {"f_hz": round(mode.f_hz, 1), "zeta": mode.zeta, "motor_fraction": round(mode.motor_fraction, 3),
               "measured_in": "frequency response {:g}-{:g} Hz".format(*modes.band(1 / data.dt)),
               "resonance_peak": mode.resonant, "coherent_to_hz": round(mode.coherent_hz, 1)}
-    hi = modes.band(1 / data.dt)[1]
     note = "" if mode.resonant else "no resonance peak in the measured response: no evidence of a mode"
-    if not mode.resonant and mode.coherent_hz < 0.75 * hi:
-        note += (f"; the response is coherent only up to {mode.coherent_hz:.3g} Hz of its band's {hi:.3g} Hz (above, "
-                 "the encoder's resolution or noise on the torque swamps the motion): a mode above that cannot show")
+    short = "" if mode.resonant else modes.coherent_only(mode.coherent_hz, 1 / data.dt)
+    if short:
+        note += f"; the response is {short}: a mode above that cannot show"
     return Candidate(mode.effect().name, mode.effect().spec, mode.reduction, mode.reduction, p, significant,
                      mode.joint + 1, detail, 2, mode.err_mode, mode=mode, note=note)
 

@@ -191,9 +191,9 @@ def detect(q: np.ndarray, tau: np.ndarray, dt: float, blocks: int = 8) -> Mode |
             if best is None or misfit < best[0]:
                 best = (misfit, fz, zeta, joint, float(r))
     if best is None:
-        return ("no mode of a plausible motor share of the inertia fits its frequency response"
-                + (f", coherent only up to {coherent:.3g} Hz of its band's {hi:.3g} Hz (above, the encoder's "
-                   "resolution or noise on the torque swamps the motion)" if coherent < 0.75 * hi else ""))
+        short = coherent_only(coherent, fs)
+        return "no mode of a plausible motor share of the inertia fits its frequency response" + (
+            f": the response is {short}" if short else "")
     _, fz, zeta, joint, r = best
     one, g = _columns(f, fz, zeta)
     err_rigid, err_mode = np.zeros(blocks), np.zeros(blocks)
@@ -214,6 +214,16 @@ def detect(q: np.ndarray, tau: np.ndarray, dt: float, blocks: int = 8) -> Mode |
     f_mode = float(fz / np.sqrt(r))
     return Mode(f_mode, float(zeta), r, joint, _peaks(f, np.abs(h[:, joint]), f_mode, hi), err_rigid, err_mode,
                 f, np.abs(h), rigid, fitted, coherent)
+
+
+def coherent_only(coherent_hz: float, fs: float) -> str:
+    """Where the measured response is coherent over less than three quarters of the band, how far
+    (a phrase); else ''."""
+    hi = band(fs)[1]
+    if coherent_hz >= 0.75 * hi:
+        return ""
+    return (f"coherent only up to {coherent_hz:.3g} Hz of its band's {hi:.3g} Hz (above, the encoder's "
+            "resolution or noise on the torque swamps the motion)")
 
 
 def _peaks(f, mag, f_mode, top) -> bool:

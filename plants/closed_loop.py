@@ -99,8 +99,8 @@ def simulate(plant: Plant, controller: Controller, reference: Reference, seconds
 def _finite(traj: Trajectory, dt: float) -> Trajectory:
     """The run, or a `ModelError` where the loop diverged (an unstable discrete loop: gains too
     stiff for the sample rate or for a light plant), instead of a recording of NaN."""
-    bad = ~(np.isfinite(traj.q_true).all(axis=-1) & np.isfinite(traj.tau).all(axis=-1)) if traj.q_true.ndim > 1 else \
-        ~(np.isfinite(traj.q_true) & np.isfinite(traj.tau))
+    rows = len(traj.t)
+    bad = ~np.isfinite(np.c_[traj.q_true.reshape(rows, -1), traj.tau.reshape(rows, -1)]).all(axis=1)
     if bad.any():
         from manus.plants.errors import ModelError
 

@@ -409,6 +409,13 @@ def check_rates(rates) -> tuple[int, ...]:
     return out
 
 
+def check_amplitude(amplitude: float) -> float:
+    """A hidden effect's size: a share of the recorded torque's RMS, between 0 and 1."""
+    if not 0 < amplitude < 1:
+        raise ValueError(f"a hidden effect's amplitude is a fraction of the torque's RMS, between 0 and 1 (got {amplitude:g})")
+    return amplitude
+
+
 def draw_condition(seed: int, hidden: str | None = None, rates: tuple = RATES, **overrides) -> dict:
     """The condition of case `seed` (overrides win), its rate drawn from `rates`. A hidden
     `compliance` is drawn only under the open-loop steps; an effect that does not apply to the
@@ -449,8 +456,7 @@ def case(seed: int, hidden: str | None = None, rates: tuple = RATES, amplitude: 
     vocabulary hidden at `amplitude` of the torque (RMS; a delay and a mode have their own
     sizes), its rate drawn from `rates`. Keyword overrides fix condition values (structure, rate,
     excitation, torque, hold)."""
-    if not 0 < amplitude < 1:
-        raise ValueError(f"a hidden effect's amplitude is a fraction of the torque's RMS, between 0 and 1 (got {amplitude})")
+    check_amplitude(amplitude)
     import time
 
     t_start = time.perf_counter()

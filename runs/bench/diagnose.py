@@ -357,9 +357,10 @@ def calibrate(args) -> dict:
             raise ManusError(f"--rates {args.rates!r}: comma-separated sample rates, whole numbers of Hz from 100 "
                              "to 20000 (e.g. 500,2000)") from None
     amplitude = getattr(args, "amplitude", None)
-    amplitude = calibration.AMPLITUDE if amplitude is None else amplitude
-    if not 0 < amplitude < 1:
-        raise ManusError(f"--amplitude is a fraction of the recorded torque's RMS, between 0 and 1 (got {amplitude:g})")
+    try:
+        amplitude = calibration.check_amplitude(calibration.AMPLITUDE if amplitude is None else amplitude)
+    except ValueError as e:
+        raise ManusError(f"--amplitude: {e}") from None
     plan = [(case_seed(args.seed, 0, i), None) for i in range(n)]
     plan += [(case_seed(args.seed, 1 + calibration.hidden_effects().index(e), i), e) for e in effects for i in range(n)]
     note(f"calibration: {n} recordings with nothing missing and {n} per hidden effect ({', '.join(effects)}): "
