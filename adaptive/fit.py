@@ -244,6 +244,9 @@ def prepare(rec: Recording, cutoff_hz: float | None = None, decimate: int | None
     if len(rec) < MIN_SAMPLES:
         raise ModelError(f"{rec.path}: recording too short: {len(rec)} samples (at least {MIN_SAMPLES} are needed "
                          "to differentiate the positions; no parameter is identifiable)")
+    if not np.any(rec.tau):
+        raise ModelError(f"{rec.path}: the recorded torque is zero throughout: no model of it can be identified "
+                         "(is the torque column filled?)")
     dt = rec.dt
     step = encoder_step(rec)
     if cutoff_hz is None:
@@ -416,7 +419,12 @@ class Fit:
     def violations(self) -> list[str]:
         """The physical rules the fitted parameters break (each effect's own rules)."""
         s = self.model.structure
-        return [v for e in self.model.effects for v in e.violations(s, self.params, self.stds)]
+        out = [v for e in self.model.effects for v in e.violations(s, self.params, self.stds)]
+        flipped = {k: -v for k, v in self.params.items()}
+        if len(out) > 1 and not any(e.violations(s, flipped, self.stds) for e in self.model.effects):
+            out.append("every rule holds with the torque's sign reversed: the recorded torque is probably "
+                       "positive against the positions' direction (record it positive where it drives q up)")
+        return out
 
     def report(self) -> dict:
         """The JSON contract of `manus fit` (docs/cli.md)."""

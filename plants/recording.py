@@ -313,6 +313,7 @@ def _assemble(path, cols: dict, meta: dict, locate) -> Recording:
     meta = {k: str(v) for k, v in meta.items()}
     _check_meta(path, meta, n, t)
     q = np.stack([cols[f"q{i}"] for i in range(1, n + 1)], 1)
+    _check_grid(path, meta, q)
     tau = np.stack([cols[f"tau{i}"] for i in range(1, n + 1)], 1)
     qd = np.stack([cols[f"qd{i}"] for i in range(1, n + 1)], 1) if qd_cols else None
     extra = {k: v for k, v in cols.items() if k not in core}
@@ -352,6 +353,36 @@ def _check_meta(path, meta, n, t):
         if abs(step * rate - 1) > 0.01:
             hint = " (is t in milliseconds?)" if abs(step * rate / 1000 - 1) < 0.01 else ""
             _fail(path, None, f"t advances by {step:.6g} per sample but sample_rate_hz is {rate:g}{hint}")
+
+
+# positions in another unit than the encoder's declared grid: (their grid / the declared one, what it means)
+UNIT_SLIPS = ((180 / math.pi, "degrees, not radians"), (1 / (2 * math.pi), "revolutions, not radians"),
+              (1000.0, "millimetres, not metres"))
+
+
+def _check_grid(path, meta, q):
+    """Positions the metadata says lie on an encoder's grid (`counts_per_rev`, `position_step`)
+    that lie on another, a unit's factor coarser or finer (degrees against radians, millimetres
+    against metres, revolutions, raw counts): refused, naming the likely unit. Positions on no
+    grid (interpolated, filtered, noisy) or on one of no unit's factor are left alone."""
+    key = "position_step" if "position_step" in meta else "counts_per_rev" if "counts_per_rev" in meta else None
+    if key is None or q.shape[0] < 3:
+        return
+    step = float(meta[key]) if key == "position_step" else 2 * math.pi / float(meta[key])
+    d = np.abs(np.diff(q, axis=0))
+    d = d[d > 0]
+    if not d.size:
+        return
+    grid = float(d.min())  # the positions' own grid, where they lie on one
+    x = (q - q[0]) / grid
+    if np.mean(np.abs(x - np.round(x)) > 0.05) > 0.5:
+        return
+    slips = UNIT_SLIPS + (((1 / step), "raw encoder counts, not positions"),)
+    for factor, what in slips:
+        if abs(grid / (step * factor) - 1) < 0.01:
+            _fail(path, None, f"the positions move in steps of {grid:.6g}, {grid / step:.6g} times the encoder's "
+                              f"declared step ({step:.6g}, from {key}: {meta[key]}): {what}? manus reads positions in "
+                              "radians (metres on a prismatic axis)")
 
 
 def _read_npz(path: Path) -> Recording:

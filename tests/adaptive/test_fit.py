@@ -131,6 +131,25 @@ def test_too_short_names_every_parameter(nominal):
     assert "rank 0 of 7" in str(e.value)
 
 
+def test_a_torque_of_zero_throughout_is_refused(nominal):
+    import copy
+    blank = copy.copy(nominal)
+    blank.tau = np.zeros_like(nominal.tau)
+    with pytest.raises(ModelError, match="the recorded torque is zero throughout"):
+        fit(blank, "rigid,viscous,coulomb")
+
+
+def test_a_torque_recorded_with_the_opposite_sign_is_named(nominal):
+    """The whole torque negated: every parameter with a sign rule breaks it, and the fit says
+    that the sign convention, not the physics, is the likely cause; a sound fit says nothing."""
+    import copy
+    flipped = copy.copy(nominal)
+    flipped.tau = -nominal.tau
+    bad = fit(flipped, "rigid,viscous,coulomb", method="ls").violations()
+    assert len(bad) > 2 and "every rule holds with the torque's sign reversed" in bad[-1]
+    assert fit(nominal, "rigid,viscous,coulomb", method="ls").violations() == []
+
+
 def test_no_motion_names_the_parameters_outside_the_regressors_rank():
     t = np.arange(3000) * 1e-3
     still = Recording(t, np.tile([0.464, 2.409], (t.size, 1)), np.full((t.size, 2), 0.1), None,

@@ -119,3 +119,36 @@ def test_emps_files(emps_dir):
     np.testing.assert_allclose(rec.tau[:, 0], 35.15065188248547 * rec.extra["vir"])
     pulses = recording.read(emps_dir / "DATA_EMPS_PULSES.mat")
     assert set(pulses.extra) >= {"qg", "vir", "pulses_N"}
+
+
+def _on_grid(step, n=2000, joints=2):
+    """A slow swing quantized on the encoder grid `step`, (n, joints)."""
+    t = np.arange(n) * 1e-3
+    return np.round(np.stack([0.3 * np.sin(2 * np.pi * 0.7 * t + j) + 0.5 for j in range(joints)], 1) / step) * step
+
+
+@pytest.mark.parametrize("unit, factor, meta, message", [
+    ("degrees", 180 / np.pi, {"counts_per_rev": "131072"}, r"57.2958 times .* degrees, not radians\?"),
+    ("revolutions", 1 / (2 * np.pi), {"counts_per_rev": "131072"}, r"revolutions, not radians\?"),
+    ("counts", 131072 / (2 * np.pi), {"counts_per_rev": "131072"}, r"raw encoder counts, not positions\?"),
+    ("millimetres", 1000.0, {"position_step": "1e-06", "joints": "prismatic"}, r"millimetres, not metres\?"),
+])
+def test_positions_in_another_unit_than_the_declared_grid_are_refused(tmp_path, unit, factor, meta, message):
+    """Positions on the declared encoder grid read; the same positions in another unit (their
+    grid a unit's factor off the declared one) are refused, naming the unit."""
+    step = float(meta.get("position_step", 0)) or 2 * np.pi / 131072
+    q = _on_grid(step)
+    base = {"sample_rate_hz": "1000", **meta}
+    rec = Recording(np.arange(len(q)) * 1e-3, q, np.ones_like(q), None, base)
+    assert recording.read(recording.write(rec, tmp_path / "good.csv")).n_joints == 2
+    rec.q = q * factor
+    with pytest.raises(RecordingError, match=message):
+        recording.read(recording.write(rec, tmp_path / f"{unit}.csv"))
+
+
+def test_positions_off_the_grid_for_other_reasons_are_read(tmp_path):
+    """Noisy or interpolated positions are off the declared grid without a unit's factor: read."""
+    step = 2 * np.pi / 131072
+    q = _on_grid(step) + np.random.default_rng(0).normal(0, 1e-4, (2000, 2))
+    rec = Recording(np.arange(2000) * 1e-3, q, np.ones_like(q), None, {"sample_rate_hz": "1000", "counts_per_rev": "131072"})
+    assert len(recording.read(recording.write(rec, tmp_path / "noisy.csv"))) == 2000
