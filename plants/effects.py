@@ -599,6 +599,16 @@ def _number(text: str, what: str) -> float:
         raise ModelError(f"{what}: {text!r} is not a number") from None
 
 
+def _positive(text: str, what: str) -> float:
+    v = _number(text, what)
+    if not (v > 0 and math.isfinite(v)):
+        raise ModelError(f"{what}: {text!r} must be a positive number")
+    return v
+
+
+MAX_DELAY_S = 10.0  # a command delay longer than this is a mistake of units, not a plant's
+
+
 def parse_effect(text: str) -> Effect:
     """One effect from its spec: `name` or `name:value` (cogging:39, stribeck:0.02,
     delay:2ms or delay:0.002, one delay per joint delay:1ms/3ms, compliance:218.7)."""
@@ -610,12 +620,12 @@ def parse_effect(text: str) -> Effect:
     if not arg:
         return cls()
     if cls is Cogging:
-        orders = [_number(x, "cogging order") for x in arg.split("+")]
+        orders = [_positive(x, "cogging order") for x in arg.split("+")]
         return Cogging(order=orders[0], more=tuple(orders[1:]))
     if cls is Stribeck:
-        return Stribeck(vs=_number(arg, "Stribeck velocity"))
+        return Stribeck(vs=_positive(arg, "Stribeck velocity"))
     if cls is Compliance:
-        return Compliance(f_hz=_number(arg.lower().removesuffix("hz"), "compliance frequency"))
+        return Compliance(f_hz=_positive(arg.lower().removesuffix("hz"), "compliance frequency"))
     if cls is Delay:
         values = []
         for part in arg.split("/"):  # one delay, or one per joint: delay:1ms/3ms
@@ -626,6 +636,9 @@ def parse_effect(text: str) -> Effect:
             values.append(value * 1e-3 if m.group(2) == "ms" else value)
         if any(v < 0 for v in values):
             raise ModelError(f"delay: {arg!r}: a delay cannot be negative")
+        if not all(v <= MAX_DELAY_S for v in values):
+            raise ModelError(f"delay: {arg!r}: longer than {MAX_DELAY_S:g} s, no amplifier's or bus's delay "
+                             "(a delay in milliseconds is written 2ms)")
         return Delay(seconds=values[0] if len(values) == 1 else tuple(values))
     raise ModelError(f"effect {name!r} takes no argument (got {arg!r})")
 

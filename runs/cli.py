@@ -70,6 +70,7 @@ def main(argv: list[str] | None = None) -> int:
     module = cmds[args.command]
     try:
         result = module.run(args)
+        text = None if getattr(args, "json", False) or not hasattr(module, "render") else module.render(result)
     except ManusError as e:
         if args.debug:
             raise
@@ -86,10 +87,8 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     if getattr(args, "json", False):
         print(json.dumps(result, default=_jsonable))
-    elif hasattr(module, "render"):
-        text = module.render(result)
-        if text:
-            print(text)
+    elif text:
+        print(text)
     return 0
 
 

@@ -131,7 +131,8 @@ def render(r: dict) -> str:
                         ", every parameter within one standard deviation"))
         lines.append("    link masses " + ", ".join(f"{x['mass']:.4g}" for x in c["links"]) + " kg (held near the URDF's)")
     for k, v in r.get("nonlinear", {}).items():
-        lines.append(f"  {k} = {v:.6g} (searched or fixed)")
+        shown = ", ".join(f"{x:.6g}" for x in v) if isinstance(v, (list, tuple)) else f"{v:.6g}"
+        lines.append(f"  {k} = {shown} (searched or fixed)")
     for v in r.get("violations", []):
         lines.append(f"  breaks physics: {v}")
     if r.get("redundant"):

@@ -47,8 +47,12 @@ def build_plant(args, robot_torque_limit: float | None = None):
 
     from manus.plants import Encoder, Model, Simulator, structure_named
 
-    if args.rate <= 0 or args.substeps < 1:
+    if not args.rate > 0 or args.substeps < 1:
         raise ManusError("--rate must be positive and --substeps at least 1")
+    if args.joints < 1:
+        raise ManusError(f"--joints {args.joints}: an axis structure has at least one joint")
+    if not args.torque_noise >= 0 or not args.counts >= 0:
+        raise ManusError("--torque-noise is a standard deviation and --counts a count: neither can be negative")
     robot = getattr(args, "robot", None)
     if robot:
         from manus.plants.serial import Serial
@@ -70,5 +74,10 @@ def build_plant(args, robot_torque_limit: float | None = None):
 
         extra["actuator"] = None if robot_torque_limit is None else Actuator(
             dac_bits=24, volts=10.0, amps_per_volt=1.0, torque_constant=robot_torque_limit / 10.0)
-    return Simulator(model, parse_params(args.param), rate_hz=args.rate, substeps=args.substeps,
-                     encoder=encoder, torque_noise=args.torque_noise, **extra)
+    sim = Simulator(model, parse_params(args.param), rate_hz=args.rate, substeps=args.substeps,
+                    encoder=encoder, torque_noise=args.torque_noise, **extra)
+    values = {k: float(v) for k, v in sim.params.items()}
+    bad = [v for e in model.effects for v in e.violations(structure, values)]
+    if bad:  # a plant that breaks its effects' physics (a negative inertia, friction that pushes)
+        raise ManusError("--param: the plant breaks physics: " + "; ".join(bad))
+    return sim

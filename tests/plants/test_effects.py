@@ -105,6 +105,11 @@ def test_parse_specs_and_errors():
         parse_effects("cogging:many")
     with pytest.raises(ModelError, match="takes no argument"):
         parse_effects("viscous:3")
+    for bad in ("cogging:0", "cogging:39+-6", "stribeck:-0.02", "stribeck:nan", "compliance:0hz", "compliance:inf"):
+        with pytest.raises(ModelError, match="must be a positive number"):
+            parse_effects(bad)
+    with pytest.raises(ModelError, match="longer than 10 s"):
+        parse_effects("delay:1e9ms")
 
 
 def test_thesis_defaults():

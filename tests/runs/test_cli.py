@@ -29,3 +29,26 @@ def test_errors_are_one_line_and_non_zero(tmp_path, capsys):
     assert err.startswith("manus simulate: unknown effect 'glue'")
     code = main(["simulate", "--param", "Fc9=1", "--out", str(tmp_path / "x.csv")])
     assert code == 2 and "unknown parameter(s) Fc9" in capsys.readouterr().err
+
+
+def test_a_plant_that_breaks_physics_is_refused_by_name(tmp_path, capsys):
+    """Options that describe no physical plant: one line naming the rule, no simulation."""
+    for argv, message in ((["--param", "a1=-1"], "H(q) is not positive definite"),
+                          (["--param", "b2=-0.1"], "viscous friction dissipates"),
+                          (["--structure", "axis", "--joints", "0"], "at least one joint"),
+                          (["--torque-noise", "-1"], "neither can be negative")):
+        code = main(["simulate", *argv, "--seconds", "0.1", "--out", str(tmp_path / "x.csv")])
+        err = capsys.readouterr().err.strip()
+        assert code == 2 and "\n" not in err and message in err, err
+    assert not (tmp_path / "x.csv").exists()
+
+
+def test_a_fixed_model_with_several_values_is_rendered(tmp_path, capsys):
+    """Fixed non-linear parameters with several values (two cogging orders, a delay per joint)
+    are printed, not an internal error."""
+    out = tmp_path / "rec.csv"
+    assert main(["simulate", "--seconds", "2", "--out", str(out), "--json"]) == 0
+    capsys.readouterr()
+    assert main(["fit", "--model", "rigid,viscous,coulomb,cogging:39+6,delay:1ms/2ms", str(out), "--no-figures"]) == 0
+    text = capsys.readouterr().out
+    assert "orders = 39, 6" in text and "delay_ms = 1, 2" in text
