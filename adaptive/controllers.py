@@ -64,7 +64,11 @@ def make_controller(name: str, model: Model, dt: float, estimator: Estimator | s
     if knobs and name != "slotine-li-composite":
         raise ManusError(f"{name}: {', '.join(knobs)} belong to slotine-li-composite")
     composite = Composite(**knobs) if name == "slotine-li-composite" else None
-    try:
-        return SlotineLi(model, dt, estimator, composite=composite, **gains)
-    except TypeError as e:  # an unknown keyword
-        raise ManusError(f"{name}: {e}") from None
+    import inspect
+
+    settings = [k for k, p in inspect.signature(SlotineLi).parameters.items() if p.kind is p.KEYWORD_ONLY
+                and k != "composite"]
+    unknown = sorted(set(gains) - set(settings))
+    if unknown:
+        raise ManusError(f"{name} has no setting {', '.join(unknown)} (its settings: {', '.join(settings)})")
+    return SlotineLi(model, dt, estimator, composite=composite, **gains)

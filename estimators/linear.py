@@ -49,4 +49,9 @@ def equal_noise_bandwidth(design: Callable[[float], tuple[np.ndarray, np.ndarray
     thesis's filtered first difference (the gain grows with ω: a bracketed root on log ω)."""
     target = np.log(ffd_noise_gain(dt, corner))
     f = lambda lw: np.log(velocity_noise_gain(*design(np.exp(lw)), dt)) - target
-    return float(np.exp(scipy.optimize.brentq(f, np.log(1.0), np.log(0.9 * np.pi / dt), xtol=1e-8)))
+    lo, hi = np.log(1.0), np.log(0.9 * np.pi / dt)
+    if not f(lo) < 0 < f(hi):
+        raise ValueError(f"no bandwidth between 1 rad/s and 0.9 Nyquist ({0.45 / dt:.4g} Hz) has the velocity noise of "
+                         f"the {corner / (2 * np.pi):.4g} Hz filtered first difference at {1 / dt:.4g} Hz"
+                         + (" (its corner is above Nyquist: raise the rate)" if corner >= np.pi / dt else ""))
+    return float(np.exp(scipy.optimize.brentq(f, lo, hi, xtol=1e-8)))

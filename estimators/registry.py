@@ -90,6 +90,11 @@ def _build(name: str, dt: float, n_joints: int, step: float, k: dict) -> Estimat
             raise ManusError(f"the model {model.spec!r} has {model.n_joints} joint(s), the recording {n_joints}")
         dynamics = ModelDynamics(model, dt, **{x: k.pop(x) for x in ("boundary",) if x in k})
         params = k.pop("params", None)
+        if params:
+            values = {**model.defaults(), **{key: float(v) for key, v in params.items()}}
+            bad = [v for e in model.effects for v in e.violations(model.structure, values)]
+            if bad:  # a model that breaks physics predicts nothing an estimator can follow
+                raise ManusError(f"the model's parameters break physics: {'; '.join(bad)}")
         if name == "kalman_model":
             return ModelKalman(dynamics, dt, r=r, theta0=params, **k)
         return Luenberger(dt, dynamics=dynamics, theta0=params, **k)

@@ -48,6 +48,8 @@ def test_make_refuses_what_it_does_not_know():
         estimators.make("levant", lipschitz=-1.0)
     with pytest.raises(ManusError, match="unknown parameter.*a9"):
         estimators.make("kalman_model", params={"a9": 1.0})
+    with pytest.raises(ManusError, match="parameters break physics: a1 = -1"):
+        estimators.make("luenberger_model", params={"a1": -1.0})
     est = estimators.make("luenberger_model", n_joints=1, structure="axis")
     with pytest.raises(ManusError, match="shape"):
         est.with_params(est.init(jnp.zeros(1)), np.ones(7))
