@@ -53,7 +53,7 @@ After the verdict, the residual (of the model plus the verdict) is tested for st
 effect of the vocabulary explains (`unexplained`, `manus.adaptive.leftover`): a smooth function
 of each joint's position, velocity, position by direction of motion, of time, and a sinusoid at
 the residual's spectral peak, each fitted on the other blocks and judged on the held-out one as
-above.
+above, and relevant as a candidate must be (`min_share` of the torque).
 
 `compliance` is judged in the frequency band where it lives (see `manus.adaptive.modes`).
 """
@@ -220,7 +220,7 @@ def diagnose(rec: Recording | fitting.Data, model: Model | str, cutoff_hz: float
         _mark_overlaps(data, cols, icols, verdict, cands, min_share, starts, folds, alpha / m)
         cands.sort(key=lambda c: (c is not verdict, c.overlaps is not None, -c.cv_error_reduction))
     after = verdict.fit if verdict is not None and verdict.fit is not None else base
-    unexplained = residual_structure(data, cols, icols, after, starts, folds, alpha)
+    unexplained = residual_structure(data, cols, icols, after, starts, folds, alpha, min_share)
     return Diagnosis(base, cands, verdict, base_sse, notes, unexplained, alpha)
 
 

@@ -92,6 +92,7 @@ def unexplained_line(u: dict) -> str:
     if u.get("below_relevance"):
         return (f"left in the residual: a small structure: {what} removes {100 * u['fraction']:.1f} % of joint "
                 f"{u['joint']}'s remaining error held out (p = {u['p_value']:.2g}), under the "
-                f"{100 * u['below_relevance']:.0f} % that counts")
+                f"{100 * u['below_relevance']:.0f} % of the error or the {100 * u.get('min_share', 0):.1f} % of the "
+                f"torque ({100 * u.get('share', 0):.2f} % here) that count")
     return (f"left in the residual: no structure beyond noise (best: {u.get('against')} on joint {u.get('joint')}, "
             f"{100 * u.get('fraction', 0):.0f} %, p = {u.get('p_value', 1):.2g})")
