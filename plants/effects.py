@@ -107,6 +107,7 @@ class Effect(eqx.Module):
     requires: ClassVar[tuple[str, ...]] = ()  # offered only on top of these effects
     brings: ClassVar[tuple[str, ...]] = ()  # added with it when the model lacks them
     evidence: ClassVar[str] = "velocity"  # what a residual is plotted against to show it
+    apart: ClassVar[str] = ""  # the motion that tells it from an effect it reads as on a recording
     gain: ClassVar[float] = 5.0  # the Slotine–Li adaptation gain of its parameters (thesis: Γ = 5)
 
     def names(self, s: Structure) -> tuple[str, ...]:
@@ -221,6 +222,7 @@ class Viscous(Effect):
     """Viscous friction b_i q̇_i [N·m·s/rad]; thesis §3.5: b = 0.222, 0.181."""
 
     name: ClassVar[str] = "viscous"
+    apart: ClassVar[str] = "motion at several speeds"
     kind: ClassVar[str] = "load"
 
     def names(self, s):
@@ -242,6 +244,7 @@ class Coulomb(Effect):
     """Coulomb friction Fc_i sgn(q̇_i) [N·m]; thesis §3.5: Fc = 0.099, 0.139."""
 
     name: ClassVar[str] = "coulomb"
+    apart: ClassVar[str] = "motion in both directions"
     kind: ClassVar[str] = "friction"
 
     def names(self, s):
@@ -267,6 +270,7 @@ class Stribeck(Effect):
     """
 
     name: ClassVar[str] = "stribeck"
+    apart: ClassVar[str] = "slow motion through the reversals"
     kind: ClassVar[str] = "friction"
     vs: Array = eqx.field(default=0.05, converter=jnp.asarray)  # Stribeck velocity [rad/s or m/s]
     requires: ClassVar[tuple[str, ...]] = ("coulomb",)
@@ -312,6 +316,7 @@ class Asymmetry(Effect):
     """
 
     name: ClassVar[str] = "asymmetry"
+    apart: ClassVar[str] = "motion in both directions"
     kind: ClassVar[str] = "load"  # smooth in q̇: |q̇| is continuous, nothing set-valued at rest
 
     def names(self, s):
@@ -349,6 +354,7 @@ class Gravity(Effect):
     """
 
     name: ClassVar[str] = "gravity"
+    apart: ClassVar[str] = "a wider swing"
     kind: ClassVar[str] = "load"
     side: ClassVar[str] = "link"
 
@@ -384,6 +390,7 @@ class Cogging(Effect):
     """
 
     name: ClassVar[str] = "cogging"
+    apart: ClassVar[str] = "travel over several of its periods"
     kind: ClassVar[str] = "load"
     evidence: ClassVar[str] = "position"
     order: Array = eqx.field(default=39.0, converter=jnp.asarray)  # cycles per revolution
@@ -535,6 +542,7 @@ class Spring(Effect):
     back toward its rest position. Illustrative defaults."""
 
     name: ClassVar[str] = "spring"
+    apart: ClassVar[str] = "a wider swing"
     kind: ClassVar[str] = "load"
     side: ClassVar[str] = "link"
     brings: ClassVar[tuple[str, ...]] = ("offset",)

@@ -116,7 +116,7 @@ def test_motion_in_one_direction_names_both_readings(emps_dir):
     v = d.verdict
     assert v is not None and v.effect in ("offset", "coulomb")
     assert {"offset", "coulomb"} == {v.effect, *v.aliases}
-    assert "cannot tell" in v.note and "both" in v.note
+    assert "cannot tell" in v.note and "Record motion in both directions to tell them apart" in v.note
     assert v.effect == "offset"  # signed: fewer physical assumptions than a friction level
 
 
