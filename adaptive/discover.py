@@ -2,7 +2,9 @@
 
 Starting from a model, each step diagnoses the current fit (`manus.adaptive.diagnose`), adds the
 verdict's effect with its non-linear parameter as found (its spec, e.g. `cogging:39` or
-`delay:1ms`, so later fits hold it fixed instead of searching again) and refits. The loop stops
+`delay:1ms`) and refits, the searched parameters the loop found searched again with the new
+effect in the model (`_refine`: a cogging order chosen while a smooth load was missing can be
+off by a few; the values a user gave stay as written). The loop stops
 when the verdict is null (nothing significant is missing), after `max_steps` additions, or when
 the verdict is `compliance`: a structural mode lives above the identification band and has no
 inverse-dynamics columns, so it is recorded as a step (with the frequency response's f and ζ) but
@@ -104,6 +106,25 @@ def effect_params(f: fitting.Fit, effect: str) -> dict:
     return out
 
 
+def _refine(data, cols, current: fitting.Fit, given: set[str], method: str) -> tuple[fitting.Fit, str]:
+    """The model's searched non-linear parameters searched again, each with every other effect
+    in the model (a cogging order found while a smooth load was still missing can be off by a
+    few). Values the user gave, and grown ones outside their effect's search space (a delay per
+    joint, several cogging orders), stay. The refit is kept when it fits better and no value
+    lands on the edge of its range. Returns the fit and what moved ("" when nothing)."""
+    span = data.span()
+    free = [e for e in current.model.effects if e.name not in given and len(e.space(span)) > 1
+            and e.spec in {v.spec for v in e.space(span)}]
+    if not free:
+        return current, ""
+    keep = {e.name for e in current.model.effects} - {e.name for e in free}
+    again = fitting.fit(data, current.model, fixed=keep, columns=cols, method=method)
+    changed = [(e, again.model.get(e.name)) for e in free if again.model.get(e.name).spec != e.spec]
+    if not changed or not again.rel_error < current.rel_error or any(b.edge(span) for _, b in changed):
+        return current, ""
+    return again, ", ".join(f"{a.spec} -> {b.spec}" for a, b in changed)
+
+
 def discover(rec: Recording | fitting.Data, model: str, cutoff_hz: float | None = None,
              max_steps: int = MAX_STEPS, progress: Callable[[str], None] | None = None, method: str = "auto",
              **diagnose_options) -> Discovery:
@@ -115,6 +136,7 @@ def discover(rec: Recording | fitting.Data, model: str, cutoff_hz: float | None 
     data = rec if isinstance(rec, fitting.Data) else fitting.prepare(rec, cutoff_hz)
     cols = fitting.Columns(data)
     start = fitting.fit(data, model, columns=cols, method=method)
+    given = fitting._model_from(model, data.rec.structure)[1]  # values the user wrote stay as written
     current = start
     spec = start.model.spec
     steps: list[Step] = []
@@ -146,7 +168,9 @@ def discover(rec: Recording | fitting.Data, model: str, cutoff_hz: float | None 
             return Discovery(start, steps, None, "compliance (not refitted)", notes)
         spec = v.fit.model.spec  # the model with the verdict's effect as found (its search fixed)
         current = fitting.fit(data, spec, columns=cols, method=method)
+        current, moved = _refine(data, cols, current, given, method)
         spec = current.model.spec
         steps.append(Step(len(steps) + 1, v.effect, v.spec, effect_params(current, v.effect), before,
-                          current.rel_error, spec, d, current))
+                          current.rel_error, spec, d, current,
+                          f"searched again with {v.effect} in the model: {moved}" if moved else ""))
         say(f"step {len(steps)}: + {v.spec}, rel_error {100 * before:.2f} % -> {100 * current.rel_error:.2f} %")

@@ -73,6 +73,7 @@ def render(r: dict) -> str:
     rows += [[s["step"], s["spec"], format_params(s["params"]), f"{100 * s['rel_error']:.2f}"] for s in r["steps"]]
     lines = [table(left(rows, (1, 2)), ["step", "effect added", "parameters (value±std)", "rel_error %"]),
              f"stopped: {r['stopped']}; final model {r['model']}, rel_error {100 * r['rel_error']:.2f} %"]
+    lines += [f"  step {s['step']}: {s['note']}" for s in r["steps"] if s.get("note")]
     lines += [f"  {n}" for n in r["notes"]]
     lines.append(f"  fitted by {r['method']}: {r['method_why']}")
     lines.append("  " + unexplained_line(r.get("unexplained") or {}))

@@ -179,6 +179,18 @@ def test_a_tiny_structure_left_by_a_right_model_is_not_something_left():
     assert u["share"] == pytest.approx(d.base.rel_error * np.sqrt(1 - (1 - u["fraction"]) ** 2), rel=0.3)
 
 
+def test_a_searched_value_is_searched_again_once_the_loop_adds_what_bent_it():
+    """The thesis's 39/rev cogging beside a 6/rev ripple on a ±0.3 rad swing (half a ripple
+    period: a smooth load there, read as gravity). The cogging order is searched first, while
+    the smooth load is missing, and lands on 41; once the load is in, searched again it is 39."""
+    truth = {"A1_2": 0.015, "B2_2": 0.01}
+    rec = arm(truth, "rigid,viscous,coulomb,cogging:39+6", seconds=20.0, seed=0)
+    disc = discover(rec, "rigid,viscous,coulomb")
+    assert [s.effect for s in disc.steps][:2] == ["cogging", "gravity"]
+    assert disc.final_fit.model.get("cogging").spec == "cogging:39"
+    assert "cogging:39" in disc.model
+
+
 # -- a real double pendulum -------------------------------------------------------------------------
 
 def test_dfki_double_pendulum_from_rigid():
