@@ -82,6 +82,7 @@ MODE_MIN_REDUCTION = 0.05  # a mode must remove this share of the frequency resp
 MIN_SHARE = 0.005  # a candidate must explain at least this share of the recorded torque (RMS) ...
 MOST = 0.5  # ... or remove at least this share of the current error
 MIN_ROWS_PER_BLOCK = 10
+CANCELS = 10.0  # a candidate whose own torque is this many times what it adds cancels the model's terms (R² > 0.99)
 
 
 @dataclass
@@ -317,6 +318,9 @@ def _judge(data, cols, icols, base, base_sse, starts, folds, whole, e0, values, 
         detail["held_at_bound"] = list(held)
     explained = float(np.sqrt(max(base.rel_error**2 - f.rel_error**2, 0.0)))
     detail["explains"] = round(explained, 5)  # share of the recorded torque (RMS) it accounts for
+    own_share = _own_share(data, cols, f, names)
+    if own_share is not None:
+        detail["own"] = round(own_share, 5)  # its own terms' torque, the same way: RMS over the recorded
     detail["p_values"] = {k: float(f"{v:.3g}") for k, v in tests.items()}
     if "score" in tests:  # how its blocks were judged (lsq.score_p) and how many there were
         detail["score_test"] = f"{how}, {groups.shape[0]} blocks"
@@ -329,6 +333,11 @@ def _judge(data, cols, icols, base, base_sse, starts, folds, whole, e0, values, 
     if lost:
         problems.append(f"not identifiable from this recording: {', '.join(lost)} "
                         f"{'is' if len(lost) == 1 else 'are'} explained by the model's own columns on these rows")
+    elif own_share is not None and own_share >= min_share and own_share > CANCELS * explained:
+        problems.append(f"nearly explained by the model's own columns on these rows: its own torque "
+                        f"({100 * own_share:.2g} % of the recorded) is {own_share / max(explained, 1e-12):.0f} times "
+                        f"what it adds ({100 * explained:.2g} %), mostly cancelling the model's other terms; what "
+                        "they fit together is not this effect")
     spec = ",".join(e.spec for e in (*brought, chosen))
     note = (f"{', '.join(held)} held at {'its' if len(held) == 1 else 'their'} physical bound (fitted free, "
             f"{'it breaks' if len(held) == 1 else 'they break'} the effect's rule)") if held else ""
@@ -336,6 +345,17 @@ def _judge(data, cols, icols, base, base_sse, starts, folds, whole, e0, values, 
     joint = int(np.argmax(per_joint)) if joint is None else joint
     return Candidate(e0.name, chosen.spec if not brought else spec, reduction, cv_red, p, significant,
                      joint + 1, detail, n_params, sse, fit=f, problems=problems, note=note)
+
+
+def _own_share(data, cols, f, names) -> float | None:
+    """The RMS of the torque a candidate's own fitted terms give (`names`), as a share of the
+    recorded torque's; None when it has no columns (a delay)."""
+    idx = [f.names.index(k) for k in names if k in f.names]
+    if not idx:
+        return None
+    own = np.einsum("rnp,p->rn", cols.model(f.model)[:, :, idx], f.theta[idx])
+    tau = data.tau(f.delay)
+    return float(np.sqrt(np.sum(own**2) / max(float(np.sum(tau**2)), 1e-300)))
 
 
 def _test_blocks(folds, data: fitting.Data, resid: np.ndarray) -> np.ndarray:
