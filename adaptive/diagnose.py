@@ -82,7 +82,6 @@ MODE_MIN_REDUCTION = 0.05  # a mode must remove this share of the frequency resp
 MIN_SHARE = 0.005  # a candidate must explain at least this share of the recorded torque (RMS) ...
 MOST = 0.5  # ... or remove at least this share of the current error
 MIN_ROWS_PER_BLOCK = 10
-CANCELS = 10.0  # a candidate whose own torque is this many times what it adds cancels the model's terms (R² > 0.99)
 
 
 @dataclass
@@ -333,11 +332,6 @@ def _judge(data, cols, icols, base, base_sse, starts, folds, whole, e0, values, 
     if lost:
         problems.append(f"not identifiable from this recording: {', '.join(lost)} "
                         f"{'is' if len(lost) == 1 else 'are'} explained by the model's own columns on these rows")
-    elif own_share is not None and own_share >= min_share and own_share > CANCELS * explained:
-        problems.append(f"nearly explained by the model's own columns on these rows: its own torque "
-                        f"({100 * own_share:.2g} % of the recorded) is {own_share / max(explained, 1e-12):.0f} times "
-                        f"what it adds ({100 * explained:.2g} %), mostly cancelling the model's other terms; what "
-                        "they fit together is not this effect")
     spec = ",".join(e.spec for e in (*brought, chosen))
     note = (f"{', '.join(held)} held at {'its' if len(held) == 1 else 'their'} physical bound (fitted free, "
             f"{'it breaks' if len(held) == 1 else 'they break'} the effect's rule)") if held else ""

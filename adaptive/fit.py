@@ -244,9 +244,6 @@ def prepare(rec: Recording, cutoff_hz: float | None = None, decimate: int | None
     if len(rec) < MIN_SAMPLES:
         raise ModelError(f"{rec.path}: recording too short: {len(rec)} samples (at least {MIN_SAMPLES} are needed "
                          "to differentiate the positions; no parameter is identifiable)")
-    if not np.any(rec.tau):
-        raise ModelError(f"{rec.path}: the recorded torque is zero throughout: no model of it can be identified "
-                         "(is the torque column filled?)")
     dt = rec.dt
     step = encoder_step(rec)
     if cutoff_hz is None:
@@ -521,6 +518,9 @@ def fit(rec: Recording | Data, model: Model | str, cutoff_hz: float | None = Non
         why = e.applies(model.structure, data.rec.prismatic)
         if why:
             raise ModelError(f"{e.name}: {why}")
+    if not np.any(data.rec.tau):
+        raise ModelError(f"{data.rec.path}: the recorded torque is zero throughout: no model of it can be identified "
+                         "(is the torque column filled?)")
     cols = columns or Columns(data)
     _check_rows(data, model)
     _check_motion(data, model)
