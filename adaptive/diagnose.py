@@ -317,9 +317,6 @@ def _judge(data, cols, icols, base, base_sse, starts, folds, whole, e0, values, 
         detail["held_at_bound"] = list(held)
     explained = float(np.sqrt(max(base.rel_error**2 - f.rel_error**2, 0.0)))
     detail["explains"] = round(explained, 5)  # share of the recorded torque (RMS) it accounts for
-    own_share = _own_share(data, cols, f, names)
-    if own_share is not None:
-        detail["own"] = round(own_share, 5)  # its own terms' torque, the same way: RMS over the recorded
     detail["p_values"] = {k: float(f"{v:.3g}") for k, v in tests.items()}
     if "score" in tests:  # how its blocks were judged (lsq.score_p) and how many there were
         detail["score_test"] = f"{how}, {groups.shape[0]} blocks"
@@ -339,17 +336,6 @@ def _judge(data, cols, icols, base, base_sse, starts, folds, whole, e0, values, 
     joint = int(np.argmax(per_joint)) if joint is None else joint
     return Candidate(e0.name, chosen.spec if not brought else spec, reduction, cv_red, p, significant,
                      joint + 1, detail, n_params, sse, fit=f, problems=problems, note=note)
-
-
-def _own_share(data, cols, f, names) -> float | None:
-    """The RMS of the torque a candidate's own fitted terms give (`names`), as a share of the
-    recorded torque's; None when it has no columns (a delay)."""
-    idx = [f.names.index(k) for k in names if k in f.names]
-    if not idx:
-        return None
-    own = np.einsum("rnp,p->rn", cols.model(f.model)[:, :, idx], f.theta[idx])
-    tau = data.tau(f.delay)
-    return float(np.sqrt(np.sum(own**2) / max(float(np.sum(tau**2)), 1e-300)))
 
 
 def _test_blocks(folds, data: fitting.Data, resid: np.ndarray) -> np.ndarray:
