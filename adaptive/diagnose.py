@@ -51,8 +51,8 @@ torque, significantly, on top of it, while it adds nothing on top of the rival, 
 
 After the verdict, the residual (of the model plus the verdict) is tested for structure no
 effect of the vocabulary explains (`unexplained`, `manus.adaptive.leftover`): a smooth function
-of each joint's position, velocity, position by direction of motion, of time, and a sinusoid at
-the residual's spectral peak, each fitted on the other blocks and judged on the held-out one as
+of each joint's position, velocity, position by direction of motion, position times the model's
+torque (a torque ripple), of time, and a sinusoid at the residual's spectral peak, each fitted on the other blocks and judged on the held-out one as
 above, and relevant as a candidate must be (`min_share` of the torque).
 
 `compliance` is judged in the frequency band where it lives (see `manus.adaptive.modes`).

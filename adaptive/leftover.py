@@ -4,8 +4,9 @@
 Per held-out block, the model is fitted on the other blocks and its residual taken on every row;
 a smooth function of one variable (piecewise-linear hats on quantile knots) is fitted to the
 training rows' residual of one joint and judged on the held-out block's: each joint's position,
-velocity and position by direction of motion (for every joint's residual: a friction acting on a
-relative velocity shows on both), time, and a sinusoid at the training residual's spectral peak.
+velocity, position by direction of motion (for every joint's residual: a friction acting on a
+relative velocity shows on both) and position times the model's torque (a torque ripple), time,
+and a sinusoid at the training residual's spectral peak.
 The per-block improvement is tested as in `manus.adaptive.diagnose` (log ratio, t-test), at
 `alpha` over the number of variables tested (Bonferroni); a function must also remove at least
 `UNEXPLAINED_MIN` of the remaining error held out, and account for at least `min_share` of the
@@ -40,8 +41,14 @@ def _smooth_basis(x: np.ndarray, m: int = KNOTS) -> np.ndarray | None:
     return _hats(x, knots) if knots.size >= 3 else None
 
 
-def _bases(data: fitting.Data, resid_train: np.ndarray, train_rows: np.ndarray) -> dict:
-    """Candidate smooth structures of the residual: name -> basis (rows, m)."""
+RIPPLE = "position x torque"  # the model's torque times a function of position (a motor's torque ripple)
+
+
+def _bases(data: fitting.Data, fitted: np.ndarray) -> dict:
+    """Candidate smooth structures of the residual: name -> basis (rows, m). `fitted` (rows, n):
+    the model's torque, for a torque that ripples with position (τ·(1 + ε(q)): the residual is
+    the torque times a function of position; the model's torque, not the recorded one, whose
+    noise would correlate with the residual's)."""
     rows = data.rows
     out = {}
     n = data.n_joints
@@ -55,6 +62,7 @@ def _bases(data: fitting.Data, resid_train: np.ndarray, train_rows: np.ndarray) 
         if B is not None:
             up = (qd > 0)[:, None]
             out[("position x direction", i)] = np.concatenate([B * up, B * ~up], 1)
+            out[(RIPPLE, i)] = B * fitted[:, [i]]
     t = data.rec.t[rows]
     out[("time", None)] = _hats(t, np.linspace(t[0], t[-1], KNOTS))
     return out
@@ -73,7 +81,7 @@ def residual_structure(data, cols, icols, f: fitting.Fit, starts, folds, alpha, 
         resid.append((tau - Y @ theta, train[seg_of_row], test[seg_of_row]))
     tests = []
     torque = float(np.sum(tau**2)) or 1.0
-    bases = _bases(data, None, None)
+    bases = _bases(data, Y @ f.theta)
     t = data.rec.t[data.rows]
     for j in range(data.n_joints):
         for (what, i), B in list(bases.items()) + [(("frequency", None), None)]:
