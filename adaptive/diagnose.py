@@ -455,10 +455,10 @@ def _choose(cands: list[Candidate], alpha: float, cutoff_hz: float = np.inf) -> 
         s = best.fit.model.structure
         pick = min(group, key=lambda c: (_bounded(c, s), c.n_params, c.cv_sse.sum()))
         others = [c.effect for c in group if c is not pick]
-        how = list(dict.fromkeys(VOCABULARY[c.effect].apart for c in group if VOCABULARY[c.effect].apart))
+        how = _apart(c.effect for c in group)
         pick.note = (f"this recording cannot tell {pick.effect} from {', '.join(others)} (their columns are the same "
                      f"here): both readings fit alike; {pick.effect} is proposed, with fewer physical assumptions"
-                     + (f". Record {' and '.join(how)} to tell them apart" if how else ""))
+                     + (f". {how}" if how else ""))
         best = pick
     return best
 
@@ -505,7 +505,7 @@ def _mark_overlaps(data, cols, icols, verdict, cands, min_share, starts, folds, 
     if verdict.fit is None:
         return
     with_v = verdict.fit
-    same, how = [], [VOCABULARY[verdict.effect].apart]
+    same, names = [], [verdict.effect]
     for c in cands:
         if c is verdict or not c.significant or c.fit is None or c.effect in verdict.aliases:
             continue
@@ -518,7 +518,7 @@ def _mark_overlaps(data, cols, icols, verdict, cands, min_share, starts, folds, 
         if not adds:
             if not _adds(data, cols, icols, model, c.fit, both, min_share, starts, folds, alpha)[1]:  # nor back
                 same.append(c.spec)
-                how.append(VOCABULARY[c.effect].apart)
+                names.append(c.effect)
             c.overlaps = verdict.effect
             gap = 100 * abs(1 - np.sqrt(verdict.cv_sse.sum() / c.cv_sse.sum())) if c.cv_sse.sum() > 0 else 0.0
             better = verdict.effect if verdict.cv_sse.sum() <= c.cv_sse.sum() else c.effect
@@ -534,8 +534,13 @@ def _mark_overlaps(data, cols, icols, verdict, cands, min_share, starts, folds, 
             f"share of the torque (at least {100 * min_share:g} %) that is significantly there "
             f"(e.g. a small swing, where a tilted plane, a spring with its preload and an offset are nearly "
             f"one function of position); {verdict.spec} fits best held out, or is the simplest within one standard "
-            "error. " + (f"Record {' and '.join(dict.fromkeys(h for h in how if h))} to tell them apart"
-                         if any(how) else "A wider motion would tell them apart"))
+            "error. " + (_apart(names) or "A wider motion would tell them apart"))
+
+
+def _apart(effects) -> str:
+    """What would tell these effects apart, from each one's own `apart` ('' when none says)."""
+    how = list(dict.fromkeys(VOCABULARY[e].apart for e in effects if VOCABULARY[e].apart))
+    return f"Record {' and '.join(how)} to tell them apart" if how else ""
 
 
 def _adds(data, cols, icols, model, fitted, both, min_share, starts, folds, alpha) -> tuple[float, bool]:

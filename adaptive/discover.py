@@ -113,8 +113,8 @@ def _refine(data, cols, current: fitting.Fit, given: set[str], method: str) -> t
     joint, several cogging orders), stay. The refit is kept when it fits better and no value
     lands on the edge of its range. Returns the fit and what moved ("" when nothing)."""
     span = data.span()
-    free = [e for e in current.model.effects if e.name not in given and len(e.space(span)) > 1
-            and e.spec in {v.spec for v in e.space(span)}]
+    grids = {e.name: {v.spec for v in e.space(span)} for e in current.model.effects if e.name not in given}
+    free = [e for e in current.model.effects if len(grids.get(e.name, ())) > 1 and e.spec in grids[e.name]]
     if not free:
         return current, ""
     keep = {e.name for e in current.model.effects} - {e.name for e in free}

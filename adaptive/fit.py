@@ -60,7 +60,7 @@ from manus.adaptive.search import delay_of, grid
 from manus.estimators.offline import differentiate, edge, lowpass
 from manus.plants.effects import Effect, Model, Span
 from manus.plants.errors import ModelError
-from manus.plants.recording import Recording
+from manus.plants.recording import Recording, smallest_step
 from manus.plants.serial import Serial
 
 MIN_CUTOFF_HZ = 2.0
@@ -160,11 +160,7 @@ def align(u: np.ndarray, lag) -> np.ndarray:
 
 def encoder_step(rec: Recording) -> float:
     """The position grid: from the metadata, else the smallest non-zero position change."""
-    if rec.position_step:
-        return rec.position_step
-    d = np.abs(np.diff(rec.q, axis=0))
-    d = d[d > 0]
-    return float(d.min()) if d.size else 0.0
+    return rec.position_step or smallest_step(rec.q)
 
 
 def _long_runs(mask: np.ndarray, longer_than: int) -> np.ndarray:
@@ -415,10 +411,8 @@ class Fit:
 
     def violations(self) -> list[str]:
         """The physical rules the fitted parameters break (each effect's own rules)."""
-        s = self.model.structure
-        out = [v for e in self.model.effects for v in e.violations(s, self.params, self.stds)]
-        flipped = {k: -v for k, v in self.params.items()}
-        if len(out) > 1 and not any(e.violations(s, flipped, self.stds) for e in self.model.effects):
+        out = self.model.violations(self.params, self.stds)
+        if len(out) > 1 and not self.model.violations({k: -v for k, v in self.params.items()}, self.stds):
             out.append("every rule holds with the torque's sign reversed: the recorded torque is probably "
                        "positive against the positions' direction (record it positive where it drives q up)")
         return out

@@ -81,7 +81,7 @@ def residual_structure(data, cols, icols, f: fitting.Fit, starts, folds, alpha, 
         resid.append((tau - Y @ theta, train[seg_of_row], test[seg_of_row]))
     tests = []
     torque = float(np.sum(tau**2)) or 1.0
-    bases = _bases(data, Y @ f.theta)
+    bases = _bases(data, f.predicted())
     t = data.rec.t[data.rows]
     for j in range(data.n_joints):
         for (what, i), B in list(bases.items()) + [(("frequency", None), None)]:
@@ -117,6 +117,16 @@ def residual_structure(data, cols, icols, f: fitting.Fit, starts, folds, alpha, 
     if sig:
         out["also"] = [{k: x[k] for k in ("joint", "against", "fraction")} for x in sig if x is not best][:6]
     return out
+
+
+def what_removes(u: dict) -> str:
+    """The structure an `unexplained` result names, as a phrase ("a smooth function of velocity")."""
+    if u.get("variable") == "frequency":
+        return "a sinusoid at the residual's spectral peak"
+    if u.get("variable") == RIPPLE:
+        return (f"joint {u.get('of_joint') or u.get('joint')}'s modelled torque times a smooth function of its "
+                "position (a torque ripple)")
+    return f"a smooth function of {u.get('against')}"
 
 
 def _sinusoid(t: np.ndarray, r_train: np.ndarray, train: np.ndarray) -> np.ndarray | None:

@@ -25,7 +25,7 @@ from manus.estimators.base import Estimate, run
 from manus.estimators.linear import THESIS_STEP
 from manus.estimators.registry import MODEL_BASED, NAMES, knob_range, make
 from manus.plants.errors import ManusError
-from manus.plants.recording import Recording
+from manus.plants.recording import Recording, smallest_step
 
 START_SECONDS = 0.1  # skipped when scoring: every estimator starts from rest
 GRID_POINTS, GRID_ROUNDS = 13, 3
@@ -37,10 +37,8 @@ def encoder_step(rec: Recording) -> tuple[float, str]:
     if rec.position_step:
         return rec.position_step, "metadata"
     q = rec.q - rec.q[0]
-    d = np.abs(np.diff(q, axis=0))
-    d = d[d > 0]
-    if d.size:
-        step = float(d.min())
+    step = smallest_step(q)
+    if step:
         if np.all(np.abs(q / step - np.round(q / step)) < 1e-3):
             return step, "grid"
     noise = np.std(rec.q - offline.lowpass(rec.q, rec.dt, min(100.0, 0.4 / rec.dt)), axis=0).max()

@@ -91,8 +91,7 @@ def _build(name: str, dt: float, n_joints: int, step: float, k: dict) -> Estimat
         dynamics = ModelDynamics(model, dt, **{x: k.pop(x) for x in ("boundary",) if x in k})
         params = k.pop("params", None)
         if params:
-            values = {**model.defaults(), **{key: float(v) for key, v in params.items()}}
-            bad = [v for e in model.effects for v in e.violations(model.structure, values)]
+            bad = model.violations({**model.defaults(), **{key: float(v) for key, v in params.items()}})
             if bad:  # a model that breaks physics predicts nothing an estimator can follow
                 raise ManusError(f"the model's parameters break physics: {'; '.join(bad)}")
         if name == "kalman_model":

@@ -691,6 +691,10 @@ class Model(eqx.Module):
     def get(self, name: str) -> Effect | None:
         return next((e for e in self.effects if e.name == name), None)
 
+    def violations(self, params: dict, std: dict | None = None) -> list[str]:
+        """The physical rules `params` break, each effect's own (beyond two `std` where given)."""
+        return [v for e in self.effects for v in e.violations(self.structure, params, std)]
+
     def has(self, name: str) -> bool:
         return self.get(name) is not None
 

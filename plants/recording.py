@@ -355,6 +355,14 @@ def _check_meta(path, meta, n, t):
             _fail(path, None, f"t advances by {step:.6g} per sample but sample_rate_hz is {rate:g}{hint}")
 
 
+def smallest_step(q: np.ndarray) -> float:
+    """The smallest non-zero change of the positions (an encoder's grid, where they lie on one); 0
+    when they never move."""
+    d = np.abs(np.diff(q, axis=0))
+    d = d[d > 0]
+    return float(d.min()) if d.size else 0.0
+
+
 # positions in another unit than the encoder's declared grid: (their grid / the declared one, what it means)
 UNIT_SLIPS = ((180 / math.pi, "degrees, not radians"), (1 / (2 * math.pi), "revolutions, not radians"),
               (1000.0, "millimetres, not metres"))
@@ -369,11 +377,9 @@ def _check_grid(path, meta, q):
     if key is None or q.shape[0] < 3:
         return
     step = float(meta[key]) if key == "position_step" else 2 * math.pi / float(meta[key])
-    d = np.abs(np.diff(q, axis=0))
-    d = d[d > 0]
-    if not d.size:
+    grid = smallest_step(q)  # the positions' own grid, where they lie on one
+    if not grid:
         return
-    grid = float(d.min())  # the positions' own grid, where they lie on one
     x = (q - q[0]) / grid
     if np.mean(np.abs(x - np.round(x)) > 0.05) > 0.5:
         return

@@ -84,12 +84,9 @@ def unexplained_line(u: dict) -> str:
     """One line on the structure left in the residual that no effect of the vocabulary explains."""
     if not u:
         return "left in the residual: not tested"
-    from manus.adaptive.leftover import RIPPLE
+    from manus.adaptive.leftover import what_removes
 
-    of = u.get("of_joint") or u.get("joint")
-    what = ("a sinusoid at the residual's spectral peak" if u.get("variable") == "frequency"
-            else f"joint {of}'s modelled torque times a smooth function of its position (a torque ripple)"
-            if u.get("variable") == RIPPLE else f"a smooth function of {u.get('against')}")
+    what = what_removes(u)
     if u.get("significant"):
         return (f"left in the residual: something no effect of the vocabulary explains: {what} removes "
                 f"{100 * u['fraction']:.0f} % of joint {u['joint']}'s remaining error held out (p = {u['p_value']:.2g})")

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from manus.adaptive.leftover import RIPPLE
+from manus.adaptive.leftover import RIPPLE, what_removes
 from manus.runs.common import pyplot, save
 
 Z99 = 2.576  # two-sided 99 % normal quantile
@@ -273,7 +273,7 @@ def unexplained_figure(d, out: Path, name: str, title: str = "") -> str | None:
          RIPPLE: data.q[rows, i]}.get(what, data.rec.t[rows])
     fig, ax = plt.subplots(1, 1, figsize=(7, 4))
     if what == RIPPLE:  # the residual per unit of the model's torque: the ripple ε(q) where the torque is not small
-        fitted = data.tau(f.delay)[:, i] - f.residual[:, i]
+        fitted = f.predicted()[:, i]
         big = np.abs(fitted) > 0.3 * np.sqrt(np.mean(fitted**2))
         x, e = x[big], e[big] / fitted[big]
     ax.plot(x, e, ".", ms=1.5, color="0.65", alpha=0.45, rasterized=True)
@@ -289,9 +289,7 @@ def unexplained_figure(d, out: Path, name: str, title: str = "") -> str | None:
     ax.set_ylabel(f"residual, joint {j + 1}" + (f" / the model's torque, joint {i + 1}" if what == RIPPLE else ""))
     verdict = ("something no effect of the vocabulary explains" if u["significant"]
                else "no structure beyond noise")
-    how = ("a sinusoid at the residual's spectral peak" if what == "frequency" else
-           f"joint {i + 1}'s modelled torque times a smooth function of its position" if what == RIPPLE else
-           f"a smooth function of {u['against']}")
+    how = what_removes(u)
     ax.set_title(f"{title or Path(data.rec.path).name}: left after {f.model.spec}: {verdict}\n"
                  f"{how} removes {100 * u['fraction']:.0f} % held out "
                  f"(p = {u['p_value']:.2g}, {u.get('tests', 0)} variables tested)", fontsize=9)

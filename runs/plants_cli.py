@@ -76,8 +76,7 @@ def build_plant(args, robot_torque_limit: float | None = None):
             dac_bits=24, volts=10.0, amps_per_volt=1.0, torque_constant=robot_torque_limit / 10.0)
     sim = Simulator(model, parse_params(args.param), rate_hz=args.rate, substeps=args.substeps,
                     encoder=encoder, torque_noise=args.torque_noise, **extra)
-    values = {k: float(v) for k, v in sim.params.items()}
-    bad = [v for e in model.effects for v in e.violations(structure, values)]
+    bad = model.violations({k: float(v) for k, v in sim.params.items()})
     if bad:  # a plant that breaks its effects' physics (a negative inertia, friction that pushes)
         raise ManusError("--param: the plant breaks physics: " + "; ".join(bad))
     return sim
