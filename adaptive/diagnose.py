@@ -196,7 +196,7 @@ def diagnose(rec: Recording | fitting.Data, model: Model | str, cutoff_hz: float
     Y0 = cols.model(base.model)
     base_st = lsq.Stats(Y0, data.tau(base.delay), starts, None if icols is None else icols.model(base.model))
     base_sse = held_out(base_st, folds)
-    notes: list[str] = []
+    notes: list[str] = [data.lost] if data.lost else []
     if base.violations():
         notes.append("the model's own fit breaks physics: " + "; ".join(base.violations()))
     tried = _candidates(base.model, span, data.rec.prismatic, notes)

@@ -140,7 +140,7 @@ def discover(rec: Recording | fitting.Data, model: str, cutoff_hz: float | None 
     current = start
     spec = start.model.spec
     steps: list[Step] = []
-    notes: list[str] = []
+    notes: list[str] = [data.lost] if data.lost else []
     say(f"start: {spec}, rel_error {100 * start.rel_error:.2f} %")
     while True:
         try:

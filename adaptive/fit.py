@@ -60,7 +60,7 @@ from manus.adaptive.search import delay_of, grid
 from manus.estimators.offline import differentiate, edge, lowpass
 from manus.plants.effects import Effect, Model, Span
 from manus.plants.errors import ModelError
-from manus.plants.recording import Recording, smallest_step
+from manus.plants.recording import Recording, gaps, on_grid, smallest_step
 from manus.plants.serial import Serial
 
 MIN_CUTOFF_HZ = 2.0
@@ -95,6 +95,7 @@ class Data:
     cutoff_note: str = ""  # how the cut-off was chosen (and what limited it)
     # serial chains: which joints' equations each used row keeps (rows, n) (the others stick there); None: all
     mask: np.ndarray | None = None
+    lost: str = ""  # samples lost in gaps of the time column, filled and left out ("" when none)
     _tau: dict = field(default_factory=dict)
 
     @property
@@ -240,6 +241,7 @@ def prepare(rec: Recording, cutoff_hz: float | None = None, decimate: int | None
     if len(rec) < MIN_SAMPLES:
         raise ModelError(f"{rec.path}: recording too short: {len(rec)} samples (at least {MIN_SAMPLES} are needed "
                          "to differentiate the positions; no parameter is identifiable)")
+    recorded, (rec, filled) = rec, on_grid(rec)  # lost samples filled, to be left out with the filter's settling
     dt = rec.dt
     step = encoder_step(rec)
     if cutoff_hz is None:
@@ -254,7 +256,12 @@ def prepare(rec: Recording, cutoff_hz: float | None = None, decimate: int | None
     cut = edge(dt, cutoff_hz)
     keep = np.zeros(len(rec), bool)
     keep[cut:len(rec) - cut] = True
-    usable = keep.sum()
+    lost = ""
+    if filled.any():
+        keep &= ~(np.convolve(filled.astype(float), np.ones(2 * cut + 1))[cut:cut + len(rec)] > 0)
+        lost = (f"{gaps(recorded).describe(recorded)}: filled by interpolation for the filters; the rows within "
+                f"{1e3 * cut * dt:.3g} ms of each gap (the filter's settling) are left out")
+    keep_edges, usable = keep.copy(), keep.sum()
     per_joint = rec.structure_name == "urdf"
     equations = np.repeat(keep[:, None], rec.n_joints, 1)
     if exclude_standstill and step > 0:
@@ -273,11 +280,12 @@ def prepare(rec: Recording, cutoff_hz: float | None = None, decimate: int | None
     if decimate is None:
         decimate = max(1, int(0.25 / (cutoff_hz * dt)))
     rows = np.flatnonzero(keep)[::decimate]
-    window = np.arange(cut, max(cut, len(rec) - cut))[::decimate]
+    window = np.flatnonzero(keep_edges)[::decimate]
     if per_joint:
         left_out = float(1 - equations[keep].sum() / max(usable * rec.n_joints, 1))
-        return Data(rec, cutoff_hz, q, qd, qdd, rows, step, left_out, window, note, equations[rows].astype(float))
-    return Data(rec, cutoff_hz, q, qd, qdd, rows, step, float(1 - keep.sum() / max(usable, 1)), window, note)
+        return Data(rec, cutoff_hz, q, qd, qdd, rows, step, left_out, window, note, equations[rows].astype(float),
+                    lost=lost)
+    return Data(rec, cutoff_hz, q, qd, qdd, rows, step, float(1 - keep.sum() / max(usable, 1)), window, note, lost=lost)
 
 
 def identified(structure):
@@ -429,6 +437,8 @@ class Fit:
                "method": self.method, "method_why": self.why}
         if nonlinear:
             out["nonlinear"] = nonlinear
+        if self.data.lost:
+            out["gaps"] = self.data.lost
         combos = getattr(self.model.structure, "combinations", None)
         if combos is not None:  # a serial chain: what each base parameter is, and its value in the URDF
             s = self.model.structure

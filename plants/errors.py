@@ -14,3 +14,8 @@ class RecordingError(ManusError):
 
 class ModelError(ManusError):
     """A model that cannot be built or identified (unknown effect, unidentifiable parameter)."""
+
+
+class RecordingNote(UserWarning):
+    """Something done to a recording as it was read that its user should know (a cut last line
+    dropped, a wrapped angle unwrapped); the command line prints it as one line."""

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from manus.plants.errors import RecordingError
+from manus.plants.errors import RecordingError, RecordingNote
 from manus.plants.structures import Structure, structure_named
 
 STRUCTURES = ("manus2", "axis", "urdf")
@@ -136,6 +136,71 @@ class Recording:
                          dict(self.meta), {k: v[sl] for k, v in self.extra.items()}, self.path, self.serial)
 
 
+GAP = 1.5  # a step of t longer than this many sample periods: samples were lost there
+MAX_FILL = 1.0  # at most this many missing samples per recorded one are filled (else: separate runs)
+
+
+@dataclass(frozen=True)
+class Gaps:
+    """Where a recording's time column jumps: samples lost (a real-time loop that missed packets:
+    `run-hardware` writes t = seq·T, so a lost sample is a step of 2T)."""
+
+    at: np.ndarray  # indices (in the recording) of the first sample after each gap
+    missing: np.ndarray  # samples missing in each
+
+    def __bool__(self) -> bool:
+        return bool(self.at.size)
+
+    def describe(self, rec: "Recording") -> str:
+        first = int(self.at[0])
+        return (f"{int(self.missing.sum())} sample{'s' if self.missing.sum() != 1 else ''} lost in {self.at.size} "
+                f"gap{'s' if self.at.size != 1 else ''} of the time column (the first: t jumps from "
+                f"{rec.t[first - 1]:.6g} to {rec.t[first]:.6g} s)")
+
+
+def gaps(rec: Recording) -> Gaps:
+    """The recording's gaps: steps of t longer than `GAP` sample periods, each counted as the
+    whole number of periods it spans, less one."""
+    periods = np.rint(np.diff(rec.t) / rec.dt).astype(np.int64)
+    at = np.flatnonzero(np.diff(rec.t) > GAP * rec.dt)
+    return Gaps(at + 1, np.maximum(periods[at], 2) - 1)
+
+
+def on_grid(rec: Recording) -> tuple[Recording, np.ndarray]:
+    """The recording on its uniform sample grid, and which of its samples were filled in.
+
+    Filters and differences assume one sample per period. Where samples were lost, the grid
+    goes on across the gap and the lost samples are filled by linear interpolation (the
+    positions, torques and any other column), so that no filter sees a jump; the mask says which
+    are filled, for the analysis to leave out them and the filter's settling either side. A
+    recording without gaps comes back as it is. A gap longer than the recording itself (two runs
+    in one file) is refused: there is nothing to fill it from."""
+    g = gaps(rec)
+    if not g:
+        return rec, np.zeros(len(rec), bool)
+    if g.missing.sum() > MAX_FILL * len(rec):
+        raise RecordingError(f"{rec.path}: {g.describe(rec)}: more samples are missing than recorded; "
+                             "the file holds separate runs: split it at the gap")
+    steps = np.ones(len(rec) - 1, np.int64)
+    steps[g.at - 1] = g.missing + 1
+    k = np.r_[0, np.cumsum(steps)]  # each recorded sample's place on the grid
+    grid = np.arange(k[-1] + 1)
+    filled = np.ones(grid.size, bool)
+    filled[k] = False
+
+    def fill(x):
+        if x is None:
+            return None
+        x = np.asarray(x, float)
+        flat = x.reshape(len(rec), -1)
+        out = np.stack([np.interp(grid, k, flat[:, j]) for j in range(flat.shape[1])], 1)
+        return out.reshape((grid.size,) + x.shape[1:])
+
+    t = rec.t[0] + grid * rec.dt
+    return Recording(t, fill(rec.q), fill(rec.tau), fill(rec.qd), dict(rec.meta),
+                     {name: fill(v) for name, v in rec.extra.items()}, rec.path, rec.serial), filled
+
+
 def _serial_of(rec: Recording) -> Structure:
     """The serial chain a `structure: urdf` recording names, its joint count checked against the
     recording's; a `RecordingError` naming the recording otherwise."""
@@ -179,6 +244,7 @@ def read(path: str | os.PathLike, robot: str | os.PathLike | None = None) -> Rec
         rec.meta.pop("joints", None)  # the URDF says which joints are prismatic
     if rec.structure_name == "urdf":
         rec.structure  # noqa: B018 (read and checked now: a bad robot is the recording's error)
+        _unwrap(rec, lambda r: f" sample {r}")
     return rec
 
 
@@ -228,7 +294,8 @@ def _read_csv(path: Path) -> Recording:
     if body and not complete:
         lineno, last = body[-1]
         if not _row_ok(last, ncol) or meta.get("streamed", "").lower() == "true":
-            warnings.warn(f"{path}:{lineno}: incomplete last line dropped (the file was cut mid-write)", stacklevel=2)
+            warnings.warn(f"{path}:{lineno}: incomplete last line dropped (the file was cut mid-write)", RecordingNote,
+                          stacklevel=2)
             body = body[:-1]
     if not body:
         _fail(path, header_at + 2, "no data rows after the header")
@@ -317,7 +384,39 @@ def _assemble(path, cols: dict, meta: dict, locate) -> Recording:
     tau = np.stack([cols[f"tau{i}"] for i in range(1, n + 1)], 1)
     qd = np.stack([cols[f"qd{i}"] for i in range(1, n + 1)], 1) if qd_cols else None
     extra = {k: v for k, v in cols.items() if k not in core}
-    return Recording(t, q, tau, qd, meta, extra, str(path))
+    rec = Recording(t, q, tau, qd, meta, extra, str(path))
+    if rec.structure_name != "urdf":  # (a serial chain's joint kinds are its URDF's: once read, in `read`)
+        _unwrap(rec, locate)
+    return rec
+
+
+def _where(located: str) -> str:
+    """`locate`'s ":123" (a CSV line) or " sample 123", said in a sentence."""
+    return f"line {located[1:]}" if located.startswith(":") else located.strip()
+
+
+def _unwrap(rec: Recording, locate) -> None:
+    """A revolute joint's angle recorded modulo a turn (in [−π, π) or [0, 2π): a pendulum that
+    goes over the top) jumps by about 2π between two samples, which no joint can move in one
+    period: unwrapped, in place, with a note. A jump of more than π that is not a whole number
+    of turns (the neighbouring steps' size off one) is no wrap and no motion: refused, by name."""
+    for j, prismatic in enumerate(rec.prismatic):
+        d = np.diff(rec.q[:, j])
+        big = np.flatnonzero(np.abs(d) > math.pi)
+        if prismatic or not big.size:
+            continue
+        small = np.abs(np.where(np.abs(d) > math.pi, 0.0, d))
+        for i in big:
+            turns = np.rint(d[i] / (2 * math.pi))
+            near = max(small[max(i - 2, 0):i + 3].max(), smallest_step(rec.q[:, j:j + 1]))
+            if abs(d[i] - 2 * math.pi * turns) > 3 * near + 1e-9:
+                raise RecordingError(
+                    f"{rec.path}{locate(i + 1)}: q{j + 1} jumps by {d[i]:.4g} rad in one sample (from {rec.q[i, j]:.6g}); "
+                    "no joint moves that far in one period, and it is not a whole turn (an angle wrapped): a glitch "
+                    "of the encoder, or positions in degrees? (manus reads radians)")
+        rec.q[:, j] = rec.q[0, j] + np.r_[0.0, np.cumsum(d - 2 * math.pi * np.rint(d / (2 * math.pi)) * (np.abs(d) > math.pi))]
+        warnings.warn(f"{rec.path}: q{j + 1} wraps {big.size} time{'s' if big.size != 1 else ''} by a whole turn "
+                      f"(the first at {_where(locate(big[0] + 1))}): unwrapped", RecordingNote, stacklevel=3)
 
 
 def _positive(path, meta, key):

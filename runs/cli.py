@@ -68,6 +68,19 @@ def main(argv: list[str] | None = None) -> int:
     from manus.plants.errors import ManusError
 
     module = cmds[args.command]
+    import warnings
+
+    from manus.plants.errors import RecordingNote
+
+    shown = warnings.showwarning
+
+    def show(message, category, *rest, **kw):  # what was done to a recording as it was read: one line
+        if issubclass(category, RecordingNote):
+            print(f"manus {args.command}: note: {message}", file=sys.stderr)
+        else:
+            shown(message, category, *rest, **kw)
+
+    warnings.showwarning = show
     try:
         result = module.run(args)
         text = None if getattr(args, "json", False) or not hasattr(module, "render") else module.render(result)

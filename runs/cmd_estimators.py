@@ -61,7 +61,8 @@ def figures(rec, report: dict, estimates: dict, out) -> dict:
     from manus.estimators.response import frequency_response
     from manus.runs.estimator_figures import estimates_figure, response_figure
 
-    paths = {"estimates": [estimates_figure(rec.t, estimates, report, out, j) for j in range(rec.n_joints)]}
+    t = rec.t[0] + rec.dt * np.arange(len(estimates["reference"]))  # the sample grid (lost samples filled)
+    paths = {"estimates": [estimates_figure(t, estimates, report, out, j) for j in range(rec.n_joints)]}
     freqs = np.geomspace(0.5, 0.45 / rec.dt, 40)
     amplitude = float(np.max(np.std(rec.q, axis=0)))
     responses = {}
@@ -89,7 +90,7 @@ def render(r: dict) -> str:
     lines = [f"{r['recording']}: {r['samples']} samples, {r['joints']} joint(s); errors against {against}",
              table(rows, ["estimator", "knob" + (" (tuned)" if r["tuned"] else ""), "RMS", "RMS moving",
                           "RMS still", "max", "lag [ms]", "noise >50 Hz"]),
-             f"best: {r['best']}"]
+             f"best: {r['best']}"] + ([f"gaps: {r['gaps']}"] if r.get("gaps") else [])
     for name, path in (r.get("figures") or {}).items():
         lines.append(f"figure ({name}): {', '.join(path) if isinstance(path, list) else path}")
     return "\n".join(lines)

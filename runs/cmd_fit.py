@@ -114,6 +114,7 @@ def render(r: dict) -> str:
              f"(torque low-passed at {r['cutoff_hz']:.1f} Hz, {100 * r['standstill_excluded']:.1f} % left out at standstill)",
              f"  method {r['method']}: {r['method_why']}",
              f"  cut-off: {r['cutoff_note']}; command hold: {r['hold']}",
+             *([f"  gaps: {r['gaps']}"] if r.get("gaps") else []),
              table(rows, ["parameter", "value", "std", "std %"] + (["in the URDF"] if urdf else []))]
     regrouped = {k: v for k, v in r.get("base_parameters", {}).items() if k != v}
     if regrouped:  # a serial chain: the base parameters that are combinations of standard ones

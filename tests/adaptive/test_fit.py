@@ -201,3 +201,33 @@ def test_friction_columns_are_the_average_over_the_sample_period():
     assert np.max(np.abs(point - exact)) > 0.3  # (the point values would fail: the test can tell)
     visc = np.asarray(_effect_columns(Viscous(), Axis(), q, qd, qdd, dt))[:, 0, 0]
     np.testing.assert_allclose(visc, v, rtol=1e-12)
+
+
+# -- lost samples (a real-time loop that missed packets: `run-hardware` writes t = seq·T) --------
+
+def _without(rec: Recording, lost: slice) -> Recording:
+    keep = np.ones(len(rec), bool)
+    keep[lost] = False
+    return Recording(rec.t[keep], rec.q[keep], rec.tau[keep], None if rec.qd is None else rec.qd[keep],
+                     dict(rec.meta), {k: v[keep] for k, v in rec.extra.items()}, rec.path)
+
+
+def test_samples_lost_in_a_gap_are_filled_and_left_out_not_read_as_physics(nominal):
+    """50 samples (50 ms) missing at 4 s: read as uniform, the jump was a 75 % error and a 'delay of
+    81 ms'. The truth is recovered as from the whole recording, and the fit says what it did."""
+    whole = fit(nominal, "rigid,viscous,coulomb")
+    gapped = fit(_without(nominal, slice(4000, 4050)), "rigid,viscous,coulomb")
+    truth = hidden.truth_params(())
+    for name in whole.names:
+        assert gapped.params[name] == pytest.approx(truth[name], rel=0.02), name
+    assert gapped.rel_error < 1.2 * whole.rel_error
+    said = gapped.report()["gaps"]
+    assert said.startswith("50 samples lost in 1 gap") and "left out" in said
+    assert "gaps" not in whole.report()
+
+
+def test_a_gap_longer_than_the_recording_is_refused_by_name(nominal):
+    two_runs = Recording(np.r_[nominal.t[:3000], nominal.t[3000:6000] + 3600.0], nominal.q[:6000],
+                         nominal.tau[:6000], None, dict(nominal.meta), {}, "two_runs.csv")
+    with pytest.raises(ManusError, match="two_runs.csv: .*separate runs: split it at the gap"):
+        fit(two_runs, "rigid,viscous,coulomb")

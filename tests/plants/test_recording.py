@@ -40,7 +40,7 @@ def test_round_trip(tmp_path, suffix):
     rng = np.random.default_rng(0)
     t = np.arange(500) * 1e-3
     step = 2 * np.pi / 131072
-    rec = Recording(t, np.round(rng.normal(size=(500, 2)) / step) * step, rng.normal(size=(500, 2)),
+    rec = Recording(t, np.round(0.3 * rng.normal(size=(500, 2)) / step) * step, rng.normal(size=(500, 2)),
                     rng.normal(size=(500, 2)), {"sample_rate_hz": "1000", "counts_per_rev": "131072"},
                     {"qref1": rng.normal(size=500)})
     back = recording.read(recording.write(rec, tmp_path / f"r{suffix}"))
@@ -152,3 +152,43 @@ def test_positions_off_the_grid_for_other_reasons_are_read(tmp_path):
     q = _on_grid(step) + np.random.default_rng(0).normal(0, 1e-4, (2000, 2))
     rec = Recording(np.arange(2000) * 1e-3, q, np.ones_like(q), None, {"sample_rate_hz": "1000", "counts_per_rev": "131072"})
     assert len(recording.read(recording.write(rec, tmp_path / "noisy.csv"))) == 2000
+
+
+def test_on_grid_fills_lost_samples_by_interpolation_and_marks_them():
+    from manus.plants.recording import gaps, on_grid
+
+    t = np.r_[np.arange(10), np.arange(13, 20)] * 0.001  # samples 10, 11, 12 lost
+    q = np.stack([2 * t, -t], 1)
+    rec = Recording(t, q, q.copy(), None, {"sample_rate_hz": "1000"})
+    g = gaps(rec)
+    assert g.at.tolist() == [10] and g.missing.tolist() == [3]
+    grid, filled = on_grid(rec)
+    assert len(grid) == 20 and np.allclose(np.diff(grid.t), 0.001)
+    assert np.flatnonzero(filled).tolist() == [10, 11, 12]
+    assert np.allclose(grid.q[:, 0], 2 * grid.t) and np.allclose(grid.tau[:, 1], -grid.t)
+    same, none = on_grid(Recording(np.arange(5) * 0.001, np.zeros((5, 1)), np.zeros((5, 1))))
+    assert len(same) == 5 and not none.any()
+
+
+def test_an_angle_recorded_modulo_a_turn_is_unwrapped_with_a_note(tmp_path):
+    """A joint that spins through nearly two turns, written in [−π, π): read back as it turned (the
+    other joint, a prismatic axis in metres, and a recording without wraps are left alone)."""
+    t = np.arange(3000) * 1e-3
+    turning = 0.5 + 1.2 * t**2  # up to 11.3 rad: over π and 3π
+    q = np.stack([(turning + np.pi) % (2 * np.pi) - np.pi, 0.1 * np.sin(t)], 1)
+    rec = Recording(t, q, np.zeros_like(q), None, {"sample_rate_hz": "1000"})
+    with pytest.warns(recording.RecordingNote, match=r"q1 wraps 2 times by a whole turn \(the first at line \d+\)"):
+        back = recording.read(recording.write(rec, tmp_path / "spin.csv"))
+    assert np.allclose(back.q[:, 0], turning, atol=1e-9) and np.allclose(back.q[:, 1], q[:, 1])
+    slide = Recording(t, np.stack([7 * t], 1), np.zeros((3000, 1)), None, {"joints": "prismatic"})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert np.allclose(recording.read(recording.write(slide, tmp_path / "slide.csv")).q[:, 0], 7 * t)
+
+
+def test_a_jump_that_is_neither_motion_nor_a_whole_turn_is_refused(tmp_path):
+    t = np.arange(500) * 1e-3
+    q = np.stack([0.3 * np.sin(t), 0.2 * t], 1)
+    q[200:, 0] += 4.0  # a glitch: 4 rad in one sample, not 2π
+    with pytest.raises(RecordingError, match=r"glitch.csv:\d+: q1 jumps by 4 rad in one sample .* degrees\?"):
+        recording.read(recording.write(Recording(t, q, np.zeros_like(q)), tmp_path / "glitch.csv"))
