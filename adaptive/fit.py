@@ -72,6 +72,7 @@ STANDSTILL_S = 0.005  # longer under two counts per band period than a zero cros
 KINEMATIC_BAND = 4.0  # kinematics for the columns are filtered at this multiple of the cut-off
 MIN_SAMPLES = 8  # below this the recording cannot even be differentiated
 MIN_ROWS = 20  # fewer usable rows than this identify nothing reliably
+PREFETCH_BYTES = 64e6  # a search's full-rate columns computed at once are held under this
 # serial chains: a joint's equations are left out within JOINT_GUARD cut-off periods of each of its
 # reversals (its speed under the standstill threshold for any time: under Coulomb friction even a
 # reversal holds the joint for an instant, an unknown torque the filter spreads over about a period)
@@ -362,8 +363,12 @@ class Columns:
     def prefetch(self, effects, batch: int = 32) -> None:
         """The columns of many values of one effect (a search's grid: the same effect with other
         non-linear parameters, array fields) computed together: one compiled call and one
-        filter pass per `batch` of them."""
+        filter pass per `batch` of them, fewer on a long recording (their full-rate columns held
+        at once stay under `PREFETCH_BYTES`: a 20-minute recording is no reason to run out of memory)."""
         todo = list({e.spec: e for e in effects if e.spec not in self._cache}.values())
+        if todo:
+            per_value = len(self.data.q) * self.data.n_joints * max(len(todo[0].names(self.structure)), 1) * 8
+            batch = int(np.clip(PREFETCH_BYTES // per_value, 1, batch))
         for i in range(0, len(todo), batch):
             part = todo[i:i + batch]
             if len(part) == 1:
