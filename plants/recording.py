@@ -450,7 +450,8 @@ def _check_meta(path, meta, n, t):
         rate = float(meta["sample_rate_hz"])
         step = float(np.median(np.diff(t)))
         if abs(step * rate - 1) > 0.01:
-            hint = " (is t in milliseconds?)" if abs(step * rate / 1000 - 1) < 0.01 else ""
+            hint = next((f" (is t in {unit}?)" for factor, unit in ((1e3, "milliseconds"), (1e6, "microseconds"),
+                                                                     (1e9, "nanoseconds")) if abs(step * rate / factor - 1) < 0.01), "")
             _fail(path, None, f"t advances by {step:.6g} per sample but sample_rate_hz is {rate:g}{hint}")
 
 

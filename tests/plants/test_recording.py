@@ -62,6 +62,7 @@ BAD = {
     "binary": (bytes(range(256)) * 10, r"rec.csv: binary file"),
     "text not number": ("t,q1,tau1\n0,1,2\n0.001,1,abc\n", r"rec.csv:3: column 'tau1': 'abc' is not a number"),
     "ms time": ("# sample_rate_hz: 1000\nt,q1,tau1\n0,1,2\n1,1,2\n2,1,2\n", r"is t in milliseconds"),
+    "ns time": ("# sample_rate_hz: 1000\nt,q1,tau1\n0,1,2\n1000000,1,2\n2000000,1,2\n", r"is t in nanoseconds"),
     "bad structure": ("# structure: manus2\nt,q1,tau1\n0,1,2\n0.001,1,2\n", r"manus2 has 2 joints"),
     "one sample": ("t,q1,tau1\n0,1,2\n", r"only 1 sample"),
     "duplicate": ("t,q1,q1,tau1\n0,1,1,2\n0.001,1,1,2\n", r"column 'q1' appears twice"),
