@@ -60,7 +60,7 @@ from manus.adaptive.search import delay_of, grid
 from manus.estimators.offline import differentiate, edge, lowpass
 from manus.plants.effects import Effect, Model, Span
 from manus.plants.errors import ModelError
-from manus.plants.recording import Recording, gaps, on_grid, smallest_step
+from manus.plants.recording import Recording, gaps, on_grid, smallest_step, spoiled
 from manus.plants.serial import Serial
 
 MIN_CUTOFF_HZ = 2.0
@@ -259,9 +259,11 @@ def prepare(rec: Recording, cutoff_hz: float | None = None, decimate: int | None
     keep[cut:len(rec) - cut] = True
     lost = ""
     if filled.any():
-        keep &= ~(np.convolve(filled.astype(float), np.ones(2 * cut + 1))[cut:cut + len(rec)] > 0)
-        lost = (f"{gaps(recorded).describe(recorded)}: filled by interpolation for the filters; the rows within "
-                f"{1e3 * cut * dt:.3g} ms of each gap (the filter's settling) are left out")
+        bad = spoiled(filled, qdd, dt, step, cut)
+        keep &= ~bad
+        lost = (f"{gaps(recorded).describe(recorded)}: filled by interpolation for the filters; "
+                f"{int(bad.sum())} samples left out (the filled ones, and the filter's settling, "
+                f"{1e3 * cut * dt:.3g} ms, either side of a gap where a straight line is off by more than an encoder step)")
     keep_edges, usable = keep.copy(), keep.sum()
     per_joint = rec.structure_name == "urdf"
     equations = np.repeat(keep[:, None], rec.n_joints, 1)

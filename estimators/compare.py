@@ -25,7 +25,7 @@ from manus.estimators.base import Estimate, run
 from manus.estimators.linear import THESIS_STEP
 from manus.estimators.registry import MODEL_BASED, NAMES, knob_range, make
 from manus.plants.errors import ManusError
-from manus.plants.recording import Recording, gaps, on_grid, smallest_step
+from manus.plants.recording import Recording, gaps, on_grid, smallest_step, spoiled
 
 START_SECONDS = 0.1  # skipped when scoring: every estimator starts from rest
 GRID_POINTS, GRID_ROUNDS = 13, 3
@@ -132,18 +132,13 @@ def compare(rec: Recording, names=NAMES, tune_knobs: bool = False, cutoff_hz: fl
     if len(rec) < 50:
         raise ManusError(f"{rec.path}: {len(rec)} samples are too few to compare estimators")
     lost = gaps(rec)
-    if lost:  # the estimators run over the filled grid (a lost sample is no jump in their input) and
-        # are scored on the recorded samples only, a filter length of the reference away from each gap
-        guard = offline.edge(rec.dt, cutoff_hz)
-        note = (f"{lost.describe(rec)}: filled by interpolation for the estimators; the samples within "
-                f"{1e3 * guard * rec.dt:.3g} ms of each gap are not scored")
-        rec, filled = on_grid(rec)
-        scored = ~(np.convolve(filled.astype(float), np.ones(2 * guard + 1))[guard:guard + len(rec)] > 0)
-    else:
-        scored = np.ones(len(rec), bool)
+    described = lost.describe(rec) if lost else ""
+    rec, filled = on_grid(rec)  # the estimators run across a gap filled: a lost sample is no jump in their input
     step, step_source = encoder_step(rec)
-    setup = Setup(rec.dt, step, rec.n_joints, dict(model_knobs or {}))
     reference, truth, start, stop = reference_velocity(rec, cutoff_hz)
+    guard = offline.edge(rec.dt, cutoff_hz)
+    scored = ~spoiled(filled, np.gradient(reference, rec.dt, axis=0), rec.dt, step, guard)  # recorded samples only
+    setup = Setup(rec.dt, step, rec.n_joints, dict(model_knobs or {}))
     if stop - start < 50:
         raise ManusError(f"{rec.path}: too short to score after dropping the start-up and filter edges")
     sl = slice(start, stop)
@@ -173,7 +168,10 @@ def compare(rec: Recording, names=NAMES, tune_knobs: bool = False, cutoff_hz: fl
               "reference": "truth" if truth else f"offline zero-phase ({cutoff_hz:g} Hz)",
               "scored_samples": [start, stop], "step": {"value": step, "source": step_source},
               "still_threshold": scoring.still_threshold(reference[sl]).tolist(), "tuned": tune_knobs,
-              "estimators": rows, **({"gaps": note} if lost else {}),
+              "estimators": rows,
+              **({"gaps": f"{described}: filled by interpolation for the estimators; {int((~scored).sum())} samples "
+                          f"not scored (the filled ones, and {1e3 * guard * rec.dt:.3g} ms either side of a gap where "
+                          "a straight line is off by more than an encoder step)"} if lost else {}),
               "best": min((r for r in rows if r["rms_error"] is not None), key=lambda r: r["rms_error"],
                           default={"name": None})["name"]}
     return report, estimates

@@ -172,7 +172,7 @@ def on_grid(rec: Recording) -> tuple[Recording, np.ndarray]:
     Filters and differences assume one sample per period. Where samples were lost, the grid
     goes on across the gap and the lost samples are filled by linear interpolation (the
     positions, torques and any other column), so that no filter sees a jump; the mask says which
-    are filled, for the analysis to leave out them and the filter's settling either side. A
+    are filled, for the analysis to leave out (`spoiled`). A
     recording without gaps comes back as it is. A gap longer than the recording itself (two runs
     in one file) is refused: there is nothing to fill it from."""
     g = gaps(rec)
@@ -199,6 +199,22 @@ def on_grid(rec: Recording) -> tuple[Recording, np.ndarray]:
     t = rec.t[0] + grid * rec.dt
     return Recording(t, fill(rec.q), fill(rec.tau), fill(rec.qd), dict(rec.meta),
                      {name: fill(v) for name, v in rec.extra.items()}, rec.path, rec.serial), filled
+
+
+def spoiled(filled: np.ndarray, qdd: np.ndarray, dt: float, step: float, guard: int) -> np.ndarray:
+    """The samples a filled gap spoils: the filled ones, and where a straight line across the gap
+    is off the motion by more than an encoder step (|q̈| (m + 1)² T² / 8 for m samples lost, q̈ the
+    largest within `guard` of it), the `guard` samples either side too (a filter's settling: it
+    spreads the error). A sample lost here and there at 1 kHz is off by a thousandth of a count:
+    only itself is left out; 50 lost mid-motion are not."""
+    out = filled.copy()
+    edges = np.diff(np.r_[0, filled.astype(np.int8), 0])
+    for a, b in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)):
+        lo, hi = max(a - guard, 0), min(b + guard, len(filled))
+        off = np.max(np.abs(qdd[lo:hi])) * ((b - a + 1) * dt) ** 2 / 8
+        if not off < step:  # (no encoder step known: always)
+            out[lo:hi] = True
+    return out
 
 
 def _serial_of(rec: Recording) -> Structure:

@@ -193,3 +193,18 @@ def test_a_jump_that_is_neither_motion_nor_a_whole_turn_is_refused(tmp_path):
     q[200:, 0] += 4.0  # a glitch: 4 rad in one sample, not 2π
     with pytest.raises(RecordingError, match=r"glitch.csv:\d+: q1 jumps by 4 rad in one sample .* degrees\?"):
         recording.read(recording.write(Recording(t, q, np.zeros_like(q)), tmp_path / "glitch.csv"))
+
+
+def test_a_filled_gap_spoils_its_neighbours_only_where_a_straight_line_is_off_by_a_count():
+    """|q̈| (m + 1)² T² / 8 against the encoder step (2π/131072 = 4.8e-5 rad): at 1 kHz and
+    q̈ = 2 rad/s², one lost sample is off by 1e-6 rad (itself left out), fifty by 6.5e-4 (the
+    guard either side too)."""
+    from manus.plants.recording import spoiled
+
+    filled = np.zeros(1000, bool)
+    filled[100] = True
+    filled[500:550] = True
+    out = spoiled(filled, np.full((1000, 2), 2.0), 1e-3, 2 * np.pi / 131072, guard=20)
+    assert np.flatnonzero(out[:300]).tolist() == [100]
+    assert np.flatnonzero(out).tolist() == [100] + list(range(480, 570))
+    assert spoiled(filled, np.full((1000, 2), 2.0), 1e-3, 0.0, guard=20)[80:121].all()  # no grid known: always
