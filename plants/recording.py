@@ -172,9 +172,9 @@ def on_grid(rec: Recording) -> tuple[Recording, np.ndarray]:
     Filters and differences assume one sample per period. Where samples were lost, the grid
     goes on across the gap and the lost samples are filled by linear interpolation (the
     positions, torques and any other column), so that no filter sees a jump; the mask says which
-    are filled, for the analysis to leave out (`spoiled`). A
-    recording without gaps comes back as it is. A gap longer than the recording itself (two runs
-    in one file) is refused: there is nothing to fill it from."""
+    are filled, for the analysis to leave out (`spoiled`). A recording without gaps comes back as
+    it is. A gap longer than the recording itself (two runs in one file) is refused: there is
+    nothing to fill it from."""
     g = gaps(rec)
     if not g:
         return rec, np.zeros(len(rec), bool)
@@ -205,8 +205,8 @@ def spoiled(filled: np.ndarray, qdd: np.ndarray, dt: float, step: float, guard: 
     """The samples a filled gap spoils: the filled ones, and where a straight line across the gap
     is off the motion by more than an encoder step (|q̈| (m + 1)² T² / 8 for m samples lost, q̈ the
     largest within `guard` of it), the `guard` samples either side too (a filter's settling: it
-    spreads the error). A sample lost here and there at 1 kHz is off by a thousandth of a count:
-    only itself is left out; 50 lost mid-motion are not."""
+    spreads the error). At 1 kHz, q̈ = 2 rad/s² and 131072 counts/rev, one lost sample is off by
+    a fiftieth of a count: only itself is left out; 50 lost in a row are off by 13 counts."""
     out = filled.copy()
     edges = np.diff(np.r_[0, filled.astype(np.int8), 0])
     for a, b in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)):
@@ -421,10 +421,10 @@ def _unwrap(rec: Recording, locate) -> None:
         big = np.flatnonzero(np.abs(d) > math.pi)
         if prismatic or not big.size:
             continue
-        small = np.abs(np.where(np.abs(d) > math.pi, 0.0, d))
+        small, grid = np.abs(np.where(np.abs(d) > math.pi, 0.0, d)), smallest_step(rec.q[:, j:j + 1])
         for i in big:
             turns = np.rint(d[i] / (2 * math.pi))
-            near = max(small[max(i - 2, 0):i + 3].max(), smallest_step(rec.q[:, j:j + 1]))
+            near = max(small[max(i - 2, 0):i + 3].max(), grid)
             if abs(d[i] - 2 * math.pi * turns) > 3 * near + 1e-9:
                 raise RecordingError(
                     f"{rec.path}{locate(i + 1)}: q{j + 1} jumps by {d[i]:.4g} rad in one sample (from {rec.q[i, j]:.6g}); "

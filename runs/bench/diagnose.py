@@ -28,6 +28,7 @@ diagnose at another family-wise level or number of held-out blocks, to see what 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import time
@@ -62,6 +63,9 @@ def add_arguments(p) -> None:
     p.add_argument("--amplitude", type=float, default=None,
                    help="with --calibrate: a hidden effect's torque RMS as a fraction of the recorded torque's "
                         "(default: the set's own, 0.05); a detection curve is one run per amplitude")
+    p.add_argument("--lost", type=float, default=0.0,
+                   help="with --calibrate: lose this fraction of each recording's samples at random, as a real-time "
+                        "loop that misses packets does (a step of 2T in t; default 0)")
     p.add_argument("--rates", default="",
                    help="with --calibrate: comma-separated sample rates [Hz] the recordings are drawn at (default: "
                         "the set's own, 1000,200), e.g. your rig's")
@@ -205,9 +209,10 @@ def case_seed(seed: int, effect_index: int, i: int) -> int:
 
 
 def run_one(seed: int, hidden: str | None, alpha: float | None = None, blocks: int | None = None,
-            rates: tuple | None = None, amplitude: float | None = None) -> dict:
+            rates: tuple | None = None, amplitude: float | None = None, lost: float = 0.0) -> dict:
     """Simulate one calibration recording and diagnose it; never raises (a ManusError is an
-    `error`, anything else a `crash`, both reported)."""
+    `error`, anything else a `crash`, both reported). `lost`: the fraction of its samples lost
+    at random (seeded by the case), as a loop that misses packets loses them."""
     import traceback
 
     from manus.adaptive.diagnose import diagnose
@@ -221,10 +226,18 @@ def run_one(seed: int, hidden: str | None, alpha: float | None = None, blocks: i
         out.update(outcome="crash", error=f"case: {type(e).__name__}: {e}", trace=traceback.format_exc(limit=6))
         return out
     out.update(condition=c.condition, joint=c.joint, start=c.start, simulate_s=c.seconds)
+    rec = c.rec
+    if lost:
+        keep = np.random.default_rng([seed, 1]).random(len(rec)) >= lost
+        keep[[0, -1]] = True
+        rec = dataclasses.replace(rec, t=rec.t[keep], q=rec.q[keep], tau=rec.tau[keep],
+                                  qd=None if rec.qd is None else rec.qd[keep],
+                                  extra={k: v[keep] for k, v in rec.extra.items()})
+        out["condition"] = {**c.condition, "lost_samples": int((~keep).sum())}
     t0 = time.perf_counter()
     try:
         options = {k: v for k, v in (("alpha", alpha), ("blocks", blocks)) if v is not None}
-        d = diagnose(c.rec, c.start, **options)
+        d = diagnose(rec, c.start, **options)
     except ManusError as e:
         out.update(outcome="error", error=str(e), diagnose_s=time.perf_counter() - t0)
         return out
@@ -375,7 +388,10 @@ def calibrate(args) -> dict:
     blocks = getattr(args, "blocks", None)
     if blocks is not None and blocks < 3:
         raise ManusError(f"--blocks must be at least 3 (got {blocks})")
-    for k, r in enumerate(_each(plan, args.alpha, blocks, jobs, rates, amplitude), 1):
+    lost = getattr(args, "lost", 0.0) or 0.0
+    if not 0 <= lost < 0.5:
+        raise ManusError(f"--lost must lie in [0, 0.5) (got {lost})")
+    for k, r in enumerate(_each(plan, args.alpha, blocks, jobs, rates, amplitude, lost), 1):
         seed, hidden = r["seed"], r["hidden"]
         results.append(r)
         if r["outcome"] in ("crash", "error", "false alarm", "missed", "wrong", "reading"):
@@ -401,25 +417,25 @@ def calibrate(args) -> dict:
                         "wall_s": wall},
             "calibration": summary, "crashes": crashes, "recordings": n, "seed": args.seed, "effects": list(effects),
             "amplitude": amplitude, "alpha": args.alpha if args.alpha is not None else ALPHA, "jobs": jobs,
-            "blocks": blocks if blocks is not None else BLOCKS, "rates": list(rates),
+            "blocks": blocks if blocks is not None else BLOCKS, "rates": list(rates), "lost": lost,
             "results": [{k: v for k, v in r.items() if k != "trace"} for r in results],
             "load_average": os.getloadavg()[0], "cpu_count": os.cpu_count()}
 
 
 def _each(plan: list, alpha: float | None, blocks: int | None, jobs: int, rates: tuple | None = None,
-          amplitude: float | None = None):
+          amplitude: float | None = None, lost: float = 0.0):
     """`run_one` over the plan, in order: in this process (one job) or in `jobs` fresh worker
     processes (spawned, not forked: JAX is not fork-safe), each compiling its own simulations."""
     if jobs == 1 or len(plan) < 2:
         for seed, hidden in plan:
-            yield run_one(seed, hidden, alpha, blocks, rates, amplitude)
+            yield run_one(seed, hidden, alpha, blocks, rates, amplitude, lost)
         return
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
     with ProcessPoolExecutor(min(jobs, len(plan)), mp_context=multiprocessing.get_context("spawn")) as pool:
         yield from pool.map(run_one, *zip(*plan), [alpha] * len(plan), [blocks] * len(plan), [rates] * len(plan),
-                            [amplitude] * len(plan))
+                            [amplitude] * len(plan), [lost] * len(plan))
 
 
 def _pct(r: dict) -> str:
@@ -432,7 +448,8 @@ def render_calibration(r: dict) -> str:
     s = r["calibration"]
     at = f", at {'/'.join(str(x) for x in r['rates'])} Hz" if r.get("rates") and tuple(r["rates"]) != (1000, 200) else ""
     lines = [f"calibration: {r['recordings']} recordings per row, seed {r['seed']}{at}, hidden at "
-             f"{100 * r['amplitude']:g} % of the torque RMS, alpha {r.get('alpha', '-')}, {r.get('blocks', '-')} held-out blocks; rates with Wilson 95 % intervals",
+             f"{100 * r['amplitude']:g} % of the torque RMS"
+             + (f", {100 * r['lost']:g} % of the samples lost at random" if r.get("lost") else "") + f", alpha {r.get('alpha', '-')}, {r.get('blocks', '-')} held-out blocks; rates with Wilson 95 % intervals",
              f"  false alarms (verdict on nothing missing):  {_pct(s['false_alarm'])}"
              + (f"  verdicts: {s['false_alarm_verdicts']}" if s["false_alarm_verdicts"] else "")
              + (f"  (and {s['null_errors']} refused with a ManusError)" if s.get("null_errors") else ""),
