@@ -261,9 +261,9 @@ def prepare(rec: Recording, cutoff_hz: float | None = None, decimate: int | None
     if filled.any():
         bad = spoiled(filled, qdd, dt, step, cut)
         keep &= ~bad
-        lost = (f"{gaps(recorded).describe(recorded)}: filled by interpolation for the filters; "
+        lost = (f"{gaps(recorded).describe(recorded)}: filled for the filters (positions by a cubic spline); "
                 f"{int(bad.sum())} samples left out (the filled ones, and the filter's settling, "
-                f"{1e3 * cut * dt:.3g} ms, either side of a gap where a straight line is off by more than an encoder step)")
+                f"{1e3 * cut * dt:.3g} ms, either side of a gap the fill may miss by more than an encoder step)")
     keep_edges, usable = keep.copy(), keep.sum()
     per_joint = rec.structure_name == "urdf"
     equations = np.repeat(keep[:, None], rec.n_joints, 1)

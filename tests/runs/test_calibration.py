@@ -198,3 +198,20 @@ def test_calibration_at_another_amplitude():
     assert got and all(g == pytest.approx(0.1, rel=calibration.TOLERANCE) for g in got), c.condition
     with pytest.raises(ValueError, match="between 0 and 1"):
         calibration.case(SEED + 100, "offset", amplitude=1.5, **EASY)
+
+
+def test_calibration_with_samples_lost():
+    """`--lost`: a recording that lost 1 % of its samples at random (a loop that misses packets)
+    is diagnosed as the whole one: a hidden offset named on its joint, nothing on a null, and the
+    count lost in the condition; a fraction outside [0, 0.5) is refused by name."""
+    from manus.plants.errors import ManusError
+    from manus.runs.bench import diagnose as bench
+
+    hidden = bench.run_one(SEED + 100 + HIDDEN.index("offset"), "offset", lost=0.01)
+    assert hidden["outcome"] == "named" and 60 < hidden["condition"]["lost_samples"] < 180, hidden.get("condition")
+    null = bench.run_one(SEED, None, lost=0.01)
+    assert null["outcome"] == "quiet" and null["condition"]["lost_samples"] > 0, null.get("verdict_spec")
+    from types import SimpleNamespace
+
+    with pytest.raises(ManusError, match=r"--lost must lie in \[0, 0.5\) \(got 0.7\)"):
+        bench.calibrate(SimpleNamespace(recordings=1, effects="none", seed=3, alpha=None, blocks=None, jobs=1, lost=0.7))
