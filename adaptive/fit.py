@@ -242,7 +242,7 @@ def prepare(rec: Recording, cutoff_hz: float | None = None, decimate: int | None
     if len(rec) < MIN_SAMPLES:
         raise ModelError(f"{rec.path}: recording too short: {len(rec)} samples (at least {MIN_SAMPLES} are needed "
                          "to differentiate the positions; no parameter is identifiable)")
-    recorded, (rec, filled) = rec, on_grid(rec)  # lost samples filled, to be left out with the filter's settling
+    recorded, (rec, filled) = rec, on_grid(rec)  # lost samples filled, to be left out (`spoiled`)
     dt = rec.dt
     step = encoder_step(rec)
     if cutoff_hz is None:

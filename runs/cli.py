@@ -14,11 +14,13 @@ line on stderr and a non-zero exit code.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import json
 import os
 import pkgutil
 import sys
+import warnings
 
 # numpy's small batched solves on one BLAS thread (on a busy 2-core machine OpenBLAS's threads
 # spin-wait far longer than these products take); must precede the first numpy import.
@@ -68,21 +70,9 @@ def main(argv: list[str] | None = None) -> int:
     from manus.plants.errors import ManusError
 
     module = cmds[args.command]
-    import warnings
-
-    from manus.plants.errors import RecordingNote
-
-    shown = warnings.showwarning
-
-    def show(message, category, *rest, **kw):  # what was done to a recording as it was read: one line
-        if issubclass(category, RecordingNote):
-            print(f"manus {args.command}: note: {message}", file=sys.stderr)
-        else:
-            shown(message, category, *rest, **kw)
-
-    warnings.showwarning = show
     try:
-        result = module.run(args)
+        with _notes_as_lines(args.command):
+            result = module.run(args)
         text = None if getattr(args, "json", False) or not hasattr(module, "render") else module.render(result)
     except ManusError as e:
         if args.debug:
@@ -103,6 +93,25 @@ def main(argv: list[str] | None = None) -> int:
     elif text:
         print(text)
     return 0
+
+
+@contextlib.contextmanager
+def _notes_as_lines(command: str):
+    """What was done to a recording as it was read (`RecordingNote`: a cut last line dropped, an
+    angle unwrapped) printed as one line; any other warning as Python shows it."""
+    from manus.plants.errors import RecordingNote
+
+    with warnings.catch_warnings():
+        shown = warnings.showwarning
+
+        def show(message, category, *rest, **kw):
+            if issubclass(category, RecordingNote):
+                print(f"manus {command}: note: {message}", file=sys.stderr)
+            else:
+                shown(message, category, *rest, **kw)
+
+        warnings.showwarning = show
+        yield
 
 
 def _jsonable(x):

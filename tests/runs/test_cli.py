@@ -52,3 +52,22 @@ def test_a_fixed_model_with_several_values_is_rendered(tmp_path, capsys):
     assert main(["fit", "--model", "rigid,viscous,coulomb,cogging:39+6,delay:1ms/2ms", str(out), "--no-figures"]) == 0
     text = capsys.readouterr().out
     assert "orders = 39, 6" in text and "delay_ms = 1, 2" in text
+
+
+def test_what_was_done_to_a_recording_as_it_was_read_is_one_line(tmp_path, capsys):
+    """A revolute angle recorded in [−π, π) (it swings about π): unwrapped, said as one note line on
+    stderr, not a Python warning with its source line; the fit then runs on the unwrapped angle."""
+    import numpy as np
+
+    from manus.plants import recording
+
+    out = tmp_path / "rec.csv"
+    assert main(["simulate", "--seconds", "2", "--out", str(out), "--json"]) == 0
+    capsys.readouterr()
+    rec = recording.read(out)
+    swing = rec.q[:, 1] - np.median(rec.q[:, 1]) + np.pi  # joint 2 moved to swing about π ...
+    rec.q[:, 1] = (swing + np.pi) % (2 * np.pi) - np.pi  # ... and written in [−π, π)
+    wrapped = recording.write(rec, tmp_path / "wrapped.csv")
+    assert main(["fit", "--model", "rigid,viscous,coulomb", str(wrapped), "--no-figures", "--json"]) == 0
+    err = capsys.readouterr().err
+    assert "manus fit: note: " in err and "q2 wraps" in err and "unwrapped" in err and "Warning" not in err, err
