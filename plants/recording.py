@@ -158,12 +158,30 @@ class Gaps:
                 f"{rec.t[first - 1]:.6g} to {rec.t[first]:.6g} s)")
 
 
+JITTER_WINDOW = 10  # samples either side of a long step whose time stamps say whether samples were lost
+CLEAN = 0.1  # stamps are clean when 99 % of the steps lie this close (in periods) to a whole number of periods
+
+
 def gaps(rec: Recording) -> Gaps:
-    """The recording's gaps: steps of t longer than `GAP` sample periods, each counted as the
-    whole number of periods it spans, less one."""
-    periods = np.rint(np.diff(rec.t) / rec.dt).astype(np.int64)
-    at = np.flatnonzero(np.diff(rec.t) > GAP * rec.dt)
-    return Gaps(at + 1, np.maximum(periods[at], 2) - 1)
+    """The recording's gaps: where samples are missing, not where a time stamp is late.
+
+    Clean time stamps (a sample counter, t = seq·T as `run-hardware` writes them: every step
+    within `CLEAN` of a whole number of periods) count each long step as the periods it spans,
+    less one. Stamps that jitter (a logger reading a busy computer's clock) are late and then
+    early again, while a lost sample moves every later stamp on by a period: at each step longer
+    than `GAP` periods the lag of the stamps behind their count, (t − t₀)/T − index, is compared
+    either side (its median over `JITTER_WINDOW` samples, which jitter and a slow drift of the
+    clock do not move by a whole period), and the gap counts as the whole periods it moved."""
+    dt, t = rec.dt, rec.t
+    steps = np.diff(t) / dt
+    long = np.flatnonzero(steps > GAP)
+    if not long.size or np.percentile(np.abs(steps - np.rint(steps)), 99) < CLEAN:
+        return Gaps(long + 1, np.rint(steps[long]).astype(np.int64) - 1)
+    lag = (t - t[0]) / dt - np.arange(len(t))
+    w = JITTER_WINDOW
+    moved = np.array([np.rint(np.median(lag[i + 1:i + 1 + w]) - np.median(lag[max(i + 1 - w, 0):i + 1]))
+                      for i in long]).astype(np.int64)
+    return Gaps(long[moved >= 1] + 1, moved[moved >= 1])
 
 
 def on_grid(rec: Recording) -> tuple[Recording, np.ndarray]:
