@@ -60,7 +60,8 @@ from manus.adaptive.search import delay_of, grid
 from manus.estimators.offline import differentiate, edge, lowpass
 from manus.plants.effects import Effect, Model, Span
 from manus.plants.errors import ModelError
-from manus.plants.recording import Recording, gaps, on_grid, smallest_step, spoiled
+from manus.plants.gaps import gaps, on_grid, spoiled
+from manus.plants.recording import Recording, smallest_step
 from manus.plants.serial import Serial
 
 MIN_CUTOFF_HZ = 2.0

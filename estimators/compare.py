@@ -25,7 +25,8 @@ from manus.estimators.base import Estimate, run
 from manus.estimators.linear import THESIS_STEP
 from manus.estimators.registry import MODEL_BASED, NAMES, knob_range, make
 from manus.plants.errors import ManusError
-from manus.plants.recording import Recording, gaps, on_grid, smallest_step, spoiled
+from manus.plants.gaps import gaps, on_grid, spoiled
+from manus.plants.recording import Recording, smallest_step
 
 START_SECONDS = 0.1  # skipped when scoring: every estimator starts from rest
 GRID_POINTS, GRID_ROUNDS = 13, 3

@@ -28,7 +28,6 @@ diagnose at another family-wise level or number of held-out blocks, to see what 
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import os
 import time
@@ -230,9 +229,7 @@ def run_one(seed: int, hidden: str | None, alpha: float | None = None, blocks: i
     if lost:
         keep = np.random.default_rng([seed, 1]).random(len(rec)) >= lost
         keep[[0, -1]] = True
-        rec = dataclasses.replace(rec, t=rec.t[keep], q=rec.q[keep], tau=rec.tau[keep],
-                                  qd=None if rec.qd is None else rec.qd[keep],
-                                  extra={k: v[keep] for k, v in rec.extra.items()})
+        rec = rec.rows(keep)
         out["condition"] = {**c.condition, "lost_samples": int((~keep).sum())}
     t0 = time.perf_counter()
     try:

@@ -208,8 +208,7 @@ def test_friction_columns_are_the_average_over_the_sample_period():
 def _without(rec: Recording, lost: slice) -> Recording:
     keep = np.ones(len(rec), bool)
     keep[lost] = False
-    return Recording(rec.t[keep], rec.q[keep], rec.tau[keep], None if rec.qd is None else rec.qd[keep],
-                     dict(rec.meta), {k: v[keep] for k, v in rec.extra.items()}, rec.path)
+    return rec.rows(keep)
 
 
 def test_samples_lost_in_a_gap_are_filled_and_left_out_not_read_as_physics(nominal):

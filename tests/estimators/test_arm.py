@@ -113,11 +113,10 @@ def test_samples_lost_in_a_gap_are_filled_before_the_estimators_run(arm_recordin
     (read as uniform, the jump in position is a velocity spike of ~0.3 rad/s in every estimate),
     and the report says so."""
     from manus.estimators.compare import compare
-    from manus.plants.recording import Recording
 
     rec, keep = arm_recording, np.ones(len(arm_recording), bool)
     keep[1500:1520] = False
-    gapped = Recording(rec.t[keep], rec.q[keep], rec.tau[keep], rec.qd[keep], dict(rec.meta), {}, rec.path)
+    gapped = rec.rows(keep)
     report, est = compare(gapped, ("filtered_first_difference", "kalman_ca"))
     assert report["gaps"].startswith("20 samples lost in 1 gap") and len(est["kalman_ca"]) == len(rec)
     whole = {r["name"]: r for r in arm_report[0]["estimators"]}

@@ -156,7 +156,7 @@ def test_positions_off_the_grid_for_other_reasons_are_read(tmp_path):
 
 
 def test_on_grid_fills_lost_samples_by_interpolation_and_marks_them():
-    from manus.plants.recording import gaps, on_grid
+    from manus.plants.gaps import gaps, on_grid
 
     t = np.r_[np.arange(10), np.arange(13, 20)] * 0.001  # samples 10, 11, 12 lost
     q = np.stack([2 * t, -t], 1)
@@ -202,7 +202,7 @@ def test_a_filled_gap_spoils_its_neighbours_only_where_a_cubic_may_be_off_by_a_c
     """5/384 |q⁗| (m + 1)⁴ T⁴ against the encoder step (2π/131072 = 4.8e-5 rad): at 1 kHz on a
     2.5 Hz swing of 0.1 rad (|q⁗| up to 2.4e4 rad/s⁴), one lost sample may be off by 5e-9 rad
     (itself left out), fifty by 2e-3 (the guard either side too)."""
-    from manus.plants.recording import spoiled
+    from manus.plants.gaps import spoiled
 
     t = np.arange(1000) * 1e-3
     w = 2 * np.pi * 2.5
@@ -219,7 +219,7 @@ def test_time_stamps_that_jitter_are_no_gaps_but_lost_samples_among_them_are():
     """Samples taken every period and stamped by a busy clock (late by up to 0.45 T, 20 % RMS):
     no sample is lost, so none is filled (counting each long step as lost samples found 353 in
     10 s and broke the fit); 5 samples lost among such stamps are found, 5."""
-    from manus.plants.recording import gaps, on_grid
+    from manus.plants.gaps import gaps, on_grid
 
     rng = np.random.default_rng(1)
     t = np.arange(10000) * 1e-3 + np.clip(rng.normal(0, 2e-4, 10000), -4.5e-4, 4.5e-4)
