@@ -55,6 +55,13 @@ of each joint's position, velocity, position by direction of motion, position ti
 torque (a torque ripple), of time, and a sinusoid at the residual's spectral peak, each fitted on the other blocks and judged on the held-out one as
 above, and relevant as a candidate must be (`min_share` of the torque).
 
+Every candidate judged by its columns also states its *detection limit* on this recording
+(`detectable`; `Diagnosis.detection_limits`): the share of the recorded torque (RMS) it would have
+to explain, beyond what the model's own terms absorb, for its score test to find it 4 times in 5
+(`lsq.detectable`, from the same blocks' noise; at least `min_share`). A null verdict says no
+more than that: an effect under its limit passes unseen. (A delay and a mode are judged
+otherwise and state none.)
+
 `compliance` is judged in the frequency band where it lives (see `manus.adaptive.modes`).
 """
 
@@ -144,7 +151,16 @@ class Diagnosis:
                 "candidates": [c.report() for c in self.candidates],
                 "verdict": self.verdict.effect if self.verdict else None,
                 "verdict_spec": self.verdict.spec if self.verdict else None,
-                "unexplained": self.unexplained, "violations": self.base.violations(), "notes": self.notes}
+                "unexplained": self.unexplained, "detection_limits": self.detection_limits,
+                "violations": self.base.violations(), "notes": self.notes}
+
+    @property
+    def detection_limits(self) -> dict[str, float]:
+        """Per candidate judged by its columns: the share of the recorded torque (RMS) it would have
+        to explain, beyond what the model's own terms absorb, to be found 4 times in 5 on this
+        recording (`lsq.detectable`; never under `min_share`). A null verdict means no more than
+        that: a smaller effect would pass unseen."""
+        return {c.effect: c.detail["detectable"] for c in self.candidates if c.detail.get("detectable") is not None}
 
 
 def held_out(st: lsq.Stats, folds) -> np.ndarray:
@@ -298,9 +314,12 @@ def _judge(data, cols, icols, base, base_sse, starts, folds, whole, e0, values, 
         groups = _test_blocks(folds, data, f.residual)
         # the values searched whose fit leaves some of the candidate's columns off their physical
         # bound (the others explain nothing physical: their statistic would be the wrong sign's)
-        free = np.flatnonzero(g.free(whole))
-        tests["score"], _, how = lsq.score_p([lsq.block_scores(g.exact(i), test, groups) for i in free],
-                                             alpha / len(SIGNIFICANCE))
+        free = g.free(whole)
+        scores = [lsq.block_scores(g.exact(i), test, groups) for i in range(len(g.values))]
+        tests["score"], _, how = lsq.score_p([x for x, ok in zip(scores, free) if ok], alpha / len(SIGNIFICANCE))
+        # the share of the torque it would have to explain to be found (80 %), and to count
+        limit = lsq.detectable(scores, alpha / len(SIGNIFICANCE)) / max(float(g.exact(0).yy.sum()), 1e-300)
+        detectable = max(float(np.sqrt(limit)), min_share)
     p = _combined(tests)
     own = [chosen, *brought]
     names = [n for e in own for n in e.names(s) if n not in held]
@@ -320,6 +339,7 @@ def _judge(data, cols, icols, base, base_sse, starts, folds, whole, e0, values, 
     detail["p_values"] = {k: float(f"{v:.3g}") for k, v in tests.items()}
     if "score" in tests:  # how its blocks were judged (lsq.score_p) and how many there were
         detail["score_test"] = f"{how}, {groups.shape[0]} blocks"
+        detail["detectable"] = round(detectable, 5) if np.isfinite(detectable) else None
     significant = bool(p < alpha and (explained >= min_share or reduction >= MOST) and cv_red > 0)
     problems = [v for e in own for v in e.violations(s, f.params, f.stds)]
     edge = chosen.edge(span) if len(values) > 1 else None

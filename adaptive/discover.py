@@ -90,7 +90,8 @@ class Discovery:
                 "stopped": self.stopped, "samples": int(self.start.data.rows.size),
                 "cutoff_hz": self.start.data.cutoff_hz, "hold": self.start.data.hold,
                 "method": self.final_fit.method, "method_why": self.final_fit.why,
-                "params": self.final_fit.report()["params"], "unexplained": self.unexplained, "notes": self.notes}
+                "params": self.final_fit.report()["params"], "unexplained": self.unexplained,
+                "detection_limits": self.final.detection_limits if self.final is not None else {}, "notes": self.notes}
 
 
 def effect_params(f: fitting.Fit, effect: str) -> dict:

@@ -370,6 +370,55 @@ def score_p(scores: list[tuple[np.ndarray, np.ndarray]], alpha: float = 0.05, se
     return (1 + exceed) / (1 + done), best, "wild" if wild else "exact"
 
 
+POWER = 0.8  # a detection limit is the size found this often
+
+
+def detectable(scores: list[tuple[np.ndarray, np.ndarray]], alpha: float = 0.05, power: float = POWER) -> float:
+    """The detection limit of `score_p` on this recording: the sum of squares of the torque (the
+    units of `Stats.yy`) the tested columns must explain for the test to find them at `alpha`
+    with probability `power`. Per value searched, from the same block scores (one
+    `block_scores` per value): with the blocks' noise spread Ω (the cluster jackknife, as in
+    `score_p`) and the columns' information Q = Σ_b Q_b, columns whose coefficients β explain
+    βᵀQβ give Wald's statistic the non-centrality βᵀQΩ⁻¹Qβ; the least βᵀQβ that reaches the
+    non-centrality λ at which a statistic of k degrees of freedom, its noise estimated from G
+    blocks (F with k and G − k), exceeds its level with probability `power` is λ/μ, μ the largest
+    eigenvalue of Q^½ Ω⁻¹ Q^½ (the direction this recording sees best). Where a parameter is
+    searched, the largest statistic over the values is what is judged: the level is shared among
+    them (Bonferroni: an upper bound, neighbouring values being alike). Returns the median over
+    the values (a typical value of the searched parameter); inf where none can be tested."""
+    out = []
+    for s, Q in scores:
+        Qs = 0.5 * (Q.sum(0) + Q.sum(0).T)
+        lam, U = np.linalg.eigh(Qs)
+        keep = lam > 1e-10 * max(lam.max(initial=0.0), 1e-300)
+        k, G = int(keep.sum()), s.shape[0]
+        if k == 0 or G <= 2 * k:
+            continue
+        R = U[:, keep]
+        sr, Qr = s @ R, np.einsum("ki,gkl,lj->gij", R, Q, R)
+        Qi = np.linalg.pinv(Qr.sum(0))
+        L = np.linalg.pinv(np.eye(k)[None] - Qr @ Qi)
+        dj = (L @ (sr - Qr @ (Qi @ sr.sum(0)))[..., None])[..., 0]
+        half = np.diag(np.sqrt(lam[keep]))  # Q^½ in the basis R (Q there is diag(lam))
+        mu = float(np.linalg.eigvalsh(half @ np.linalg.pinv(dj.T @ dj) @ half).max())
+        if mu > 0:
+            out.append(_noncentrality(k, G - k, alpha / len(scores), power) / mu)
+    return float(np.median(out)) if out else np.inf
+
+
+def _noncentrality(k: int, dof: int, alpha: float, power: float) -> float:
+    """λ at which a Wald statistic of k degrees of freedom with its noise estimated on `dof`
+    (k·F(k, dof), non-central) exceeds its level-`alpha` critical value with probability `power`."""
+    from scipy.optimize import brentq
+
+    crit = stats.f.isf(alpha, k, dof)
+    gap = lambda lam: stats.ncf.sf(crit, k, dof, lam) - power
+    top = 10.0
+    while gap(top) < 0 and top < 1e6:
+        top *= 4
+    return float(brentq(gap, 1e-9, top))
+
+
 def _solve_psd(omega: np.ndarray, m: np.ndarray) -> np.ndarray:
     """Ω⁻¹ m for a batch of positive semi-definite Ω (B, k, k) and m (B, k) (a tiny ridge where
     Ω is singular)."""

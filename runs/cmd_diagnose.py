@@ -70,6 +70,8 @@ def render(r: dict) -> str:
     if notes:
         lines += ["notes:"] + notes
     lines.append(f"verdict: {r['verdict_spec'] or 'null (nothing significant is missing)'}")
+    if not r["verdict_spec"] and r.get("detection_limits"):
+        lines.append(limits_line(r["detection_limits"]))
     lines.append(unexplained_line(r.get("unexplained") or {}))
     if "figures" in r:
         lines.append(f"residual figure: {r['figures']['resid']}")
@@ -78,6 +80,16 @@ def render(r: dict) -> str:
             lines.append(f"evidence figures ({len(ev)}): {Path(next(iter(ev.values()))).parent}/"
                          f"{Path(next(iter(ev.values()))).name.rsplit('evidence_', 1)[0]}evidence_<effect>.png")
     return "\n".join(line.rstrip() for text in lines for line in text.splitlines())
+
+
+def limits_line(limits: dict) -> str:
+    """One line on how large a missing effect must be for this recording to show it."""
+    groups: dict[str, list[str]] = {}
+    for name, v in sorted(limits.items(), key=lambda kv: kv[1]):
+        groups.setdefault(f"{100 * v:.2g} %", []).append(name)
+    items = "; ".join(f"{v} {', '.join(names)}" for v, names in groups.items())
+    return (f"detection limits (the share of the torque's RMS a missing effect must explain, beyond the model's "
+            f"own terms, to be found 4 times in 5): {items}")
 
 
 def unexplained_line(u: dict) -> str:

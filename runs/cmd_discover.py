@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from manus.runs.cmd_diagnose import unexplained_line
+from manus.runs.cmd_diagnose import limits_line, unexplained_line
 from manus.runs.cmd_fit import add_model_options, load
 from manus.runs.common import add_common, note, table
 
@@ -76,6 +76,8 @@ def render(r: dict) -> str:
     lines += [f"  step {s['step']}: {s['note']}" for s in r["steps"] if s.get("note")]
     lines += [f"  {n}" for n in r["notes"]]
     lines.append(f"  fitted by {r['method']}: {r['method_why']}")
+    if r["stopped"] == "nothing significant missing" and r.get("detection_limits"):
+        lines.append("  " + limits_line(r["detection_limits"]))
     lines.append("  " + unexplained_line(r.get("unexplained") or {}))
     if "report" in r:
         lines.append(f"report: {r['report']}")

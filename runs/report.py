@@ -118,6 +118,10 @@ def write(sections: list[Section], path: Path, title: str = "manus discover") ->
             md += ["### What is left: the final model's residual", "",
                    "No effect of the vocabulary is significant on held-out blocks any more; the residual analysis in "
                    "the spirit of MATLAB `resid` (99 % bands):", "", f"![resid]({_link(f['resid'], base)})", ""]
+        if disc.final is not None and disc.final.verdict is None and disc.final.detection_limits:
+            from manus.runs.cmd_diagnose import limits_line
+
+            md += ["### How large a missing effect would have to be", "", limits_line(disc.final.detection_limits) + ".", ""]
         u = disc.unexplained
         if u:
             from manus.runs.cmd_diagnose import unexplained_line

@@ -252,6 +252,10 @@ def run_one(seed: int, hidden: str | None, alpha: float | None = None, blocks: i
                          | ({"not_proposed": c["not_proposed"]} if "not_proposed" in c else {})
                          for c in d.report()["candidates"]]
     out["verdict_reads_as"] = [] if v is None else list(v.readings)
+    # the detection limit diagnose states for the hidden effect's candidate (share of the torque)
+    own = next((x for x in d.candidates if x.effect == hidden), None) if hidden else None
+    if own is not None and own.detail.get("detectable") is not None:
+        out["detectable"] = own.detail["detectable"]
     if hidden is None:
         out["outcome"] = "quiet" if v is None else "false alarm"
     else:
@@ -295,6 +299,11 @@ def summarize(results: list[dict]) -> dict:
                 **detections([r for r in hidden if str(r.get("condition", {}).get(key)) == v])}
             for v in values}
     distinct = [r for r in hidden if _distinct(r)]
+    # the stated detection limit against the truth: the hidden effect's distinct share at or above
+    # the limit diagnose states for its candidate on that recording, and below it
+    limited = [r for r in hidden if r.get("detectable") is not None and "distinct_fraction" in r.get("condition", {})]
+    above = [r for r in limited if r["condition"]["distinct_fraction"] >= r["detectable"]]
+    below = [r for r in limited if r["condition"]["distinct_fraction"] < r["detectable"]]
     times = [r["diagnose_s"] for r in results if "diagnose_s" in r]
     sims = [r["simulate_s"] for r in results if "simulate_s" in r]
     missed = [r for r in hidden if r["outcome"] == "missed"]
@@ -310,6 +319,7 @@ def summarize(results: list[dict]) -> dict:
             "detection_where_distinct": {**detections(distinct), "threshold": DISTINCT,
                                          "per_effect": {name: detections([r for r in distinct if r["hidden"] == name])
                                                         for name in dict.fromkeys(r["hidden"] for r in distinct)}},
+            "detection_by_limit": {"at_or_above": detections(above), "below": detections(below)},
             "per_effect": per_effect, "per_condition": per_condition,
             "errors": sum(r["outcome"] == "error" for r in results),
             "null_errors": sum(r["outcome"] == "error" for r in nulls), "crashes": sum(r["outcome"] == "crash" for r in results),
@@ -456,6 +466,9 @@ def render_calibration(r: dict) -> str:
              f"  ... of those, on the right joint:          {_pct(s['detection']['right_joint'])}",
              f"  detection where the hidden effect is distinct (>= {100 * s['detection_where_distinct']['threshold']:g} % "
              f"of the torque no other reading explains): {_pct(s['detection_where_distinct']['named'])}",
+             *([f"  where its distinct share is at or above the detection limit diagnose states for it: "
+                f"{_pct(s['detection_by_limit']['at_or_above']['named'])}; below it: "
+                f"{_pct(s['detection_by_limit']['below']['named'])}"] if "detection_by_limit" in s else []),
              f"  'something left' on nothing missing:      {_pct(s['unexplained_on_null'])}",
              f"  'something left' where an effect was missed: {_pct(s['unexplained_when_missed'])}",
              "",

@@ -289,3 +289,37 @@ def test_prepared_data_and_fixed_nonlinear_parameters_are_kept():
     assert d.base.data is data
     # a cogging candidate here is one more order on top of the fixed 20/rev
     assert all(c.detail["orders"][0] == 20.0 for c in d.candidates if c.effect == "cogging")
+
+
+def test_the_detection_limit_a_null_verdict_states_is_what_it_finds():
+    """A recording with nothing missing and a noisy torque (white, from the calibration set): its
+    null verdict states each candidate's detection limit (the share of the torque it would have to
+    explain beyond the model's terms to be found 4 times in 5). An offset added to joint 1's
+    recorded torque that explains twice the offset's stated limit (computed here from the
+    columns: its part off the model's, against the filtered torque) is named; one of a quarter of
+    it is not."""
+    import copy
+
+    from manus.adaptive.fit import Columns, prepare
+    from manus.plants.effects import Model, Offset
+    from manus.runs import calibration
+    from manus.runs.cmd_diagnose import render
+
+    c = calibration.case(3, None, structure="arm", rate=1000, excitation="multisine", torque="white", hold="stated")
+    d = diagnose(c.rec, c.start)
+    assert d.verdict is None
+    limits = d.report()["detection_limits"]
+    assert set(limits) >= {"offset", "gravity", "asymmetry", "cogging"} and "delay" not in limits
+    assert all(0.005 <= v < 0.2 for v in limits.values())
+    assert "to be found 4 times in 5): " in render(json.loads(json.dumps(d.report())))
+    data = prepare(c.rec)
+    cols = Columns(data)
+    X = cols.model(Model(c.rec.structure, c.start)).reshape(-1, 3 + 2 + 2)
+    E = cols.effect(Offset())[:, :, :1].reshape(-1, 1)
+    off = np.linalg.norm(E - X @ np.linalg.lstsq(X, E, rcond=None)[0])  # its part off the model's, per N·m
+    for factor, named in ((2.0, True), (0.25, False)):
+        rec = copy.copy(c.rec)
+        level = factor * limits["offset"] * np.linalg.norm(data.tau()) / off
+        rec.tau = c.rec.tau + np.array([level, 0.0])
+        v = diagnose(rec, c.start).verdict
+        assert (v is not None and v.effect == "offset" and v.joint == 1) is named, (factor, v and v.spec)
