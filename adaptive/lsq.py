@@ -19,6 +19,7 @@ sign flips of the blocks), and `correlation_time` says how long a residual stays
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -406,6 +407,7 @@ def detectable(scores: list[tuple[np.ndarray, np.ndarray]], alpha: float = 0.05,
     return float(np.median(out)) if out else np.inf
 
 
+@functools.lru_cache(maxsize=256)
 def _noncentrality(k: int, dof: int, alpha: float, power: float) -> float:
     """λ at which a Wald statistic of k degrees of freedom with its noise estimated on `dof`
     (k·F(k, dof), non-central) exceeds its level-`alpha` critical value with probability `power`."""
