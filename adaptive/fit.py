@@ -263,7 +263,7 @@ def prepare(rec: Recording, cutoff_hz: float | None = None, decimate: int | None
         bad = spoiled(filled, qdd, dt, step, cut)
         keep &= ~bad
         lost = (f"{gaps(recorded).describe(recorded)}: filled for the filters (positions by a cubic spline); "
-                f"{int(bad.sum())} samples left out (the filled ones, and the filter's settling, "
+                f"{int(bad.sum())} sample{'s' if bad.sum() != 1 else ''} left out (the filled ones, and the filter's settling, "
                 f"{1e3 * cut * dt:.3g} ms, either side of a gap the fill may miss by more than an encoder step)")
     keep_edges, usable = keep.copy(), keep.sum()
     per_joint = rec.structure_name == "urdf"

@@ -170,8 +170,8 @@ def compare(rec: Recording, names=NAMES, tune_knobs: bool = False, cutoff_hz: fl
               "scored_samples": [start, stop], "step": {"value": step, "source": step_source},
               "still_threshold": scoring.still_threshold(reference[sl]).tolist(), "tuned": tune_knobs,
               "estimators": rows,
-              **({"gaps": f"{described}: filled for the estimators (positions by a cubic spline); {int((~scored).sum())} samples "
-                          f"not scored (the filled ones, and {1e3 * guard * rec.dt:.3g} ms either side of a gap where "
+              **({"gaps": f"{described}: filled for the estimators (positions by a cubic spline); {int((~scored).sum())} "
+                          f"sample{'s' if (~scored).sum() != 1 else ''} not scored (the filled ones, and {1e3 * guard * rec.dt:.3g} ms either side of a gap where "
                           "the fill may miss by more than an encoder step)"} if lost else {}),
               "best": min((r for r in rows if r["rms_error"] is not None), key=lambda r: r["rms_error"],
                           default={"name": None})["name"]}

@@ -303,11 +303,10 @@ def _assemble(path, cols: dict, meta: dict, locate) -> Recording:
         _fail(path, None, f"true velocities incomplete: missing column 'qd{missing[0]}'" if missing
               else f"column 'qd{max(qd_cols)}' has no matching 'q{max(qd_cols)}'")
     core = ["t"] + [f"{p}{i}" for p in ("q", "tau") + (("qd",) if qd_cols else ()) for i in range(1, n + 1)]
-    for name in core:
-        bad = np.flatnonzero(~np.isfinite(cols[name]))
-        if bad.size:
-            value = cols[name][bad[0]]
-            raise RecordingError(f"{path}{locate(bad[0])}: column {name!r} is {value} (NaN or infinite)")
+    bad = np.flatnonzero(~np.isfinite(cols["t"]))
+    if bad.size:  # (a sample without its time has no place)
+        raise RecordingError(f"{path}{locate(bad[0])}: column 't' is {cols['t'][bad[0]]} (NaN or infinite)")
+    cols = _drop_missing(path, cols, core[1:], locate)
     t = cols["t"]
     if t.size < 2:
         _fail(path, None, f"only {t.size} sample: a recording needs at least 2")
@@ -326,6 +325,39 @@ def _assemble(path, cols: dict, meta: dict, locate) -> Recording:
     if rec.structure_name != "urdf":  # (a serial chain's joint kinds are its URDF's: once read, in `read`)
         _unwrap(rec, locate)
     return rec
+
+
+MISSING_AT_MOST = 0.5  # samples with a NaN read as lost up to this share of the recording; more: refused
+
+
+def _drop_missing(path, cols: dict, names: list[str], locate) -> dict:
+    """A sample with a NaN or infinite position, torque or velocity (a reading the logger did not
+    get) is a lost sample: dropped here, with a note, and the analyses fill it and leave it out
+    like a sample missing from the time column (`manus.plants.gaps`). More than
+    `MISSING_AT_MOST` of the recording missing, or a column missing throughout, is refused."""
+    missing = np.zeros(cols["t"].size, bool)
+    first = None
+    for name in names:
+        bad = ~np.isfinite(cols[name])
+        if bad.all():
+            raise RecordingError(f"{path}: column {name!r} holds no number (NaN or infinite throughout)")
+        if bad.any() and (first is None or np.argmax(bad) < first[0]):
+            first = (int(np.argmax(bad)), name)
+        missing |= bad
+    k = int(missing.sum())
+    if not k:
+        return cols
+    where, name = first
+    value = cols[name][where]
+    if k > MISSING_AT_MOST * missing.size:
+        raise RecordingError(f"{path}{locate(where)}: column {name!r} is {value} (NaN or infinite), and {k} of "
+                             f"{missing.size} samples hold such values: too few numbers left to analyse")
+    warnings.warn(f"{path}: {k} sample{'s' if k != 1 else ''} with a NaN or infinite value (the first at "
+                  f"{_where(locate(where))}, {name!r} = {value}) read as lost: the analyses fill "
+                  f"{'them' if k != 1 else 'it'} for the filters and leave {'them' if k != 1 else 'it'} out",
+                  RecordingNote, stacklevel=4)
+    keep = ~missing
+    return {c: (v[keep] if isinstance(v, np.ndarray) and v.shape[:1] == keep.shape else v) for c, v in cols.items()}
 
 
 def _where(located: str) -> str:
