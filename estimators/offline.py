@@ -28,11 +28,25 @@ def lowpass(x: np.ndarray, dt: float, cutoff_hz: float, order: int = 4) -> np.nd
 
 
 def differentiate(q: np.ndarray, dt: float, cutoff_hz: float = 30.0, order: int = 4):
-    """(q, q̇, q̈) of positions q (T,) or (T, n): zero-phase low-pass at `cutoff_hz`, then
-    central differences (one-sided at the ends)."""
+    """(q, q̇, q̈) of positions q (T,) or (T, n): zero-phase low-pass at `cutoff_hz`, then the
+    central first difference and the central second difference (q_{k+1} − 2q_k + q_{k−1})/T²
+    (the ends repeat their neighbours).
+
+    The second difference is the compact one, not the first difference taken twice: for a rigid
+    body driven by a command held over each period (zero-order hold) it equals T²/M times the
+    mean of the two commands either side of t_k exactly, which is how `manus fit` reads a held
+    command (half a period late), and its response sinc²(ωT/2) stays near 1 further up the band
+    than the wide stencil's sinc²(ωT) (0.81 against 0.41 at a quarter of the sample rate). At
+    200 Hz the wide one alone left 5 % of an exactly recorded torque of open-loop steps
+    unexplained by the true model (1.2 % with the compact one) and read it as a spring."""
     qf = lowpass(q, dt, cutoff_hz, order)
     qd = np.gradient(qf, dt, axis=0)
-    qdd = np.gradient(qd, dt, axis=0)
+    qdd = np.empty_like(qf)
+    if len(qf) < 3:
+        qdd[:] = 0.0
+        return qf, qd, qdd
+    qdd[1:-1] = (qf[2:] - 2 * qf[1:-1] + qf[:-2]) / dt**2
+    qdd[0], qdd[-1] = qdd[1], qdd[-2]
     return qf, qd, qdd
 
 
