@@ -274,6 +274,27 @@ FLIP_MEMORY = 4_000_000  # ... and at most this many floats of a chunk's T·w (a
 MIN_EFFECTIVE_BLOCKS = 12.0  # below this many blocks sharing the information, the exact flips (see score_p)
 
 
+def _jackknifed(s: np.ndarray, Q: np.ndarray):
+    """One value's block scores s (G, k) and information Q (G, k, k) reduced to the directions the
+    columns identify (R: Q's eigenvectors above rounding): (k, their eigenvalues, s R, RᵀQR,
+    (Σ RᵀQR)⁻¹, L, the jackknifed noise scores d); None when nothing is identifiable or the
+    blocks are too few. Each block's noise score is taken as if the candidate were fitted without
+    it (the cluster jackknife, CR3): a block that holds much of the columns' information pulls
+    the fit toward itself, and its own residual score would understate its noise."""
+    Qs = Q.sum(0)
+    lam, U = np.linalg.eigh(0.5 * (Qs + Qs.T))
+    keep = lam > 1e-10 * max(lam.max(initial=0.0), 1e-300)
+    k = int(keep.sum())
+    if k == 0 or s.shape[0] <= 2 * k:
+        return None
+    R = U[:, keep]
+    sr, Qr = s @ R, np.einsum("ki,gkl,lj->gij", R, Q, R)
+    Qi = np.linalg.pinv(Qr.sum(0))
+    L = np.linalg.pinv(np.eye(k)[None] - Qr @ Qi)
+    dj = (L @ (sr - Qr @ (Qi @ sr.sum(0)))[..., None])[..., 0]
+    return k, lam[keep], sr, Qr, Qi, L, dj
+
+
 def score_p(scores: list[tuple[np.ndarray, np.ndarray]], alpha: float = 0.05, seed: int = 0,
             stop_above: float = 0.1) -> tuple[float, int, str]:
     """p of 'the candidate's columns are missing from the model', from their block scores (one
@@ -302,20 +323,10 @@ def score_p(scores: list[tuple[np.ndarray, np.ndarray]], alpha: float = 0.05, se
     prepared, effective = [], np.inf
     observed = np.full(len(scores), -np.inf)
     for v, (s, Q) in enumerate(scores):
-        Qs = Q.sum(0)
-        lam, U = np.linalg.eigh(0.5 * (Qs + Qs.T))
-        keep = lam > 1e-10 * max(lam.max(initial=0.0), 1e-300)
-        k = int(keep.sum())
-        if k == 0 or s.shape[0] <= 2 * k:
+        reduced = _jackknifed(s, Q)
+        if reduced is None:
             continue
-        R = U[:, keep]
-        sr, Qr = s @ R, np.einsum("ki,gkl,lj->gij", R, Q, R)
-        Qi = np.linalg.pinv(Qr.sum(0))
-        # each block's noise score as if the candidate were fitted without it (the cluster
-        # jackknife, CR3): a block that holds much of the columns' information pulls the fit
-        # toward itself, and its own residual score would understate its noise
-        L = np.linalg.pinv(np.eye(k)[None] - Qr @ Qi)
-        dj = (L @ (sr - Qr @ (Qi @ sr.sum(0)))[..., None])[..., 0]
+        k, _, sr, Qr, Qi, L, dj = reduced
         observed[v] = sr.sum(0) @ _solve_psd((dj.T @ dj)[None], sr.sum(0)[None])[0]
         lev = np.einsum("gij,ji->g", Qr, Qi)  # each block's share of the information (Σ = k)
         effective = min(effective, k * k / max(float(np.sum(lev**2)), 1e-300))
@@ -389,21 +400,14 @@ def detectable(scores: list[tuple[np.ndarray, np.ndarray]], alpha: float = 0.05,
     the values (a typical value of the searched parameter); inf where none can be tested."""
     out = []
     for s, Q in scores:
-        Qs = 0.5 * (Q.sum(0) + Q.sum(0).T)
-        lam, U = np.linalg.eigh(Qs)
-        keep = lam > 1e-10 * max(lam.max(initial=0.0), 1e-300)
-        k, G = int(keep.sum()), s.shape[0]
-        if k == 0 or G <= 2 * k:
+        reduced = _jackknifed(s, Q)
+        if reduced is None:
             continue
-        R = U[:, keep]
-        sr, Qr = s @ R, np.einsum("ki,gkl,lj->gij", R, Q, R)
-        Qi = np.linalg.pinv(Qr.sum(0))
-        L = np.linalg.pinv(np.eye(k)[None] - Qr @ Qi)
-        dj = (L @ (sr - Qr @ (Qi @ sr.sum(0)))[..., None])[..., 0]
-        half = np.diag(np.sqrt(lam[keep]))  # Q^½ in the basis R (Q there is diag(lam))
+        k, lam, _, _, _, _, dj = reduced
+        half = np.diag(np.sqrt(lam))  # Q^½ in the basis R (Q there is diag(lam))
         mu = float(np.linalg.eigvalsh(half @ np.linalg.pinv(dj.T @ dj) @ half).max())
         if mu > 0:
-            out.append(_noncentrality(k, G - k, alpha / len(scores), power) / mu)
+            out.append(_noncentrality(k, s.shape[0] - k, alpha / len(scores), power) / mu)
     return float(np.median(out)) if out else np.inf
 
 
