@@ -65,6 +65,10 @@ def add_arguments(p) -> None:
     p.add_argument("--lost", type=float, default=0.0,
                    help="with --calibrate: lose this fraction of each recording's samples at random, as a real-time "
                         "loop that misses packets does (a step of 2T in t; default 0)")
+    p.add_argument("--simulator", choices=("manus", "independent"), default="manus",
+                   help="with --calibrate: the recordings' simulator: manus's own, or the one written independently "
+                        "from the equations (regularized friction, RK4, a PD loop, read back from CSV files; "
+                        "manus.runs.independent)")
     p.add_argument("--rates", default="",
                    help="with --calibrate: comma-separated sample rates [Hz] the recordings are drawn at (default: "
                         "the set's own, 1000,200), e.g. your rig's")
@@ -208,7 +212,8 @@ def case_seed(seed: int, effect_index: int, i: int) -> int:
 
 
 def run_one(seed: int, hidden: str | None, alpha: float | None = None, blocks: int | None = None,
-            rates: tuple | None = None, amplitude: float | None = None, lost: float = 0.0) -> dict:
+            rates: tuple | None = None, amplitude: float | None = None, lost: float = 0.0,
+            simulator: str = "manus") -> dict:
     """Simulate one calibration recording and diagnose it; never raises (a ManusError is an
     `error`, anything else a `crash`, both reported). `lost`: the fraction of its samples lost
     at random (seeded by the case), as a loop that misses packets loses them."""
@@ -220,7 +225,12 @@ def run_one(seed: int, hidden: str | None, alpha: float | None = None, blocks: i
 
     out = {"seed": seed, "hidden": hidden}
     try:
-        c = calibration.case(seed, hidden, rates or calibration.RATES, amplitude or calibration.AMPLITUDE)
+        if simulator == "independent":
+            from manus.runs import independent
+
+            c = independent.case(seed, hidden, rates or independent.RATES, amplitude or calibration.AMPLITUDE)
+        else:
+            c = calibration.case(seed, hidden, rates or calibration.RATES, amplitude or calibration.AMPLITUDE)
     except Exception as e:  # the simulator: a bug of the bench, reported as a crash
         out.update(outcome="crash", error=f"case: {type(e).__name__}: {e}", trace=traceback.format_exc(limit=6))
         return out
@@ -360,16 +370,21 @@ def calibrate(args) -> dict:
     n = args.recordings
     if n < 1:
         raise ManusError("--recordings must be at least 1")
-    effects = calibration.hidden_effects()
+    simulator = getattr(args, "simulator", "manus")
+    if simulator == "independent":
+        from manus.runs import independent
+    vocabulary = independent.EFFECTS if simulator == "independent" else calibration.hidden_effects()
+    effects = vocabulary
     if args.effects.strip().lower() == "none":  # the null recordings only: the false-alarm rate
         effects = ()
     elif args.effects:
         chosen = [e.strip() for e in args.effects.split(",") if e.strip()]
         bad = [e for e in chosen if e not in effects]
         if bad:
-            raise ManusError(f"--effects: unknown effect(s) {', '.join(bad)}: the vocabulary is {', '.join(effects)}")
+            raise ManusError(f"--effects: unknown effect(s) {', '.join(bad)}: the {simulator} simulator hides "
+                             f"{', '.join(effects)}")
         effects = tuple(chosen)
-    rates = calibration.RATES
+    rates = independent.RATES if simulator == "independent" else calibration.RATES
     if getattr(args, "rates", ""):
         try:
             rates = calibration.check_rates([float(r) for r in args.rates.split(",") if r.strip()])
@@ -382,7 +397,7 @@ def calibrate(args) -> dict:
     except ValueError as e:
         raise ManusError(f"--amplitude: {e}") from None
     plan = [(case_seed(args.seed, 0, i), None) for i in range(n)]
-    plan += [(case_seed(args.seed, 1 + calibration.hidden_effects().index(e), i), e) for e in effects for i in range(n)]
+    plan += [(case_seed(args.seed, 1 + vocabulary.index(e), i), e) for e in effects for i in range(n)]
     note(f"calibration: {n} recordings with nothing missing and {n} per hidden effect ({', '.join(effects)}): "
          f"{len(plan)} in all")
     if args.alpha is not None and not 0 < args.alpha < 1:
@@ -398,7 +413,7 @@ def calibrate(args) -> dict:
     lost = getattr(args, "lost", 0.0) or 0.0
     if not 0 <= lost < 0.5:
         raise ManusError(f"--lost must lie in [0, 0.5) (got {lost})")
-    for k, r in enumerate(_each(plan, args.alpha, blocks, jobs, rates, amplitude, lost), 1):
+    for k, r in enumerate(_each(plan, args.alpha, blocks, jobs, rates, amplitude, lost, simulator), 1):
         seed, hidden = r["seed"], r["hidden"]
         results.append(r)
         if r["outcome"] in ("crash", "error", "false alarm", "missed", "wrong", "reading"):
@@ -424,25 +439,25 @@ def calibrate(args) -> dict:
                         "wall_s": wall},
             "calibration": summary, "crashes": crashes, "recordings": n, "seed": args.seed, "effects": list(effects),
             "amplitude": amplitude, "alpha": args.alpha if args.alpha is not None else ALPHA, "jobs": jobs,
-            "blocks": blocks if blocks is not None else BLOCKS, "rates": list(rates), "lost": lost,
+            "blocks": blocks if blocks is not None else BLOCKS, "rates": list(rates), "lost": lost, "simulator": simulator,
             "results": [{k: v for k, v in r.items() if k != "trace"} for r in results],
             "load_average": os.getloadavg()[0], "cpu_count": os.cpu_count()}
 
 
 def _each(plan: list, alpha: float | None, blocks: int | None, jobs: int, rates: tuple | None = None,
-          amplitude: float | None = None, lost: float = 0.0):
+          amplitude: float | None = None, lost: float = 0.0, simulator: str = "manus"):
     """`run_one` over the plan, in order: in this process (one job) or in `jobs` fresh worker
     processes (spawned, not forked: JAX is not fork-safe), each compiling its own simulations."""
     if jobs == 1 or len(plan) < 2:
         for seed, hidden in plan:
-            yield run_one(seed, hidden, alpha, blocks, rates, amplitude, lost)
+            yield run_one(seed, hidden, alpha, blocks, rates, amplitude, lost, simulator)
         return
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
     with ProcessPoolExecutor(min(jobs, len(plan)), mp_context=multiprocessing.get_context("spawn")) as pool:
         yield from pool.map(run_one, *zip(*plan), [alpha] * len(plan), [blocks] * len(plan), [rates] * len(plan),
-                            [amplitude] * len(plan), [lost] * len(plan))
+                            [amplitude] * len(plan), [lost] * len(plan), [simulator] * len(plan))
 
 
 def _pct(r: dict) -> str:
@@ -454,7 +469,8 @@ def _pct(r: dict) -> str:
 def render_calibration(r: dict) -> str:
     s = r["calibration"]
     at = f", at {'/'.join(str(x) for x in r['rates'])} Hz" if r.get("rates") and tuple(r["rates"]) != (1000, 200) else ""
-    lines = [f"calibration: {r['recordings']} recordings per row, seed {r['seed']}{at}, hidden at "
+    by = " (the independent simulator: manus.runs.independent)" if r.get("simulator") == "independent" else ""
+    lines = [f"calibration{by}: {r['recordings']} recordings per row, seed {r['seed']}{at}, hidden at "
              f"{100 * r['amplitude']:g} % of the torque RMS"
              + (f", {100 * r['lost']:g} % of the samples lost at random" if r.get("lost") else "") + f", alpha {r.get('alpha', '-')}, {r.get('blocks', '-')} held-out blocks; rates with Wilson 95 % intervals",
              f"  false alarms (verdict on nothing missing):  {_pct(s['false_alarm'])}"
