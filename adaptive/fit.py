@@ -70,6 +70,8 @@ BAND_FACTOR = 4.0  # the cut-off is this multiple of the motion band (friction s
 NOISE_BUDGET = 0.05  # quantization noise in q̈ at most this share of the motion's q̈ (RMS)
 METHODS = ("auto", "ls", "iv")
 STANDSTILL_S = 0.005  # longer under two counts per band period than a zero crossing takes: at rest
+CREEP = 0.005  # a joint creeps (held against its friction, see `prepare`) under this share of its high speed ...
+CREEP_S = 0.05  # ... for longer than this [s] (a reversal passes such speeds in a few milliseconds)
 KINEMATIC_BAND = 4.0  # kinematics for the columns are filtered at this multiple of the cut-off
 MIN_SAMPLES = 8  # below this the recording cannot even be differentiated
 MIN_ROWS = 20  # fewer usable rows than this identify nothing reliably
@@ -226,6 +228,18 @@ def prepare(rec: Recording, cutoff_hz: float | None = None, decimate: int | None
     than `STANDSTILL_S` (a mere zero crossing is shorter: the EMPS axis never rests, the arm under
     impedance control sticks for tens of milliseconds at each reversal).
 
+    A joint held against its friction may creep instead of sticking: a simulator that regularizes
+    friction (Drake's stiction tolerance, MuJoCo's soft friction loss; Fc tanh(q̇/ε)) lets it
+    slide at speeds of order ε, above the encoder's threshold, with a friction anywhere between
+    ±Fc. So a joint is at rest too while its speed stays under `CREEP` of its high speed (95th
+    percentile) for more than `CREEP_S`, outside the rests the encoder shows (a reversal passes
+    such speeds in a few milliseconds; the approach to a rest, contiguous with it, is kept as
+    before). On the independent simulator's recordings (`manus bench diagnose --calibrate
+    --simulator independent`, seed 0) this took the verdicts on nothing missing from 5/100 to
+    3/100 and the hidden effects named from 157 to 163 of 200; on the calibration set, whose
+    simulator sticks exactly, it changed two verdicts of 1440 (a Stribeck found; a false alarm's
+    name).
+
     A serial chain (`structure: urdf`) leaves out equations, not rows: a joint's stiction is a
     torque on that joint alone, so only its own equation is unknown near its standstill, and the
     other joints' equations of those rows are kept (`Data.mask`; `standstill` is then the share of
@@ -270,6 +284,9 @@ def prepare(rec: Recording, cutoff_hz: float | None = None, decimate: int | None
     equations = np.repeat(keep[:, None], rec.n_joints, 1)
     if exclude_standstill and step > 0:
         slow = np.abs(qd) < 2 * step * band
+        if keep.any():  # creeping: slow for the motion, not for the encoder, for a long time
+            creep = (np.abs(qd) < CREEP * np.percentile(np.abs(qd[keep]), 95, axis=0)) & ~slow
+            slow |= np.stack([_long_runs(creep[:, j], int(round(CREEP_S / dt))) for j in range(rec.n_joints)], 1)
         w = int(np.ceil(0.5 / (cutoff_hz * dt)))
         if per_joint:
             w = int(np.ceil(JOINT_GUARD / (cutoff_hz * dt)))
