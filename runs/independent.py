@@ -236,8 +236,10 @@ def case(seed: int, hidden: str | None = None, rates: tuple = RATES, amplitude: 
         level = rng.uniform(0.10, 0.30)
         tau = tau + rng.standard_normal(tau.shape) * level * np.sqrt(np.mean(u**2, 0))
         info["noise_fraction"] = round(float(level), 3)
-    if delay:
+    if delay:  # and what the late command changes, τ(t) − τ(t − d), against the torque (as the calibration)
         info["delay_ms"] = 1e3 * delay / rate
+        info["hidden_fraction"] = [round(float(x), 4) for x in np.sqrt(np.mean((u[delay:] - u[:-delay]) ** 2, 0))
+                                   / np.maximum(np.sqrt(np.mean(u**2, 0)), 1e-300)]
     rec = _round_trip(q, tau, rate, arm, hold == "stated")
     rec.path = f"<independent seed {seed}, hidden {hidden or 'nothing'}>"
     start = ",".join(e for e in NOMINAL if e != hidden)

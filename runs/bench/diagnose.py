@@ -345,13 +345,14 @@ DISTINCT = 0.025  # a hidden effect is distinct when this share of the torque is
 def _distinct(r: dict) -> bool:
     """Whether a hidden effect left a part no other reading explains of at least `DISTINCT` of
     the torque (`manus.runs.calibration.distinct`; a delay: what it changes in the torque; a
-    mode: counted, its share is not measured)."""
+    mode: counted, its share is not measured). The independent simulator measures neither: its
+    recordings do not count here."""
     c = r.get("condition", {})
     if "distinct_fraction" in c:
         return c["distinct_fraction"] >= DISTINCT
     if r["hidden"] == "delay":
         return max(c.get("hidden_fraction", [0.0])) >= DISTINCT
-    return "condition" in r
+    return r["hidden"] == "compliance" and "condition" in r
 
 
 def _counts(items) -> dict:
