@@ -202,7 +202,9 @@ def case(seed: int, hidden: str | None = None, rates: tuple = RATES, amplitude: 
     p = dict(b=np.array(cfg["b"]), fc=np.array(cfg["fc"]), dfs=zero, db=zero, off=zero, k=zero,
              q0=np.asarray(cfg["centre"]) + rng.uniform(-0.5, 0.5, n) * cfg["swing"], gc=zero, gs=zero,
              ca=zero, cb=zero, order=zero)
-    delay = int(rng.choice([1, 2, 3] if rate >= 1000 else [1, 2])) if hidden == "delay" else 0
+    delay = 0
+    if hidden == "delay":  # 1–3 ms at 1 kHz and faster, else one or two samples (as the calibration's)
+        delay = int(round(rng.choice([1, 2, 3]) * rate / 1000)) if rate >= 1000 else int(rng.choice([1, 2]))
     if hidden == "cogging":
         p["order"] = np.full(n, float(np.round(rng.uniform(25, 60))) if arm else 2 * np.pi / rng.uniform(0.005, 0.015))
     joint = None
