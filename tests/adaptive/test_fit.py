@@ -277,3 +277,23 @@ def test_open_loop_steps_at_200_hz_fit_the_true_model():
     assert f.rel_error < 0.02
     for k in ("M1", "b1", "Fc1"):
         assert f.params[k] == pytest.approx(c.truth[k], rel=0.02), k
+
+
+def test_a_creeping_joint_is_at_rest_a_reversal_is_not():
+    """`prepare` leaves out a joint that creeps (0.2 % of its high speed for 0.5 s: above the
+    encoder's standstill threshold of a 1 µm grid, under `fit.CREEP` of its speed) and keeps the
+    reversals, which pass such speeds in milliseconds."""
+    from manus.adaptive import fit as fitting
+
+    dt, vmax = 1e-3, 0.2
+    t = np.arange(0, 6.0, dt)
+    v = np.where((t >= 2.0) & (t < 2.5), 0.002 * vmax, vmax * np.sin(np.pi * np.where(t < 2.0, t, t - 2.5)))
+    q = np.round(np.cumsum(v) * dt / 1e-6) * 1e-6
+    rec = Recording(t, q[:, None], np.random.default_rng(0).standard_normal((t.size, 1)), None,
+                    {"sample_rate_hz": "1000", "position_step": "1e-06", "structure": "axis"}, {})
+    data = fitting.prepare(rec)
+    used = t[data.rows]
+    assert not np.any((used > 2.05) & (used < 2.45))  # the creep
+    for reversal in (1.0, 3.5, 4.5):  # v = 0 with |q̈| = π·0.2 m/s²
+        assert np.any(np.abs(used - reversal) < 0.1), reversal
+    assert 0.05 < data.standstill < 0.2
