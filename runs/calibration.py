@@ -19,8 +19,10 @@ a hidden-effect case, one effect the analysis does not start from. A linear effe
 generically from `Model(structure, effect).defaults()`: on the chosen joint (or on all) every
 parameter is scaled by one factor so that the effect's torque along the recorded motion has an
 RMS of `AMPLITUDE` (5 %) of the recorded torque's (simulate with it absent, measure, rescale,
-simulate; once more if the result is off by more than `TOLERANCE`). `delay` is 1–3 ms at 1 kHz and faster,
-one or two samples below (200 Hz: 5 or 10 ms); `compliance` is a lightly damped shaft mode at 15–30 % of the
+simulate; once more if the result is off by more than `TOLERANCE`). A `delay` is sized the same
+way by what the late command changes, τ(t) − τ(t − d) (`delay_change`), to `AMPLITUDE` of the torque
+(RMS, all joints), but at least 1 ms (the thesis's amplifier; open-loop steps change more than that
+with it) and at most `DELAY_MAX`; `compliance` is a lightly damped shaft mode at 15–30 % of the
 sample rate (inside the band the recording resolves), drawn only under the open-loop steps,
 which ring it. Hidden `rigid`, `viscous` or `coulomb` replace the nominal term (start without it).
 
@@ -73,6 +75,7 @@ COLOURED = (0.03, 0.08)  # the unrecorded disturbance: RMS as a fraction of the 
 COLOURED_HZ = (1.0, 5.0)  # ... low-passed (2nd-order Butterworth) at a corner in this range [Hz]
 COMPLIANCE_BAND = (0.15, 0.30)  # hidden shaft mode: f as a fraction of the sample rate
 COMPLIANCE_ZETA = (0.005, 0.03)
+DELAY_MIN, DELAY_MAX = 1e-3, 0.05  # a hidden delay's range [s] (diagnose searches up to 2 % of the record, 100 ms)
 
 
 @dataclass(frozen=True)
@@ -393,10 +396,27 @@ def seconds_at(rate: float) -> float:
     return 12.0 if rate >= FAST else 20.0
 
 
-def delays_ms(rate: float) -> tuple[float, ...]:
-    """A hidden delay's values at `rate`: 1–3 ms at 1 kHz and faster, else one and two samples
-    (at least 1 ms, at least one sample)."""
-    return (1.0, 2.0, 3.0) if rate >= FAST else (1000.0 / rate, 2000.0 / rate)
+def delay_change(tau: np.ndarray, seconds: float, rate: float) -> np.ndarray:
+    """What a command `seconds` late changes in the torque: the RMS of τ(t) − τ(t − d) (linear
+    interpolation between samples), per joint and then for all joints together (last entry), as
+    a fraction of the torque's RMS."""
+    tau = np.asarray(tau, float)
+    t = np.arange(len(tau), dtype=float)
+    lag = seconds * rate
+    k = min(int(np.ceil(lag)), len(tau) - 1)
+    late = np.stack([np.interp(t - lag, t, tau[:, j]) for j in range(tau.shape[1])], axis=1)
+    diff, ref = (tau - late)[k:], tau[k:]
+    scale = np.r_[np.maximum(_rms(ref), 1e-300), max(_rms(ref.ravel()), 1e-300)]
+    return np.r_[_rms(diff), _rms(diff.ravel())] / scale
+
+
+def size_delay(tau: np.ndarray, rate: float, amplitude: float) -> float:
+    """The shortest delay [s], on a 0.1 ms grid from 1 ms to `DELAY_MAX`, whose change of the
+    torque `tau` (all joints together) reaches `amplitude` of its RMS; `DELAY_MAX` if none does."""
+    for d in np.arange(DELAY_MIN, DELAY_MAX + 1e-12, 1e-4):
+        if delay_change(tau, d, rate)[-1] >= amplitude:
+            return round(float(d), 4)
+    return DELAY_MAX
 
 
 def check_rates(rates) -> tuple[int, ...]:
@@ -453,8 +473,8 @@ def start_model(hidden: str | None) -> str:
 def case(seed: int, hidden: str | None = None, rates: tuple = RATES, amplitude: float = AMPLITUDE,
          **overrides) -> Case:
     """Calibration recording `seed`: nothing hidden (`hidden=None`) or one effect of the
-    vocabulary hidden at `amplitude` of the torque (RMS; a delay and a mode have their own
-    sizes), its rate drawn from `rates`. Keyword overrides fix condition values (structure, rate,
+    vocabulary hidden at `amplitude` of the torque (RMS; a delay by what it changes, at least 1 ms;
+    a mode has its own size), its rate drawn from `rates`. Keyword overrides fix condition values (structure, rate,
     excitation, torque, hold)."""
     check_amplitude(amplitude)
     import time
@@ -474,11 +494,7 @@ def case(seed: int, hidden: str | None = None, rates: tuple = RATES, amplitude: 
     extra: tuple = ()
     joint: int | None = None
     info: dict = {}
-    if hidden == "delay":
-        ms = float(rng.choice(delays_ms(rate)))
-        extra = (Delay(seconds=ms * 1e-3),)
-        info["delay_ms"] = ms
-    elif hidden == "compliance":
+    if hidden == "compliance":
         f = float(rng.uniform(*COMPLIANCE_BAND) * rate)
         zeta = float(rng.uniform(*COMPLIANCE_ZETA))
         extra = (Compliance(f_hz=f, zeta=zeta),)
@@ -521,12 +537,21 @@ def case(seed: int, hidden: str | None = None, rates: tuple = RATES, amplitude: 
         params = {**params, **hp}
         info["hidden_fraction"] = [round(g, 4) for g in got]
         info["distinct_fraction"] = round(distinct(setup, effect, hp, start_model(hidden), traj, dt, nonlinear), 4)
+    elif hidden == "delay":  # sized on the motion without it, then once more on the motion with it
+        base = first if d_coloured is None else \
+            simulate_case(setup, rate, c["excitation"], params, (), seconds, sim_seed, d_coloured, nonlinear)
+        d = size_delay(np.asarray(base.tau), rate, amplitude)
+        for attempt in range(2):
+            extra = (Delay(seconds=d),)
+            traj = simulate_case(setup, rate, c["excitation"], params, extra, seconds, sim_seed, d_coloured, nonlinear)
+            got = delay_change(np.asarray(traj.tau), d, rate)
+            if attempt or d <= DELAY_MIN or abs(got[-1] / amplitude - 1) <= TOLERANCE:
+                break
+            d = size_delay(np.asarray(traj.tau), rate, amplitude)
+        info["delay_ms"] = round(d * 1e3, 3)
+        info["hidden_fraction"] = [round(float(x), 4) for x in got[:-1]]  # what the late command changes, per joint
     elif extra or d_coloured is not None:
         traj = simulate_case(setup, rate, c["excitation"], params, extra, seconds, sim_seed, d_coloured, nonlinear)
-    if hidden == "delay":  # what the late command changes: τ(t) − τ(t − d), against the torque
-        lag = int(round(info["delay_ms"] * 1e-3 * rate))
-        tau = np.asarray(traj.tau)
-        info["hidden_fraction"] = [round(float(x), 4) for x in _rms(tau[lag:] - tau[:-lag]) / np.maximum(_rms(tau), 1e-300)]
     meta = {"calibration": f"seed {seed}", **setup.meta()}
     rec = from_trajectory(traj, rate, "manus2" if setup.name == "arm" else "axis",
                           131072 if setup.name == "arm" else None, meta)

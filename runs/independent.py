@@ -19,8 +19,9 @@ The conditions follow the calibration's (`manus.runs.calibration`): arm or prism
 three excitations, torque exact / with white noise of 10–30 % of its RMS / with an unrecorded
 disturbance of 3–8 % low-passed at 1–5 Hz, hold stated or not; rates 1 kHz, 500 Hz and 200 Hz.
 A hidden effect's torque RMS is `amplitude` of the recorded torque's (measured on a first run,
-as the calibration does); a delay is whole samples (1–3 ms at 1 kHz and faster, else one or two
-samples). No compliance (the shaft is rigid here).
+as the calibration does); a delay is drawn, not sized: whole samples, 1–3 ms at 1 kHz and faster,
+else one or two samples (the calibration sizes its delays to the same 5 %; this one keeps the
+harder draw of its first version, whose figures the README quotes). No compliance (the shaft is rigid here).
 """
 
 from __future__ import annotations
@@ -203,7 +204,7 @@ def case(seed: int, hidden: str | None = None, rates: tuple = RATES, amplitude: 
              q0=np.asarray(cfg["centre"]) + rng.uniform(-0.5, 0.5, n) * cfg["swing"], gc=zero, gs=zero,
              ca=zero, cb=zero, order=zero)
     delay = 0
-    if hidden == "delay":  # 1–3 ms at 1 kHz and faster, else one or two samples (as the calibration's)
+    if hidden == "delay":  # 1–3 ms at 1 kHz and faster, else one or two samples (drawn, not sized)
         delay = int(round(rng.choice([1, 2, 3]) * rate / 1000)) if rate >= 1000 else int(rng.choice([1, 2]))
     if hidden == "cogging":
         p["order"] = np.full(n, float(np.round(rng.uniform(25, 60))) if arm else 2 * np.pi / rng.uniform(0.005, 0.015))
