@@ -73,6 +73,8 @@ STANDSTILL_S = 0.005  # longer under two counts per band period than a zero cros
 CREEP = 0.005  # a joint creeps (held against its friction, see `prepare`) under this share of its high speed ...
 CREEP_S = 0.05  # ... for longer than this [s] (a reversal passes such speeds in a few milliseconds)
 KINEMATIC_BAND = 4.0  # kinematics for the columns are filtered at this multiple of the cut-off
+REST_GUARD = 1.0  # periods of the kinematic band either side of a rest left out (that filter spreads it: 5 % of its kernel lies beyond one period)
+MIN_WEIGHT = 0.5  # a row whose cut-off window holds less moving weight than this (deep in a rest) is left out
 MIN_SAMPLES = 8  # below this the recording cannot even be differentiated
 MIN_ROWS = 20  # fewer usable rows than this identify nothing reliably
 PREFETCH_BYTES = 64e6  # a search's full-rate columns computed at once are held under this
@@ -100,6 +102,7 @@ class Data:
     # serial chains: which joints' equations each used row keeps (rows, n) (the others stick there); None: all
     mask: np.ndarray | None = None
     lost: str = ""  # samples lost in gaps of the time column, filled and left out ("" when none)
+    rest: np.ndarray | None = None  # (T,) samples where a joint is at rest: kept out of the cut-off's low-pass
     _tau: dict = field(default_factory=dict)
 
     @property
@@ -126,19 +129,40 @@ class Data:
     def kinematic_hz(self) -> float:
         return min(KINEMATIC_BAND * self.cutoff_hz, 0.45 / self.dt)
 
-    def filtered(self, x: np.ndarray) -> np.ndarray:
-        """What identification compares: x through the kinematic band and the cut-off (the
-        positions went through the same two filters before differentiation)."""
-        return lowpass(lowpass(x, self.dt, self.kinematic_hz), self.dt, self.cutoff_hz)
+    def smoothed(self, x: np.ndarray) -> np.ndarray:
+        """x (T, ...) through the cut-off, the samples at rest left out of it: the low-pass of
+        x·m over the low-pass of m (m = 0 at rest; a normalized convolution). Each row is a
+        weighted mean of moving samples only, the same weights for the torque and for every
+        column, so the equations stay exact while the unknown stiction torque of a rest is kept
+        out of its neighbours (`prepare`)."""
+        if self.rest is None or not self.rest.any():
+            return lowpass(x, self.dt, self.cutoff_hz)
+        m = (~self.rest).astype(float).reshape((-1,) + (1,) * (np.ndim(x) - 1))
+        return lowpass(np.asarray(x) * m, self.dt, self.cutoff_hz) / np.maximum(self.weight().reshape(m.shape), 1e-12)
+
+    def weight(self) -> np.ndarray:
+        """(T,) the low-pass of the moving samples' indicator: 1 far from a rest, 0 inside one."""
+        if "weight" not in self._tau:
+            self._tau["weight"] = lowpass((~self.rest).astype(float), self.dt, self.cutoff_hz)
+        return self._tau["weight"]
 
     def tau(self, delay: float = 0.0, full: bool = False) -> np.ndarray:
         """The torque acting on the joints, aligned with the positions, filtered like the columns.
-        (Filtering and the fractional shift are both linear and time-invariant: they commute, so
-        the torque is filtered once and shifted per delay.)"""
-        if "filtered" not in self._tau:
-            self._tau["filtered"] = self.filtered(self.rec.tau)
+        (The kinematic band's low-pass and the fractional shift are linear and time-invariant:
+        they commute, so the torque goes through that filter once. The cut-off's low-pass leaves
+        the rests of the motion out, so it follows the shift: the torque that acted at a moving
+        sample is the one recorded `delay` earlier.)"""
+        if "band" not in self._tau:
+            self._tau["band"] = lowpass(self.rec.tau, self.dt, self.kinematic_hz)
         hold = 0.5 if self.hold == "zoh" else 0.0
-        out = align(self._tau["filtered"], delay / self.dt + hold)
+        lag = np.asarray(delay, float) / self.dt + hold
+        key = ("tau", lag.tobytes())
+        if key not in self._tau:
+            if len(self._tau) > 64:  # (a delay search asks for many shifts: keep the memory bounded)
+                for k in [k for k in self._tau if isinstance(k, tuple)]:
+                    del self._tau[k]
+            self._tau[key] = self.smoothed(align(self._tau["band"], lag))
+        out = self._tau[key]
         if full:
             return out
         return out[self.rows] if self.mask is None else out[self.rows] * self.mask
@@ -220,13 +244,24 @@ def auto_cutoff(rec: Recording, step: float | None = None) -> tuple[float, str]:
 
 def prepare(rec: Recording, cutoff_hz: float | None = None, decimate: int | None = None,
             exclude_standstill: bool = True) -> Data:
-    """Filter, differentiate and choose the rows. With `exclude_standstill`, the rows within
-    half a cut-off period of a sample where a joint is at rest are left out: a joint at rest
-    holds whatever friction the other torques ask of it (stiction), which no function of the
-    velocity predicts, and the low-pass spreads that sample's torque over its neighbours. A joint
-    is at rest when its speed stays under two encoder counts per kinematic-band period for more
-    than `STANDSTILL_S` (a mere zero crossing is shorter: the EMPS axis never rests, the arm under
-    impedance control sticks for tens of milliseconds at each reversal).
+    """Filter, differentiate and choose the rows. With `exclude_standstill`, the samples where a
+    joint is at rest are left out: a joint at rest holds whatever friction the other torques ask
+    of it (stiction), which no function of the velocity predicts. A joint is at rest when its
+    speed stays under two encoder counts per kinematic-band period for more than `STANDSTILL_S`
+    (a mere zero crossing is shorter: the EMPS axis never rests, the arm under impedance control
+    sticks for tens of milliseconds at each reversal).
+
+    The cut-off's low-pass would spread a rest's torque over half a cut-off period either side;
+    it leaves the rests out instead (`Data.smoothed`: the low-pass of x·m over the low-pass of m,
+    m = 0 at rest, the same weights for the torque and every column, so the equations stay exact).
+    What is left out is the rest, `REST_GUARD` periods of the kinematic band either side (that
+    filter is applied before the rows are known, as it is to the positions; 5 % of its kernel
+    lies beyond one period), and the rows whose cut-off window is mostly rest (`MIN_WEIGHT`). Breakaway and the approach to a rest, where Stribeck
+    friction lives, stay in: before, half a cut-off period either side went (50 ms at 200 Hz),
+    and a Stribeck hump went with it. On the calibration set (seeds 0 and 5) this took hidden
+    Stribeck friction named from 33 to 36 of 40 and all hidden effects from 377 to 380 of 440, the
+    verdicts on 1000 recordings with nothing missing from 14 to 15; on the independent
+    simulator's, 163 to 168 of 200 named, nothing missing 3/100 to 2/100 (seed 0).
 
     A joint held against its friction may creep instead of sticking: a simulator that regularizes
     friction (Drake's stiction tolerance, MuJoCo's soft friction loss; Fc tanh(q̇/ε)) lets it
@@ -282,12 +317,12 @@ def prepare(rec: Recording, cutoff_hz: float | None = None, decimate: int | None
     keep_edges, usable = keep.copy(), keep.sum()
     per_joint = rec.structure_name == "urdf"
     equations = np.repeat(keep[:, None], rec.n_joints, 1)
+    rest = None
     if exclude_standstill and step > 0:
         slow = np.abs(qd) < 2 * step * band
         if keep.any():  # creeping: slow for the motion, not for the encoder, for a long time
             creep = (np.abs(qd) < CREEP * np.percentile(np.abs(qd[keep]), 95, axis=0)) & ~slow
             slow |= np.stack([_long_runs(creep[:, j], int(round(CREEP_S / dt))) for j in range(rec.n_joints)], 1)
-        w = int(np.ceil(0.5 / (cutoff_hz * dt)))
         if per_joint:
             w = int(np.ceil(JOINT_GUARD / (cutoff_hz * dt)))
             for j in range(rec.n_joints):
@@ -296,8 +331,11 @@ def prepare(rec: Recording, cutoff_hz: float | None = None, decimate: int | None
             keep &= equations.any(1)
         else:
             still = np.any([_long_runs(slow[:, j], int(round(STANDSTILL_S / dt))) for j in range(rec.n_joints)], axis=0)
+            rest = still
+            w = int(np.ceil(REST_GUARD / (band * dt)))  # the kinematic band's filter still spreads a rest
             near = np.convolve(still.astype(float), np.ones(2 * w + 1))[w:w + len(rec)] > 0  # dilated by w
-            keep &= ~near
+            weight = lowpass((~still).astype(float), dt, cutoff_hz)  # (`Data.weight`)
+            keep &= ~near & (weight >= MIN_WEIGHT)
     if decimate is None:
         decimate = max(1, int(0.25 / (cutoff_hz * dt)))
     rows = np.flatnonzero(keep)[::decimate]
@@ -306,7 +344,8 @@ def prepare(rec: Recording, cutoff_hz: float | None = None, decimate: int | None
         left_out = float(1 - equations[keep].sum() / max(usable * rec.n_joints, 1))
         return Data(rec, cutoff_hz, q, qd, qdd, rows, step, left_out, window, note, equations[rows].astype(float),
                     lost=lost)
-    return Data(rec, cutoff_hz, q, qd, qdd, rows, step, float(1 - keep.sum() / max(usable, 1)), window, note, lost=lost)
+    return Data(rec, cutoff_hz, q, qd, qdd, rows, step, float(1 - keep.sum() / max(usable, 1)), window, note, lost=lost,
+                rest=rest, _tau={} if rest is None else {"weight": weight})
 
 
 def identified(structure):
@@ -358,6 +397,8 @@ class Columns:
         self.structure = identified(data.rec.structure)
         self.rows = data.rows if rows is None else rows
         self.mask = None if data.mask is None or rows is not None else data.mask[:, :, None]  # stuck joints' equations
+        # (other rows than the data's, rests included: the plain low-pass)
+        self.smoothed = data.smoothed if rows is None else (lambda x: lowpass(x, data.dt, data.cutoff_hz))
         self._cache: dict[str, np.ndarray] = {}
         kin = kinematics if kinematics is not None else (data.q, data.qd, data.qdd)
         self._kin = tuple(np.asarray(x) for x in kin)
@@ -376,7 +417,7 @@ class Columns:
         on = np.any(full, axis=(0, 1))  # (n, p)
         out = np.zeros((full.shape[0], self.rows.size) + full.shape[2:])
         if on.any():
-            low = lowpass(np.moveaxis(full[:, :, on], 0, 1), d.dt, d.cutoff_hz)[self.rows]  # (rows, V, m)
+            low = self.smoothed(np.moveaxis(full[:, :, on], 0, 1))[self.rows]  # (rows, V, m)
             out[:, :, on] = np.moveaxis(low, 1, 0)
         return out if self.mask is None else out * self.mask
 

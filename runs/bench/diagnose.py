@@ -96,17 +96,16 @@ def arm_torque(theta: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray
 
 def scipy_fit(data, delay: float = 0.0) -> tuple[np.ndarray, float]:
     """The baseline: non-linear least squares from a generic start; returns θ and rel_error. The
-    predicted torque is low-passed like the measured one (as `fit` filters its columns), else the
-    sharp sgn(q̇) is compared with a smooth torque and the fit is biased."""
+    predicted torque is low-passed like the measured one (`Data.smoothed`, as `fit` filters its
+    columns: the rests left out), else the sharp sgn(q̇) is compared with a smooth torque and the
+    fit is biased."""
     from scipy.optimize import least_squares
-
-    from manus.estimators.offline import lowpass
 
     tau = data.tau(delay)
 
     def residual(th):
         full = arm_torque(th, data.q, data.qd, data.qdd, data.dt)
-        return (lowpass(full, data.dt, data.cutoff_hz)[data.rows] - tau).ravel()
+        return (data.smoothed(full)[data.rows] - tau).ravel()
 
     res = least_squares(residual, np.full(7, 0.1))
     return res.x, float(np.linalg.norm(res.fun) / np.linalg.norm(tau))

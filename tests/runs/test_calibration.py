@@ -65,11 +65,10 @@ def test_calibration_a_hidden_effect_is_named(effect):
 # model mimics an inertia: b·q̇(t + d) ≈ b·q̇ + b·d·q̈), an offset came before the spring that
 # brings it, or an offset fitted the held-out blocks a little better than a viscous asymmetry
 # (|q̇| has a mean): the calibration's cases (seeds 0, 5) that named the rival before the
-# encompassing rule
+# encompassing rule. Since the rests left the cut-off's low-pass, the inertia (seed 157331075) and
+# the spring (seed 2020960705) are named without it; of the named hidden effects of seeds 0 and 5,
+# this asymmetry is the one that still needs it.
 ENCOMPASSED = [
-    (157331075, "rigid", dict(structure="arm", rate=1000, excitation="multisine", torque="white", hold="stated")),
-    (2020960705, "spring", dict(structure="axis", rate=200, excitation="multisine", torque="coloured",
-                                hold="not stated")),
     (557679455, "asymmetry", dict(structure="axis", rate=200, excitation="multisine", torque="coloured",
                                   hold="not stated")),
 ]
