@@ -73,7 +73,9 @@ STANDSTILL_S = 0.005  # longer under two counts per band period than a zero cros
 CREEP = 0.005  # a joint creeps (held against its friction, see `prepare`) under this share of its high speed ...
 CREEP_S = 0.05  # ... for longer than this [s] (a reversal passes such speeds in a few milliseconds)
 KINEMATIC_BAND = 4.0  # kinematics for the columns are filtered at this multiple of the cut-off
-REST_GUARD = 1.0  # periods of the kinematic band either side of a rest left out (that filter spreads it: 5 % of its kernel lies beyond one period)
+# periods of the kinematic band either side of a rest left out (that filter spreads the rest's
+# torque before the rows are known: 5 % of its kernel lies beyond one period)
+REST_GUARD = 1.0
 MIN_WEIGHT = 0.5  # a row whose cut-off window holds less moving weight than this (deep in a rest) is left out
 MIN_SAMPLES = 8  # below this the recording cannot even be differentiated
 MIN_ROWS = 20  # fewer usable rows than this identify nothing reliably
@@ -256,9 +258,9 @@ def prepare(rec: Recording, cutoff_hz: float | None = None, decimate: int | None
     m = 0 at rest, the same weights for the torque and every column, so the equations stay exact).
     What is left out is the rest, `REST_GUARD` periods of the kinematic band either side (that
     filter is applied before the rows are known, as it is to the positions; 5 % of its kernel
-    lies beyond one period), and the rows whose cut-off window is mostly rest (`MIN_WEIGHT`). Breakaway and the approach to a rest, where Stribeck
-    friction lives, stay in: before, half a cut-off period either side went (50 ms at 200 Hz),
-    and a Stribeck hump went with it. On the calibration set (seeds 0 and 5) this took hidden
+    lies beyond one period), and the rows whose cut-off window is mostly rest (`MIN_WEIGHT`).
+    Breakaway and the approach to a rest, where Stribeck friction lives, stay in: before, half a
+    cut-off period either side went (50 ms at 200 Hz), and a Stribeck hump went with it. On the calibration set (seeds 0 and 5) this took hidden
     Stribeck friction named from 33 to 36 of 40 and all hidden effects from 377 to 380 of 440, the
     verdicts on 1000 recordings with nothing missing from 14 to 15; on the independent
     simulator's, 163 to 168 of 200 named, nothing missing 3/100 to 2/100 (seed 0).

@@ -474,8 +474,8 @@ def case(seed: int, hidden: str | None = None, rates: tuple = RATES, amplitude: 
          **overrides) -> Case:
     """Calibration recording `seed`: nothing hidden (`hidden=None`) or one effect of the
     vocabulary hidden at `amplitude` of the torque (RMS; a delay by what it changes, at least 1 ms;
-    a mode has its own size), its rate drawn from `rates`. Keyword overrides fix condition values (structure, rate,
-    excitation, torque, hold)."""
+    a mode has its own size), its rate drawn from `rates`. Keyword overrides fix condition values
+    (structure, rate, excitation, torque, hold)."""
     check_amplitude(amplitude)
     import time
 

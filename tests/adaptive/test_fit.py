@@ -320,7 +320,8 @@ def test_a_rest_s_torque_does_not_reach_the_rows_around_it():
     data = a.data
     slow = np.abs(data.qd[:, 0]) < 2 * data.step * data.kinematic_hz
     held = copy.copy(c.rec)
-    held.tau = np.where(slow[:, None], np.random.default_rng(3).uniform(-1, 1, c.rec.tau.shape) * truth["Fc1"], c.rec.tau)
+    holding = np.random.default_rng(3).uniform(-1, 1, c.rec.tau.shape) * truth["Fc1"]
+    held.tau = np.where(slow[:, None], holding, c.rec.tau)
     b = fit(held, "rigid,viscous,coulomb", method="ls")
     for k in truth:
         assert b.params[k] == pytest.approx(a.params[k], rel=0.01), k
