@@ -18,8 +18,10 @@ $(VENV)/.installed: pyproject.toml
 demo: setup
 	$(BIN)/manus demo
 
+# one worker per core, each test file on one worker (its module fixtures computed once): on this
+# 2-core machine 12.5 min against 18 min in one process
 test: setup
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto --dist loadfile
 
 clean:
 	rm -rf $(VENV) runs/out .pytest_cache
