@@ -143,9 +143,9 @@ class Data:
         return lowpass(np.asarray(x) * m, self.dt, self.cutoff_hz) / np.maximum(self.weight().reshape(m.shape), 1e-12)
 
     def weight(self) -> np.ndarray:
-        """(T,) the low-pass of the moving samples' indicator: 1 far from a rest, 0 inside one."""
+        """(T,) `moving_weight` of the rests (computed by `prepare`, kept here)."""
         if "weight" not in self._tau:
-            self._tau["weight"] = lowpass((~self.rest).astype(float), self.dt, self.cutoff_hz)
+            self._tau["weight"] = moving_weight(self.rest, self.dt, self.cutoff_hz)
         return self._tau["weight"]
 
     def tau(self, delay: float = 0.0, full: bool = False) -> np.ndarray:
@@ -174,6 +174,12 @@ class Data:
         encoder counts per filter time constant)."""
         v_min = 5 * self.step * self.cutoff_hz
         return np.mean(np.abs(self.qd[self.rows]) > v_min, axis=0)
+
+
+def moving_weight(rest: np.ndarray, dt: float, cutoff_hz: float) -> np.ndarray:
+    """(T,) the cut-off's low-pass of the moving samples' indicator: 1 far from a rest, 0 inside
+    one (the denominator of `Data.smoothed`)."""
+    return lowpass((~rest).astype(float), dt, cutoff_hz)
 
 
 def align(u: np.ndarray, lag) -> np.ndarray:
@@ -260,10 +266,11 @@ def prepare(rec: Recording, cutoff_hz: float | None = None, decimate: int | None
     filter is applied before the rows are known, as it is to the positions; 5 % of its kernel
     lies beyond one period), and the rows whose cut-off window is mostly rest (`MIN_WEIGHT`).
     Breakaway and the approach to a rest, where Stribeck friction lives, stay in: before, half a
-    cut-off period either side went (50 ms at 200 Hz), and a Stribeck hump went with it. On the calibration set (seeds 0 and 5) this took hidden
-    Stribeck friction named from 33 to 36 of 40 and all hidden effects from 377 to 380 of 440, the
-    verdicts on 1000 recordings with nothing missing from 14 to 15; on the independent
-    simulator's, 163 to 168 of 200 named, nothing missing 3/100 to 2/100 (seed 0).
+    cut-off period either side went (50 ms at 200 Hz), and a Stribeck hump went with it. On the
+    calibration set (seeds 0 and 5) this took hidden Stribeck friction named from 33 to 36 of 40
+    and all hidden effects from 377 to 380 of 440, the verdicts on 1000 recordings with nothing
+    missing from 14 to 15; on the independent simulator's, 163 to 168 of 200 named, nothing
+    missing 3/100 to 2/100 (seed 0).
 
     A joint held against its friction may creep instead of sticking: a simulator that regularizes
     friction (Drake's stiction tolerance, MuJoCo's soft friction loss; Fc tanh(q̇/ε)) lets it
@@ -336,7 +343,7 @@ def prepare(rec: Recording, cutoff_hz: float | None = None, decimate: int | None
             rest = still
             w = int(np.ceil(REST_GUARD / (band * dt)))  # the kinematic band's filter still spreads a rest
             near = np.convolve(still.astype(float), np.ones(2 * w + 1))[w:w + len(rec)] > 0  # dilated by w
-            weight = lowpass((~still).astype(float), dt, cutoff_hz)  # (`Data.weight`)
+            weight = moving_weight(still, dt, cutoff_hz)
             keep &= ~near & (weight >= MIN_WEIGHT)
     if decimate is None:
         decimate = max(1, int(0.25 / (cutoff_hz * dt)))
