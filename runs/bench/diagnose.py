@@ -218,6 +218,9 @@ def run_one(seed: int, hidden: str | None, alpha: float | None = None, blocks: i
     at random (seeded by the case), as a loop that misses packets loses them."""
     import traceback
 
+    from manus.runs.cli import configure_jax
+
+    configure_jax()  # float64, as `manus` runs: a spawned worker was not started by it
     from manus.adaptive.diagnose import diagnose
     from manus.plants.errors import ManusError
     from manus.runs import calibration

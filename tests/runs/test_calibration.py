@@ -149,6 +149,11 @@ def test_calibration_bench_runs_in_worker_processes():
     assert {"false_alarm", "detection", "detection_where_distinct", "per_effect", "per_condition"} <= set(s)
     assert "distinct_fraction" in r["results"][1]["condition"]
     assert "named where distinct" in bench.render_calibration(r)
+    # the workers compute as this process does (float64: they once simulated and diagnosed in
+    # JAX's default float32, which `manus` never runs in)
+    here = [bench.run_one(x["seed"], x["hidden"]) for x in r["results"]]
+    key = lambda x: [(c["spec"], c["p_value"], c["cv_error_reduction"]) for c in x["candidates"]]
+    assert [key(x) for x in r["results"]] == [key(x) for x in here]
 
 
 def test_calibration_at_a_rate_of_the_users_choice():
