@@ -160,14 +160,32 @@ class Data:
         lag = np.asarray(delay, float) / self.dt + hold
         key = ("tau", lag.tobytes())
         if key not in self._tau:
-            if len(self._tau) > 64:  # (a delay search asks for many shifts: keep the memory bounded)
-                for k in [k for k in self._tau if isinstance(k, tuple)]:
-                    del self._tau[k]
-            self._tau[key] = self.smoothed(align(self._tau["band"], lag))
+            self._tau[key] = self._late(lag)
         out = self._tau[key]
         if full:
             return out
         return out[self.rows] if self.mask is None else out[self.rows] * self.mask
+
+    def _late(self, lag: np.ndarray) -> np.ndarray:
+        """`smoothed(align(band, lag))`, built from the smoothed whole-sample shifts either side
+        of each joint's lag: `align` interpolates linearly between them and `smoothed` is linear,
+        so a search over delays filters each whole shift once, however many fractions it asks."""
+        held = [k for k in self._tau if isinstance(k, tuple)]
+        if sum(self._tau[k].nbytes for k in held) > PREFETCH_BYTES:  # (a delay search asks for many shifts)
+            for k in held:
+                del self._tau[k]
+        band = self._tau["band"]
+        lags = np.broadcast_to(lag, band.shape[1:])
+        out = np.zeros_like(band)
+        for j, x in enumerate(lags):
+            i = np.floor(x)
+            for shift, weight in ((i, 1 - (x - i)), (i + 1, x - i)):
+                if weight > 0:
+                    key = ("shift", int(shift))
+                    if key not in self._tau:
+                        self._tau[key] = self.smoothed(align(band, float(shift)))
+                    out[:, j] += weight * self._tau[key][:, j]
+        return out
 
     def moving(self) -> np.ndarray:
         """Per joint: the fraction of used samples where the joint moves (more than a few

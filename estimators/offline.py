@@ -12,6 +12,8 @@ central differences).
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from scipy import signal
 
@@ -22,9 +24,18 @@ def lowpass(x: np.ndarray, dt: float, cutoff_hz: float, order: int = 4) -> np.nd
     nyquist = 0.5 / dt
     if cutoff_hz >= nyquist:
         return x.copy()
-    sos = signal.butter(order, cutoff_hz / nyquist, output="sos")
+    sos = _butter(order, cutoff_hz / nyquist).copy()  # (scipy's filter wants a writeable one)
     pad = min(x.shape[0] - 1, 3 * int(np.ceil(1 / (cutoff_hz * dt))))
     return signal.sosfiltfilt(sos, x, axis=0, padtype="odd", padlen=pad)
+
+
+@functools.lru_cache(maxsize=256)
+def _butter(order: int, wn: float) -> np.ndarray:
+    """The filter's second-order sections (designed once per cut-off: a search filters many
+    columns through the same one)."""
+    sos = signal.butter(order, wn, output="sos")
+    sos.flags.writeable = False
+    return sos
 
 
 def differentiate(q: np.ndarray, dt: float, cutoff_hz: float = 30.0, order: int = 4):
