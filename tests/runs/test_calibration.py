@@ -175,21 +175,29 @@ def test_calibration_at_a_rate_of_the_users_choice():
             calibration.check_rates(bad)
 
 
-def test_calibration_a_mode_the_encoder_cannot_resolve_is_said_so():
+def test_calibration_a_mode_at_2khz_is_found_and_one_the_encoder_cannot_resolve_is_said_so():
     """The arm at 2 kHz (a 131072-count encoder): θ̈ from twice-differenced positions carries the
-    quantization's noise, growing as 1/dt², and a 379 Hz shaft mode moves the motor far less than a
-    count's worth there: the torque→acceleration response is coherent only at the band's foot. No
-    mode is proposed, and the candidate says up to where the response could show one. (The axis,
-    with a 1 µm encoder on a few kg, shows its modes at 2 kHz: `manus bench diagnose --calibrate
-    --rates 500,2000`.)"""
+    quantization's noise, growing as 1/dt², and a 379 Hz shaft mode moves the motor little more
+    than a count's worth there: the torque→acceleration response is coherent only around the
+    mode (γ² ≈ 0.1-0.2), enough to find it. The same motion read by an encoder 8 times coarser
+    (16384 counts) leaves no bin of the band coherent: no mode is proposed, and the notes (or
+    the candidate) say why."""
+    import numpy as np
+
     c = calibration.case(2068263202, "compliance", rates=(2000,))
     assert c.condition["structure"] == "arm" and c.condition["f_hz"] == pytest.approx(379.0, abs=0.1)
+    d = diagnose(c.rec, c.start)
+    assert d.verdict is not None and d.verdict.effect == "compliance", _verdict(d)
+    assert d.verdict.detail["f_hz"] == pytest.approx(379.0, rel=0.02)
+    step = 2 * np.pi / 16384
+    c.rec.q = np.round(c.rec.q / step) * step
+    c.rec.meta["counts_per_rev"] = 16384
     d = diagnose(c.rec, c.start)
     assert d.verdict is None or d.verdict.effect != "compliance"
     comp = next((x for x in d.candidates if x.effect == "compliance"), None)
     if comp is None:  # no mode fits at all: the notes say why
         said = [n for n in d.notes if n.startswith("compliance:")]
-        assert said and "cannot show a structural mode" in said[0] and "coherent only up to" in said[0], d.notes
+        assert said and "cannot show a structural mode" in said[0] and "coherence below" in said[0], d.notes
     else:
         assert not comp.proposable and comp.detail["coherent_to_hz"] < 100.0
         assert "coherent only up to" in comp.note and "cannot show" in comp.note, comp.note
