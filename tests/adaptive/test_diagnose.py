@@ -199,6 +199,48 @@ def _motor_response(f, f_mode, zeta, r, inertia=1.0):
     return np.abs((jl * s**2 + c * s + k) / (jm * jl * s**2 + inertia * (c * s + k)))
 
 
+def test_a_white_floor_on_the_recorded_torque_is_fitted_not_read_as_inertia():
+    """H1 = S_xy/S_xx divides by the recorded torque's spectrum, S_xx = S_uu + S_nn with a white
+    floor S_nn (a torque read from a measured current): where the command's spectrum falls (open-
+    loop steps, S_uu ∝ 1/f²) the apparent inertia Z = S_xx/S_xy = 1/H + S_nn/S_xy rises, and a
+    rigid-or-mode model alone bends to follow it. With the floor's column the fit, on exact
+    spectra of a motor driving its link (r = 0.1, ζ = 0.02, 220 Hz), gives back the inertia, the
+    motor's share and S_nn; without it the misfit stays. A floor is never negative: on spectra
+    without one the fit gives 0."""
+    from manus.adaptive import modes
+
+    fs, f_mode, zeta, r, inertia = 1000.0, 220.0, 0.02, 0.1, 0.35
+    f = np.linspace(40.0, 400.0, 200)
+    fz = f_mode * np.sqrt(r)
+    h = 1 / (inertia * (r + (1 - r) * modes.link_response(f, 2 * np.pi * fz, zeta)))  # θ̈/τ, Z = α + βG
+    suu = 1e-3 * (40.0 / f) ** 2
+    snn = 2e-5  # dominates S_xx above ~300 Hz
+    sxy, sxx = h * suu, suu + snn
+    z, w = sxx / sxy, np.ones_like(f)
+    _, g = modes._columns(f, fz, zeta)
+    coef, misfit = modes._fit(z, w, g, modes._floor(sxy, sxx))
+    assert coef[0] == pytest.approx(r * inertia, rel=1e-6) and coef[1] == pytest.approx((1 - r) * inertia, rel=1e-6)
+    assert coef[2] == pytest.approx(snn, rel=1e-6) and misfit < 1e-12
+    _, without = modes._fit(z, w, g, np.zeros_like(f))
+    assert without > 1e-3
+    coef, _ = modes._fit(1 / h, w, g, modes._floor(h * suu, suu))  # no floor in the data
+    assert coef[2] == pytest.approx(0.0, abs=1e-9 * snn)
+
+
+def test_a_mode_whose_motor_share_sits_on_its_bound_is_not_proposed():
+    """A fitted share at the top of the plausible range (the response asks for more: nothing a
+    motor and its link have; recordings with nothing missing land there) is reported with why."""
+    from manus.adaptive import modes
+
+    def mode(r):
+        e = np.ones(8)
+        return modes.Mode(50.0, 0.2, r, 0, True, e, e / 2, np.zeros(1), np.zeros((1, 1)), np.zeros((1, 1)),
+                          np.zeros((1, 1)))
+
+    assert "edge of its search range" in mode(0.899).edge() and "edge" in mode(0.0201).edge()
+    assert mode(0.1).edge() == "" and mode(0.85).edge() == ""
+
+
 def test_a_mode_near_the_top_of_a_slow_recordings_band_shows_its_peak():
     """At 200 Hz (Welch bins of 3.125 Hz, band to 80 Hz) a shaft mode at 0.29 fs leaves one bin
     of its falling flank (1.3–1.6 f) inside the band: enough to see the peak. A response rising
