@@ -217,8 +217,14 @@ def test_a_white_floor_on_the_recorded_torque_is_fitted_not_read_as_inertia():
     snn = 2e-5  # dominates S_xx above ~300 Hz
     sxy, sxx = h * suu, suu + snn
     z, w = sxx / sxy, np.ones_like(f)
-    _, g = modes._columns(f, fz, zeta)
+    g = np.stack([np.ones_like(f, complex), modes.link_response(f, 2 * np.pi * fz, zeta)])
     coef, misfit = modes._fit(z, w, g, modes._floor(sxy, sxx))
+    # the whole grid at once (the search) gives the same at each of its points
+    pts, G = modes._grid(f, fs)
+    many, misfits = modes._fits(z, w, G, modes._floor(sxy, sxx))
+    for qi in (0, 77, 200, len(pts) - 1):
+        one, m1 = modes._fit(z, w, np.stack([np.ones_like(f, complex), G[qi]]), modes._floor(sxy, sxx))
+        assert many[qi] == pytest.approx(one, rel=1e-6, abs=1e-12) and misfits[qi] == pytest.approx(m1, rel=1e-6, abs=1e-15)
     assert coef[0] == pytest.approx(r * inertia, rel=1e-6) and coef[1] == pytest.approx((1 - r) * inertia, rel=1e-6)
     assert coef[2] == pytest.approx(snn, rel=1e-6) and misfit < 1e-12
     _, without = modes._fit(z, w, g, np.zeros_like(f))

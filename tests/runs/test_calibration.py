@@ -179,7 +179,9 @@ def test_calibration_a_mode_at_2khz_is_found_and_one_the_encoder_cannot_resolve_
     """The arm at 2 kHz (a 131072-count encoder): θ̈ from twice-differenced positions carries the
     quantization's noise, growing as 1/dt², and a 379 Hz shaft mode moves the motor little more
     than a count's worth there: the torque→acceleration response is coherent only around the
-    mode (γ² ≈ 0.1-0.2), enough to find it. The same motion read by an encoder 8 times coarser
+    mode (γ² ≈ 0.1-0.2), enough to find it at its frequency and see its peak (whether the held-out
+    blocks, each searched again on the others, confirm it at the family's level is marginal:
+    p ≈ 0.01 on this recording, not proposed). The same motion read by an encoder 8 times coarser
     (16384 counts) leaves no bin of the band coherent: no mode is proposed, and the notes (or
     the candidate) say why."""
     import numpy as np
@@ -187,8 +189,9 @@ def test_calibration_a_mode_at_2khz_is_found_and_one_the_encoder_cannot_resolve_
     c = calibration.case(2068263202, "compliance", rates=(2000,))
     assert c.condition["structure"] == "arm" and c.condition["f_hz"] == pytest.approx(379.0, abs=0.1)
     d = diagnose(c.rec, c.start)
-    assert d.verdict is not None and d.verdict.effect == "compliance", _verdict(d)
-    assert d.verdict.detail["f_hz"] == pytest.approx(379.0, rel=0.02)
+    assert d.verdict is None or d.verdict.effect == "compliance", _verdict(d)
+    comp = next(x for x in d.candidates if x.effect == "compliance")
+    assert comp.detail["f_hz"] == pytest.approx(379.0, rel=0.02) and comp.detail["resonance_peak"]
     step = 2 * np.pi / 16384
     c.rec.q = np.round(c.rec.q / step) * step
     c.rec.meta["counts_per_rev"] = 16384
