@@ -409,7 +409,7 @@ def _compliance(data, base, blocks, alpha, min_share) -> Candidate | str:
     short = "" if mode.resonant else modes.coherent_only(mode.coherent_hz, 1 / data.dt)
     if short:
         note += f"; the response is {short}: a mode above that cannot show"
-    problems = [mode.edge()] if mode.edge() else []
+    problems = [why for why in (mode.edge(),) if why]
     return Candidate(mode.effect().name, mode.effect().spec, mode.reduction, mode.reduction, p, significant,
                      mode.joint + 1, detail, 2, mode.err_mode, mode=mode, note=note, problems=problems)
 

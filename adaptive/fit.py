@@ -157,11 +157,7 @@ class Data:
         if "band" not in self._tau:
             self._tau["band"] = lowpass(self.rec.tau, self.dt, self.kinematic_hz)
         hold = 0.5 if self.hold == "zoh" else 0.0
-        lag = np.asarray(delay, float) / self.dt + hold
-        key = ("tau", lag.tobytes())
-        if key not in self._tau:
-            self._tau[key] = self._late(lag)
-        out = self._tau[key]
+        out = self._late(np.asarray(delay, float) / self.dt + hold)
         if full:
             return out
         return out[self.rows] if self.mask is None else out[self.rows] * self.mask
@@ -169,7 +165,8 @@ class Data:
     def _late(self, lag: np.ndarray) -> np.ndarray:
         """`smoothed(align(band, lag))`, built from the smoothed whole-sample shifts either side
         of each joint's lag: `align` interpolates linearly between them and `smoothed` is linear,
-        so a search over delays filters each whole shift once, however many fractions it asks."""
+        so a search over delays filters each whole shift once, however many fractions it asks
+        (the shifts are kept; the weighted sum of two of them is cheap and made per call)."""
         held = [k for k in self._tau if isinstance(k, tuple)]
         if sum(self._tau[k].nbytes for k in held) > PREFETCH_BYTES:  # (a delay search asks for many shifts)
             for k in held:
