@@ -9,7 +9,8 @@ contiguous blocks of the recording, honestly:
 
 - the recording's used rows are cut into contiguous blocks (a guard of one filter length at the
   seams left out of training: the filtered residual is correlated over about that long);
-- significance, two tests, either of which may decide (the smaller p, doubled: Bonferroni):
+- significance, two tests combined by Simes' rule (either decides alone at half the level, both
+  together at the level):
   the *score test* of the candidate's columns, summed per block against the model's residual:
   Wald's statistic with the blocks as clusters, its variance from the blocks' scores once the
   candidate is fitted without each (the cluster jackknife: noise only, so a strong effect does
@@ -588,8 +589,14 @@ def _on_top(data, cols, icols, model, fitted, both, starts, folds, alpha) -> boo
 
 def _combined(tests: dict) -> float:
     """One p of a candidate from its tests (`SIGNIFICANCE`; a delay, which has no columns, only
-    the held-out one): the smallest, times their number (Bonferroni: either may decide). The
-    score test is the more powerful where the model is nearly right and the residual noisy; the held-out errors where the model is far from the
-    data (several large effects missing: what is left is not noise, and a score's yardstick
-    is swamped by it, while a better prediction of every held-out block still shows)."""
-    return float(min(1.0, len(tests) * min(tests.values())))
+    the held-out one), by Simes' rule: the sorted p's, each times their number over its rank, the
+    smallest (two tests: the smaller doubled, or the larger as it is). Either test may decide
+    alone at half the level, and both together at the level: the two are computed from the same
+    residual and rise and fall together (positively dependent, where Simes' rule keeps its level),
+    and Bonferroni's doubling of the smaller would pay for a second look that mostly agrees with
+    the first. The score test is the more powerful where the model is nearly right and the
+    residual noisy; the held-out errors where the model is far from the data (several large
+    effects missing: what is left is not noise, and a score's yardstick is swamped by it, while a
+    better prediction of every held-out block still shows)."""
+    ps = np.sort(np.asarray(list(tests.values()), float))
+    return float(min(1.0, np.min(ps.size * ps / np.arange(1, ps.size + 1))))

@@ -262,6 +262,7 @@ def run_one(seed: int, hidden: str | None, alpha: float | None = None, blocks: i
     out["unexplained"] = bool(d.unexplained.get("significant"))
     out["candidates"] = [{k: c[k] for k in ("spec", "joint", "p_value", "cv_error_reduction", "significant")}
                          | ({"not_proposed": c["not_proposed"]} if "not_proposed" in c else {})
+                         | {k: c["detail"][k] for k in ("p_values", "explains") if k in c["detail"]}
                          for c in d.report()["candidates"]]
     out["verdict_reads_as"] = [] if v is None else list(v.readings)
     # the detection limit diagnose states for the hidden effect's candidate (share of the torque)

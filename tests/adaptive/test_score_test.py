@@ -188,3 +188,41 @@ def test_an_effect_at_the_detection_limit_is_found_four_times_in_five():
         hits += lsq.score_p([lsq.block_scores(st, test, blocks)], alpha=0.05, stop_above=0.06)[0] < 0.05
     print("power at the limit", hits / trials)
     assert 0.7 <= hits / trials <= 0.9, hits / trials
+
+
+def test_simes_combination_of_the_two_tests():
+    """A candidate's p from its score test and its held-out errors (`diagnose._combined`) is
+    Simes' rule: min(2 p₍₁₎, p₍₂₎); one test alone is its own p. Its level holds for two
+    one-sided tests that rise and fall together (positively correlated normal statistics, the
+    dependence the two tests computed from one residual have): the share of null draws it
+    rejects at 0.05 stays within sampling error of 0.05 or under it (numpy's normal draws; at
+    independence the closed form is exactly α: both under α, α², or one under α/2 and the other
+    over α, 2 (α/2)(1 − α)), while it rejects more often than Bonferroni's doubled minimum when
+    both see the same effect."""
+    from scipy import stats
+
+    from manus.adaptive.diagnose import _combined
+
+    assert _combined({"score": 0.004, "held_out": 0.005}) == pytest.approx(0.005)
+    assert _combined({"score": 0.001, "held_out": 0.5}) == pytest.approx(0.002)
+    assert _combined({"held_out": 0.03}) == pytest.approx(0.03)
+    assert _combined({"score": 0.7, "held_out": 0.9}) == pytest.approx(0.9)
+    rng = np.random.default_rng(0)
+    alpha = 0.05
+    for rho in (0.0, 0.5, 0.9, 0.99):
+        z = rng.normal(size=(400_000, 2))
+        z[:, 1] = rho * z[:, 0] + np.sqrt(1 - rho**2) * z[:, 1]
+        p = stats.norm.sf(z)
+        ps = np.sort(p, axis=1)
+        simes = np.minimum(2 * ps[:, 0], ps[:, 1])
+        size = float(np.mean(simes < alpha))
+        assert size < alpha + 3 * np.sqrt(alpha * (1 - alpha) / z.shape[0])
+        # the draws are the function's own rule
+        k = np.flatnonzero(simes < alpha)[:20]
+        assert [_combined({"score": a, "held_out": b}) for a, b in p[k]] == pytest.approx(simes[k].tolist())
+    # positively dependent, both tests see the same effect: more power than the doubled minimum
+    z = rng.normal(size=(200_000, 2)) * 0.3 + 2.7
+    p = stats.norm.sf(z)
+    bonferroni = np.mean(2 * p.min(1) < alpha / 9)
+    simes = np.mean(np.minimum(2 * p.min(1), p.max(1)) < alpha / 9)
+    assert simes > bonferroni
