@@ -47,6 +47,7 @@ least squares), LS otherwise; the report says which and why.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import equinox as eqx
@@ -131,16 +132,17 @@ class Data:
     def kinematic_hz(self) -> float:
         return min(KINEMATIC_BAND * self.cutoff_hz, 0.45 / self.dt)
 
-    def smoothed(self, x: np.ndarray) -> np.ndarray:
+    def smoothed(self, x: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
         """x (T, ...) through the cut-off, the samples at rest left out of it: the low-pass of
         x·m over the low-pass of m (m = 0 at rest; a normalized convolution). Each row is a
         weighted mean of moving samples only, the same weights for the torque and for every
         column, so the equations stay exact while the unknown stiction torque of a rest is kept
-        out of its neighbours (`prepare`)."""
+        out of its neighbours (`prepare`). `rows`: only those samples of the result."""
+        pick = (lambda y: y) if rows is None else (lambda y: y[rows])
         if self.rest is None or not self.rest.any():
-            return lowpass(x, self.dt, self.cutoff_hz)
+            return pick(lowpass(x, self.dt, self.cutoff_hz))
         m = (~self.rest).astype(float).reshape((-1,) + (1,) * (np.ndim(x) - 1))
-        return lowpass(np.asarray(x) * m, self.dt, self.cutoff_hz) / np.maximum(self.weight().reshape(m.shape), 1e-12)
+        return pick(lowpass(np.asarray(x) * m, self.dt, self.cutoff_hz)) / np.maximum(pick(self.weight()).reshape((-1,) + m.shape[1:]), 1e-12)
 
     def weight(self) -> np.ndarray:
         """(T,) `moving_weight` of the rests (computed by `prepare`, kept here)."""
@@ -189,6 +191,13 @@ class Data:
         encoder counts per filter time constant)."""
         v_min = 5 * self.step * self.cutoff_hz
         return np.mean(np.abs(self.qd[self.rows]) > v_min, axis=0)
+
+
+@functools.lru_cache(maxsize=1)
+def _pool():
+    from concurrent.futures import ThreadPoolExecutor
+
+    return ThreadPoolExecutor(2, thread_name_prefix="manus-columns")
 
 
 def moving_weight(rest: np.ndarray, dt: float, cutoff_hz: float) -> np.ndarray:
@@ -422,7 +431,7 @@ class Columns:
         self.rows = data.rows if rows is None else rows
         self.mask = None if data.mask is None or rows is not None else data.mask[:, :, None]  # stuck joints' equations
         # (other rows than the data's, rests included: the plain low-pass)
-        self.smoothed = data.smoothed if rows is None else (lambda x: lowpass(x, data.dt, data.cutoff_hz))
+        self.smoothed = data.smoothed if rows is None else (lambda x, at: lowpass(x, data.dt, data.cutoff_hz)[at])
         self._cache: dict[str, np.ndarray] = {}
         kin = kinematics if kinematics is not None else (data.q, data.qd, data.qdd)
         self._kin = tuple(np.asarray(x) for x in kin)
@@ -441,7 +450,7 @@ class Columns:
         on = np.any(full, axis=(0, 1))  # (n, p)
         out = np.zeros((full.shape[0], self.rows.size) + full.shape[2:])
         if on.any():
-            low = self.smoothed(np.moveaxis(full[:, :, on], 0, 1))[self.rows]  # (rows, V, m)
+            low = self.smoothed(np.ascontiguousarray(np.moveaxis(full[:, :, on], 0, 1)), self.rows)  # (rows, V, m)
             out[:, :, on] = np.moveaxis(low, 1, 0)
         return out if self.mask is None else out * self.mask
 
@@ -453,14 +462,19 @@ class Columns:
         todo = list({e.spec: e for e in effects if e.spec not in self._cache}.values())
         if todo:
             per_value = len(self.data.q) * self.data.n_joints * max(len(todo[0].names(self.structure)), 1) * 8
-            batch = int(np.clip(PREFETCH_BYTES // per_value, 1, batch))
-        for i in range(0, len(todo), batch):
-            part = todo[i:i + batch]
+            batch = int(np.clip(PREFETCH_BYTES // (2 * per_value), 1, batch))  # (two held at once)
+            batch = min(batch, -(-len(todo) // 2))  # (at least two batches: two threads)
+
+        def one(part):
             if len(part) == 1:
-                self.effect(part[0])
-                continue
+                return [self.effect(part[0])]
             stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *part)
-            low = self._filtered(np.asarray(_batch_columns(stacked, self.structure, *self._args, self.data.dt)))
+            return self._filtered(np.asarray(_batch_columns(stacked, self.structure, *self._args, self.data.dt)))
+
+        parts = [todo[i:i + batch] for i in range(0, len(todo), batch)]
+        # two batches at a time on two threads (JAX and the filter's loop release the GIL; each
+        # value's columns are computed alone, so the result does not depend on the order)
+        for part, low in zip(parts, _pool().map(one, parts) if len(parts) > 1 else map(one, parts)):
             for j, e in enumerate(part):
                 self._cache[e.spec] = low[j]
 

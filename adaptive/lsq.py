@@ -46,8 +46,8 @@ class Stats:
         self.G = self._sum(np.einsum("rnp,rnq->rpq", self.X, self.X))
         self.target(tau)
 
-    def _sum(self, per_row: np.ndarray) -> np.ndarray:
-        return np.add.reduceat(per_row, self.starts, axis=0)
+    def _sum(self, per_row: np.ndarray, axis: int = 0) -> np.ndarray:
+        return np.add.reduceat(per_row, self.starts, axis=axis)
 
     def target(self, tau: np.ndarray) -> "Stats":
         """Another torque for the same columns (a delay searched: the torque moves, X stays)."""
@@ -59,30 +59,52 @@ class Stats:
             self.h = self._sum(np.einsum("rnp,rn->rp", self.Z, tau))
         return self
 
-    def extend(self, E: np.ndarray, Ez: np.ndarray | None = None) -> "Stats":
+    def extend(self, E: np.ndarray, Ez: np.ndarray | None = None, budget: float = 8e6) -> "Stats":
         """These statistics with the columns E (rows, n, k) appended (instruments Ez), reusing
         the sums of the columns already here: what a grid search over an effect's non-linear
-        parameter needs per grid point."""
+        parameter needs per grid point. E (V, rows, n, k): V sets of columns, each appended on
+        its own (a grid's values at once): statistics with a leading axis V (`one(i)` is value
+        i's), worked out `budget` floats of products at a time."""
+        E = np.asarray(E)
+        if E.ndim == 4:
+            per_value = E.shape[1] * (self.X.shape[2] + E.shape[3]) * E.shape[3]
+            step = int(max(1, budget // max(per_value, 1)))
+            if E.shape[0] > step:
+                parts = [self.extend(E[i:i + step], None if Ez is None else Ez[i:i + step], budget)
+                         for i in range(0, E.shape[0], step)]
+                return _stacked(parts)
+        ax = E.ndim - 3  # the rows' axis
         new = object.__new__(Stats)
         new.starts = self.starts
-        sE = np.sqrt(np.mean(E**2, axis=(0, 1))) + 1e-300
-        Es = E / sE
-        new.scale = np.r_[self.scale, sE]
-        XE = self._sum(np.einsum("rnp,rnq->rpq", self.X, Es))
-        EE = self._sum(np.einsum("rnp,rnq->rpq", Es, Es))
-        new.G = np.concatenate([np.concatenate([self.G, XE], 2),
-                                np.concatenate([XE.transpose(0, 2, 1), EE], 2)], 1)
-        new.g = np.concatenate([self.g, self._sum(np.einsum("rnp,rn->rp", Es, self.tau))], 1)
+        sE = np.sqrt(np.mean(E**2, axis=(-3, -2))) + 1e-300
+        Es = E / sE[..., None, None, :]
+        lead = E.shape[:ax]
+        new.scale = np.concatenate([np.broadcast_to(self.scale, lead + self.scale.shape), sE], -1)
+        XE = self._sum(np.einsum("rnp,...rnq->...rpq", self.X, Es), ax)
+        EE = self._sum(np.einsum("...rnp,...rnq->...rpq", Es, Es), ax)
+        new.G = _blocks(self.G, XE, np.swapaxes(XE, -1, -2), EE)
+        new.g = np.concatenate([np.broadcast_to(self.g, lead + self.g.shape),
+                                self._sum(np.einsum("...rnp,rn->...rp", Es, self.tau), ax)], -1)
         # (the rows themselves are not kept: an extended Stats is a grid point, not extended again)
         new.yy, new.tau, new.X, new.Z, new.iv = self.yy, self.tau, None, None, False
         if self.iv and Ez is not None:
-            Zs = Ez / (np.sqrt(np.mean(Ez**2, axis=(0, 1))) + 1e-300)
-            ZE = self._sum(np.einsum("rnp,rnq->rpq", self.Z, Es))  # old instruments × new columns
-            EX = self._sum(np.einsum("rnp,rnq->rpq", Zs, self.X))  # new instruments × old columns
-            EEz = self._sum(np.einsum("rnp,rnq->rpq", Zs, Es))
-            new.H = np.concatenate([np.concatenate([self.H, ZE], 2), np.concatenate([EX, EEz], 2)], 1)
-            new.h = np.concatenate([self.h, self._sum(np.einsum("rnp,rn->rp", Zs, self.tau))], 1)
+            Ez = np.asarray(Ez)
+            Zs = Ez / (np.sqrt(np.mean(Ez**2, axis=(-3, -2))) + 1e-300)[..., None, None, :]
+            ZE = self._sum(np.einsum("rnp,...rnq->...rpq", self.Z, Es), ax)  # old instruments × new columns
+            EX = self._sum(np.einsum("...rnp,rnq->...rpq", Zs, self.X), ax)  # new instruments × old columns
+            EEz = self._sum(np.einsum("...rnp,...rnq->...rpq", Zs, Es), ax)
+            new.H = _blocks(self.H, ZE, EX, EEz)
+            new.h = np.concatenate([np.broadcast_to(self.h, lead + self.h.shape),
+                                    self._sum(np.einsum("...rnp,rn->...rp", Zs, self.tau), ax)], -1)
             new.iv = True
+        return new
+
+    def one(self, i: int) -> "Stats":
+        """Value i's statistics of an `extend`ed batch (V sets of columns)."""
+        new = object.__new__(Stats)
+        new.__dict__.update(self.__dict__)
+        for k in ("G", "g", "scale") + (("H", "h") if self.iv else ()):
+            setattr(new, k, getattr(self, k)[i])
         return new
 
     def coef(self, use: np.ndarray) -> np.ndarray:
@@ -96,45 +118,51 @@ class Stats:
 
     def coefs(self, masks: np.ndarray, lower: np.ndarray | None = None) -> np.ndarray:
         """`coef` on each of the segment masks (F, S) at once: (F, P), one batched pseudo-inverse
-        (the same minimum-norm solution as `coef`'s, to rounding). `lower` (P,): a lower bound
-        per parameter (−inf: none); a coefficient that falls below its bound is held there and
-        the others fitted again, until none does (an active set that only grows: exact where the
-        bounded columns are nearly orthogonal, as per-joint friction columns are)."""
+        (the same minimum-norm solution as `coef`'s, to rounding); (V, F, P) for a batch of V
+        values (`extend`). `lower` (P,): a lower bound per parameter (−inf: none); a coefficient
+        that falls below its bound is held there and the others fitted again, until none does
+        (an active set that only grows: exact where the bounded columns are nearly orthogonal,
+        as per-joint friction columns are)."""
         A, b = (self.H, self.h) if self.iv else (self.G, self.g)
         m = np.asarray(masks, float)
-        M, r = np.einsum("fs,spq->fpq", m, A), m @ b
+        P = A.shape[-1]
+        M, r = (m @ A.reshape(A.shape[:-2] + (P * P,))).reshape(A.shape[:-3] + (m.shape[0], P, P)), m @ b
         C = self._solve(M, r)
         if lower is None or not np.isfinite(lower).any():
             return C
-        low = np.where(np.isfinite(lower), lower * self.scale, -np.inf)  # in the scaled units of C
+        low = np.where(np.isfinite(lower), lower * self.scale, -np.inf)[..., None, :]  # in the scaled units of C
         held = np.zeros(C.shape, bool)
-        for _ in range(C.shape[1]):
+        for _ in range(C.shape[-1]):
             more = (C < low) & ~held
             if not more.any():
                 break
             held |= more
             x = np.where(held, low, 0.0)
             free = (~held).astype(float)
-            r2 = (r - np.einsum("fpq,fq->fp", M, x)) * free
-            C = np.where(held, low, self._solve(M * free[:, :, None] * free[:, None, :], r2))
+            r2 = (r - np.einsum("...pq,...q->...p", M, x)) * free
+            C = np.where(held, low, self._solve(M * free[..., :, None] * free[..., None, :], r2))
         return C
 
     def _solve(self, M: np.ndarray, r: np.ndarray) -> np.ndarray:
-        """Minimum-norm solutions of M c = r for a batch (F, P, P), (F, P)."""
+        """Minimum-norm solutions of M c = r for a batch (..., P, P), (..., P)."""
         if self.iv:
-            return np.einsum("fpq,fq->fp", np.linalg.pinv(M, rcond=RCOND), r)
+            return np.einsum("...pq,...q->...p", np.linalg.pinv(M, rcond=RCOND), r)
         # least squares: M is symmetric, its pseudo-inverse from its eigenvectors (cheaper than an SVD)
         lam, U = np.linalg.eigh(M)
-        keep = lam > RCOND * np.abs(lam).max(axis=1, keepdims=True)
+        keep = lam > RCOND * np.abs(lam).max(axis=-1, keepdims=True)
         inv = np.where(keep, 1.0 / np.where(keep, lam, 1.0), 0.0)
-        return np.einsum("fpk,fk->fp", U, inv * np.einsum("fpk,fp->fk", U, r))
+        return np.einsum("...pk,...k->...p", U, inv * np.einsum("...pk,...p->...k", U, r))
 
     def sses(self, C: np.ndarray, masks: np.ndarray) -> np.ndarray:
         """Squared error of the coefficients C (F, P) on the segments of each mask (F, S), summed
-        per mask: (F,), as `sse(...).sum()` row by row."""
-        quad = np.einsum("fsp,fp->fs", np.einsum("spq,fq->fsp", self.G, C), C)
-        per = np.maximum(self.yy[None, :] - 2 * C @ self.g.T + quad, 0.0)
-        return (per * masks).sum(1)
+        per mask: (F,), as `sse(...).sum()` row by row; (V, F) for a batch (C (V, F, P))."""
+        # (the sums over each mask's segments first: Σ_s m_s (yy_s − 2 cᵀg_s + cᵀG_s c) is one
+        # quadratic form in the mask's G; clipped at 0 where rounding leaves an exact fit negative)
+        m = np.asarray(masks, float)
+        P = self.G.shape[-1]
+        Gm = (m @ self.G.reshape(self.G.shape[:-2] + (P * P,))).reshape(C.shape + (P,))
+        quad = np.einsum("...fp,...fpq,...fq->...f", C, Gm, C)
+        return np.maximum(m @ self.yy - 2 * np.sum(C * (m @ self.g), -1) + quad, 0.0)
 
     def sse(self, c: np.ndarray, use: np.ndarray) -> np.ndarray:
         """Squared error of scaled coefficients `c` on each segment of `use`."""
@@ -143,6 +171,21 @@ class Stats:
 
     def theta(self, c: np.ndarray) -> np.ndarray:
         return c / self.scale
+
+
+def _blocks(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray) -> np.ndarray:
+    """[[A, B], [C, D]] along the last two axes, A broadcast over the others' leading axes."""
+    A = np.broadcast_to(A, B.shape[:-1] + A.shape[-1:])
+    return np.concatenate([np.concatenate([A, B], -1), np.concatenate([C, D], -1)], -2)
+
+
+def _stacked(parts: list[Stats]) -> Stats:
+    """Batches of `Stats.extend` (leading axis V) joined into one."""
+    new = object.__new__(Stats)
+    new.__dict__.update(parts[0].__dict__)
+    for k in ("G", "g", "scale") + (("H", "h") if parts[0].iv else ()):
+        setattr(new, k, np.concatenate([getattr(p, k) for p in parts]))
+    return new
 
 
 def folds(rows: np.ndarray, k: int, guard: int) -> tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray]]]:
@@ -264,7 +307,21 @@ def block_scores(st: Stats, test: np.ndarray, blocks: np.ndarray) -> tuple[np.nd
     masks = np.asarray(blocks, float)
     k = T.shape[1]
     TA = (T.T[None] @ A[:, :, p:]).reshape(A.shape[0], k * k)  # (S, k·k): each segment's Z̃ᵀE
-    return masks @ (u @ T), (masks @ TA).reshape(masks.shape[0], k, k)
+    return Scores((masks @ (u @ T), (masks @ TA).reshape(masks.shape[0], k, k)))
+
+
+class Scores(tuple):
+    """(s, Q) of `block_scores`; its `_jackknifed` reduction worked out once (`score_p` and
+    `detectable` both judge it)."""
+
+    def reduced(self):
+        if "_reduced" not in self.__dict__:
+            self._reduced = _jackknifed(*self)
+        return self._reduced
+
+
+def _reduced(x) -> tuple | None:
+    return x.reduced() if isinstance(x, Scores) else _jackknifed(*x)
 
 
 FLIPS = 2000  # sign-flip draws of `score_p` at least (its smallest p: 1/(draws + 1)) ...
@@ -322,8 +379,8 @@ def score_p(scores: list[tuple[np.ndarray, np.ndarray]], alpha: float = 0.05, se
     draws = max(FLIPS, int(np.ceil(FLIPS_PER_ALPHA / alpha)))
     prepared, effective = [], np.inf
     observed = np.full(len(scores), -np.inf)
-    for v, (s, Q) in enumerate(scores):
-        reduced = _jackknifed(s, Q)
+    for v, x in enumerate(scores):
+        reduced = _reduced(x)
         if reduced is None:
             continue
         k, _, sr, Qr, Qi, L, dj = reduced
@@ -399,8 +456,8 @@ def detectable(scores: list[tuple[np.ndarray, np.ndarray]], alpha: float = 0.05,
     them (Bonferroni: an upper bound, neighbouring values being alike). Returns the median over
     the values (a typical value of the searched parameter); inf where none can be tested."""
     out = []
-    for s, Q in scores:
-        reduced = _jackknifed(s, Q)
+    for x in scores:
+        reduced, s = _reduced(x), x[0]
         if reduced is None:
             continue
         k, lam, _, _, _, _, dj = reduced

@@ -42,10 +42,11 @@ class Grid:
     build: object  # value index -> exact lsq.Stats
     lower: np.ndarray | None = None  # each column's lower bound (the effect's physical ones; −inf: none)
     own: np.ndarray | None = None  # which columns are the effect's (a mask: the last ones)
+    every: lsq.Stats | None = None  # every value's exact statistics at once (a leading axis), when built together
 
     def exact(self, i: int) -> lsq.Stats:
         if self.stats[i] is None:
-            self.stats[i] = self.build(i)
+            self.stats[i] = self.every.one(i) if self.every is not None else self.build(i)
         return self.stats[i]
 
     def choose(self, use: np.ndarray) -> tuple[int, np.ndarray]:
@@ -61,6 +62,9 @@ class Grid:
         """`choose` for each of the segment masks (F, S) at once (each fold of a held-out test
         chooses on its own training segments): the best value per mask (F,) and the errors (F, V)."""
         F, V = masks.shape[0], len(self.values)
+        if self.every is not None:
+            errs = self.every.sses(self.every.coefs(masks, self.lower), masks).T
+            return np.argmin(errs, axis=1), errs
         errs = np.full((F, V), np.inf)
         if self.screen is not None and any(st is None for st in self.stats):  # (once all are built: exact)
             rough = np.stack([st.sses(st.coefs(masks, self.lower), masks) for st in self.screen], 1)  # (F, V)
@@ -79,6 +83,9 @@ class Grid:
         held there adds nothing physical."""
         if self.lower is None or not np.isfinite(self.lower[self.own]).any():
             return np.ones(len(self.values), bool)
+        if self.every is not None:
+            C = self.every.coefs(use[None], self.lower)[:, 0]
+            return np.any((C > self.lower * self.every.scale)[:, self.own], axis=1)
         out = np.zeros(len(self.values), bool)
         for i in range(len(self.values)):
             st = self.exact(i)
@@ -113,7 +120,9 @@ def grid(data: "Data", cols: "Columns", rest: Model, effect: Effect, starts: np.
         for c in (cols, icols):
             if c is not None:
                 c.prefetch(values)
-        return Grid(values, [build(i) for i in range(len(values))], None, build, lower, mine)
+        every = base.extend(np.stack([cols.effect(v) for v in values]),
+                            None if icols is None else np.stack([icols.effect(v) for v in values]))
+        return Grid(values, [None] * len(values), None, build, lower, mine, every)
     screen = None
     if len(values) > SCREEN_ABOVE:
         rough = lsq.Stats(Y, data.tau(delay), starts)

@@ -55,3 +55,29 @@ def test_the_search_chooses_the_value_the_physics_allows():
     assert bounded.choose(whole)[0] == 1
     assert bounded.free(whole).tolist() == [False, True]
     assert unbounded.free(whole).tolist() == [True, True]
+
+
+def test_a_grid_of_values_at_once_matches_scipys_bounded_least_squares():
+    """`Stats.extend` of V sets of columns at once (a grid's values, in chunks under a small
+    budget) and its batched bounded fits and errors: each value's against scipy's bounded least
+    squares on the same rows, and against the same value extended alone."""
+    X, tau, lower = _problem(7, P=6, bounded=2)
+    rng = np.random.default_rng(8)
+    starts = np.arange(0, X.shape[0], 100)
+    base = lsq.Stats(X[:, :, :4], tau, starts)
+    E = np.stack([X[:, :, 4:] * rng.uniform(0.5, 2.0, (1, 1, 2)) + 0.1 * v * rng.normal(size=X[:, :, 4:].shape)
+                  for v in range(5)])  # (V, rows, n, 2): five values of the searched columns
+    every = base.extend(E, budget=3 * X.shape[0] * 6 * 2)  # (three values per chunk: two chunks)
+    masks = rng.random((4, starts.size)) < 0.7
+    C = every.coefs(masks, lower)  # (V, F, P)
+    errs = every.sses(C, masks)  # (V, F)
+    for v in range(E.shape[0]):
+        alone = base.extend(E[v])
+        np.testing.assert_allclose(every.one(v).G, alone.G, rtol=1e-12)
+        np.testing.assert_allclose(C[v], alone.coefs(masks, lower), rtol=1e-9, atol=1e-12)
+        for f, m in enumerate(masks):
+            rows = np.repeat(m, 100)
+            Xv = np.concatenate([X[rows, 0, :4], E[v, rows, 0]], 1)
+            fit = lsq_linear(Xv, tau[rows, 0], bounds=(lower, np.inf), method="bvls", tol=1e-12)
+            np.testing.assert_allclose(every.one(v).theta(C[v, f]), fit.x, rtol=1e-7, atol=1e-9)
+            np.testing.assert_allclose(errs[v, f], np.sum((Xv @ fit.x - tau[rows, 0]) ** 2), rtol=1e-8)
