@@ -349,11 +349,11 @@ def _jackknifed(s: np.ndarray, Q: np.ndarray):
     Qi = np.linalg.pinv(Qr.sum(0))
     L = np.linalg.pinv(np.eye(k)[None] - Qr @ Qi)
     dj = (L @ (sr - Qr @ (Qi @ sr.sum(0)))[..., None])[..., 0]
-    return k, lam[keep], sr, Qr, Qi, L, dj
+    return k, lam[keep], sr, Qr, Qi, L, dj, R
 
 
 def score_p(scores: list[tuple[np.ndarray, np.ndarray]], alpha: float = 0.05, seed: int = 0,
-            stop_above: float = 0.1) -> tuple[float, int, str]:
+            stop_above: float = 0.1, signed: np.ndarray | None = None) -> tuple[float, int, str]:
     """p of 'the candidate's columns are missing from the model', from their block scores (one
     `block_scores` per value of the candidate's searched parameter; one: nothing searched).
 
@@ -374,20 +374,32 @@ def score_p(scores: list[tuple[np.ndarray, np.ndarray]], alpha: float = 0.05, se
     searched: the search is redone in each draw, so what it buys is paid for. p = (1 + draws at
     least as large)/(1 + draws), with enough draws that a p below `alpha` (the level it is
     judged at) can show (`FLIPS`, at least `FLIPS_PER_ALPHA`/alpha); they stop early once p is
-    surely above `stop_above`. Returns (p, the index of the value with the largest W, "wild" or
-    "exact")."""
+    surely above `stop_above`.
+
+    `signed` (a bool per tested column): the columns whose coefficient physics keeps at or above
+    0 (a friction level, a spring's stiffness). The alternative is then one-sided in them, and
+    the statistic counts only what the physical sign explains: Wald's minus the squared distance
+    from β̂ to the coefficients the physics allows, in β̂'s precision metric (`_physical`: the
+    one-sided likelihood-ratio form), equal to Wald's where β̂ has the physical sign, smaller
+    where it has not, 0 where only the wrong sign is seen. The flips compute the same statistic,
+    so its level holds as Wald's does; its power is a one-sided test's (about a two-sided one at
+    twice the level, for one column). Returns (p, the index of the value with the largest W,
+    "wild" or "exact")."""
     draws = max(FLIPS, int(np.ceil(FLIPS_PER_ALPHA / alpha)))
     prepared, effective = [], np.inf
     observed = np.full(len(scores), -np.inf)
+    signed = None if signed is None or not np.any(signed) else np.asarray(signed, bool)
     for v, x in enumerate(scores):
         reduced = _reduced(x)
         if reduced is None:
             continue
-        k, _, sr, Qr, Qi, L, dj = reduced
-        observed[v] = sr.sum(0) @ _solve_psd((dj.T @ dj)[None], sr.sum(0)[None])[0]
+        k, _, sr, Qr, Qi, L, dj, R = reduced
+        omega = dj.T @ dj
+        m = _physical(sr.sum(0)[None, None], Qr.sum(0)[None], Qi[None], R[None], omega[None, None], signed)[0, 0]
+        observed[v] = m @ _solve_psd(omega[None], m[None])[0]
         lev = np.einsum("gij,ji->g", Qr, Qi)  # each block's share of the information (Σ = k)
         effective = min(effective, k * k / max(float(np.sum(lev**2)), 1e-300))
-        prepared.append((k, sr, dj, Qr, Qi, L))
+        prepared.append((k, sr, dj, Qr, Qi, L, R))
     if not prepared:
         return 1.0, 0, "none"
     # the blocks' noise scores flipped where many blocks share the information (the wild
@@ -395,8 +407,8 @@ def score_p(scores: list[tuple[np.ndarray, np.ndarray]], alpha: float = 0.05, se
     # randomization test: the noise of those few cannot be told from their signal)
     wild = effective >= MIN_EFFECTIVE_BLOCKS
     by_k: dict[int, list] = {}  # the values, grouped by how many identifiable directions they have
-    for k, sr, dj, Qr, Qi, L in prepared:
-        by_k.setdefault(k, []).append((dj if wild else sr, Qr, Qi, L))
+    for k, sr, dj, Qr, Qi, L, R in prepared:
+        by_k.setdefault(k, []).append((dj if wild else sr, Qr, Qi, L, R))
     G = scores[0][0].shape[0]
     # A draw's pseudo-scores are w_b d_b (d: the jackknifed noise scores, or the scores s
     # themselves for the exact flips, signs flipped); its statistic is computed from them as from
@@ -414,7 +426,8 @@ def score_p(scores: list[tuple[np.ndarray, np.ndarray]], alpha: float = 0.05, se
         D = np.einsum("vgi,vgj->vij", d2, d2)
         T = np.einsum("vgi,vgjl->gvijl", d2, Q2).reshape(G, -1)
         S = np.einsum("vgil,vgjm->vlmij", Q2, Q2).reshape(len(vals), k * k, k * k)
-        pre.append((k, len(vals), d.transpose(1, 0, 2).reshape(G, -1), Qi, D, T, S))
+        Qs, R = np.stack([x[1].sum(0) for x in vals]), np.stack([x[4] for x in vals])
+        pre.append((k, len(vals), d.transpose(1, 0, 2).reshape(G, -1), Qi, D, T, S, Qs, R))
     best = int(np.argmax(observed))
     rng = np.random.default_rng(seed)
     exceed = done = 0
@@ -424,12 +437,13 @@ def score_p(scores: list[tuple[np.ndarray, np.ndarray]], alpha: float = 0.05, se
         n = min(chunk, draws - done)
         w = rng.choice((-1.0, 1.0), size=(n, G))
         top = np.full(n, -np.inf)
-        for k, V, dflat, Qi, D, T, S in pre:
+        for k, V, dflat, Qi, D, T, S, Qs, R in pre:
             m = (w @ dflat).reshape(n, V, k)
             beta = (Qi[None] @ m[..., None])[..., 0]  # (n, V, k)
             tb = ((w @ T).reshape(n, V, k * k, k) @ beta[..., None]).reshape(n, V, k, k)
             bb = (beta[..., :, None] * beta[..., None, :]).reshape(n, V, 1, k * k)
             omega = D[None] - tb - tb.transpose(0, 1, 3, 2) + (bb @ S[None]).reshape(n, V, k, k)
+            m = _physical(m, Qs, Qi, R, omega, signed)
             W = np.sum(m * _solve_psd(omega.reshape(-1, k, k), m.reshape(-1, k)).reshape(n, V, k), axis=2)
             top = np.maximum(top, W.max(1))
         exceed += int(np.sum(top >= observed[best] * (1 - 1e-9)))
@@ -437,6 +451,42 @@ def score_p(scores: list[tuple[np.ndarray, np.ndarray]], alpha: float = 0.05, se
         if (1 + exceed) / (1 + draws) > stop_above:  # surely above it, whatever the rest would give
             break
     return (1 + exceed) / (1 + done), best, "wild" if wild else "exact"
+
+
+def _physical(m: np.ndarray, Qs: np.ndarray, Qi: np.ndarray, R: np.ndarray, omega: np.ndarray,
+              signed: np.ndarray | None) -> np.ndarray:
+    """The summed scores m (n, V, k), in the identified directions R (V, K, k) of each value's K
+    tested columns (Qs = Σ_b Q_b there, Qi its inverse, omega (n, V, k, k) the scores' spread),
+    reduced to what the physical sign explains (`score_p`): β̂ = Qi m projected on the
+    coefficients the physics allows, the `signed` columns' Rβ ≥ 0, in the metric of β̂'s own
+    precision A = Qs Ω⁻¹ Qs (the one-sided likelihood-ratio statistic: Wald's minus the
+    distance to that cone); returned as Qs β⁺, whose Ω⁻¹-norm is that statistic. The projection
+    holds the columns of the wrong sign at 0 and refits the rest, then any that cross in turn (an
+    active set that only grows: exact for one signed column, and whatever it gives the flips
+    give too). Unchanged where nothing is signed."""
+    if signed is None:
+        return m
+    K = R.shape[1]
+    b = np.einsum("vij,nvj->nvi", Qi, m)
+    Ainv = Qi[None] @ omega @ Qi[None]  # (n, V, k, k): β̂'s covariance
+    S = np.einsum("vKk,nvkl,vJl->nvKJ", R, Ainv, R)  # the columns' coefficients' covariance
+    beta, Cb = b, np.einsum("vKk,nvk->nvK", R, b)
+    held = signed & (Cb < 0)
+    for _ in range(int(np.sum(signed))):
+        if not held.any():
+            break
+        h = held.astype(float)
+        ridge = 1e-12 * np.trace(S, axis1=-2, axis2=-1)[..., None, None] + 1e-300
+        Sm = S * h[..., :, None] * h[..., None, :] + (np.eye(K) * (1 - h)[..., None, :]) + ridge * np.eye(K)
+        lam = np.linalg.solve(Sm, (Cb * h)[..., None])[..., 0]  # the held columns' multipliers
+        beta = b - (Ainv @ np.einsum("vKk,nvK->nvk", R, lam)[..., None])[..., 0]
+        Cb_now = np.einsum("vKk,nvk->nvK", R, beta)
+        beta = beta - np.einsum("vKk,nvK->nvk", R, Cb_now * h)  # (the held ones exactly at 0, not to rounding)
+        more = signed & ~held & (Cb_now < 0)
+        if not more.any():
+            break
+        held = held | more
+    return np.einsum("vij,nvj->nvi", Qs, beta)
 
 
 POWER = 0.8  # a detection limit is the size found this often
@@ -460,7 +510,7 @@ def detectable(scores: list[tuple[np.ndarray, np.ndarray]], alpha: float = 0.05,
         reduced, s = _reduced(x), x[0]
         if reduced is None:
             continue
-        k, lam, _, _, _, _, dj = reduced
+        k, lam, _, _, _, _, dj, _ = reduced
         half = np.diag(np.sqrt(lam))  # Q^½ in the basis R (Q there is diag(lam))
         mu = float(np.linalg.eigvalsh(half @ np.linalg.pinv(dj.T @ dj) @ half).max())
         if mu > 0:

@@ -6,6 +6,7 @@ is known."""
 
 import numpy as np
 import pytest
+from scipy.optimize import lsq_linear
 
 from manus.adaptive import lsq
 
@@ -99,6 +100,31 @@ def test_the_score_test_holds_its_size_under_the_null(heavy):
     rng = np.random.default_rng(11)
     ps = np.array([lsq.score_p([_null_case(rng, heavy=heavy)], alpha=0.02, stop_above=1.0)[0] for _ in range(300)])
     assert np.mean(ps < 0.02) <= 0.045 and 0.04 <= np.mean(ps < 0.1) <= 0.17, (np.mean(ps < 0.02), np.mean(ps < 0.1))
+
+
+@pytest.mark.parametrize("heavy", [6, 40], ids=lambda h: f"{h}-of-40-blocks")
+def test_the_one_sided_score_test_holds_its_size_and_judges_by_the_sign(heavy):
+    """A column whose coefficient physics keeps ≥ 0 (`signed`): under the null, p < 0.02 in
+    about 2 % of 300 data sets (exact flips with 6 heavy blocks, wild ones with 40); with the
+    effect at the physical sign, its p is about half the two-sided one (one column: a one-sided
+    test), and at the wrong sign nothing is found."""
+    rng = np.random.default_rng(12)
+    signed = np.array([True])
+    ps = np.array([lsq.score_p([_null_case(rng, heavy=heavy)], alpha=0.02, stop_above=1.0, signed=signed)[0]
+                   for _ in range(300)])
+    assert np.mean(ps < 0.02) <= 0.045 and 0.04 <= np.mean(ps < 0.1) <= 0.17, (np.mean(ps < 0.02), np.mean(ps < 0.1))
+    ratios = []
+    for _ in range(20):
+        x = _null_case(rng, heavy=heavy, beta=0.02 if heavy == 40 else 0.06)
+        two = lsq.score_p([x], alpha=0.01, stop_above=1.0)[0]
+        one = lsq.score_p([x], alpha=0.01, stop_above=1.0, signed=signed)[0]
+        assert one <= two + 1e-12 or one == 1.0  # (the fitted coefficient's sign: physical, or not)
+        if 0.003 < two < 0.5:  # (above the flips' floor)
+            ratios.append(one / two)
+        wrong = (x[0] * -1, x[1]) if heavy == 40 else None  # (the scores' sign turned: the effect's opposite)
+        if wrong is not None and two < 0.01:
+            assert lsq.score_p([wrong], alpha=0.01, stop_above=1.0, signed=signed)[0] > 0.3
+    assert len(ratios) >= 5 and 0.35 <= np.median(ratios) <= 0.65, ratios
 
 
 def test_an_effect_spread_over_the_blocks_is_found_and_one_in_two_blocks_is_judged_by_them(monkeypatch):
@@ -226,3 +252,28 @@ def test_simes_combination_of_the_two_tests():
     bonferroni = np.mean(2 * p.min(1) < alpha / 9)
     simes = np.mean(np.minimum(2 * p.min(1), p.max(1)) < alpha / 9)
     assert simes > bonferroni
+
+
+def test_the_one_sided_statistic_is_the_distance_to_the_physical_cone():
+    """`lsq._physical` for a spring on top of its preload (two correlated columns, the stiffness
+    signed): Wald's statistic minus the squared distance, in β̂'s precision metric, from β̂ to
+    the coefficients with a stiffness ≥ 0, against scipy's bounded least squares; Wald's own
+    where β̂ has the physical sign."""
+    rng = np.random.default_rng(5)
+    signed = np.array([False, True])
+    for _ in range(20):
+        B = rng.normal(size=(2, 2)) + np.array([[3.0, 2.5], [0.0, 1.0]])  # (correlated directions)
+        Qs = B @ B.T
+        R = np.linalg.qr(rng.normal(size=(2, 2)))[0]  # the identified directions (a rotation)
+        omega = np.diag(rng.uniform(0.5, 2.0, 2))
+        m = rng.normal(size=2) * 3
+        got = lsq._physical(m[None, None], Qs[None], np.linalg.inv(Qs)[None], R[None], omega[None, None], signed)[0, 0]
+        W_plus = got @ np.linalg.solve(omega, got)
+        b = R @ np.linalg.solve(Qs, m)  # β̂ in the columns
+        A = R @ Qs @ np.linalg.inv(omega) @ Qs @ R.T  # its precision there
+        L = np.linalg.cholesky(A).T
+        ref = lsq_linear(L, L @ b, bounds=([-np.inf, 0.0], [np.inf, np.inf]), method="bvls", tol=1e-14).x
+        expected = b @ A @ b - (b - ref) @ A @ (b - ref)
+        np.testing.assert_allclose(W_plus, expected, rtol=1e-8, atol=1e-10)
+        if b[1] >= 0:
+            np.testing.assert_allclose(W_plus, m @ np.linalg.solve(omega, m), rtol=1e-10)
