@@ -63,16 +63,17 @@ class Stats:
         """These statistics with the columns E (rows, n, k) appended (instruments Ez), reusing
         the sums of the columns already here: what a grid search over an effect's non-linear
         parameter needs per grid point. E (V, rows, n, k): V sets of columns, each appended on
-        its own (a grid's values at once): statistics with a leading axis V (`one(i)` is value
-        i's), worked out `budget` floats of products at a time."""
+        its own (a grid's values at once; or a list of V arrays (rows, n, k), stacked a chunk at a
+        time): statistics with a leading axis V (`one(i)` is value i's), worked out `budget`
+        floats of products at a time."""
+        if isinstance(E, (list, tuple)) or (np.ndim(E) == 4):
+            rows, k = np.shape(E[0])[0], np.shape(E[0])[-1]
+            step = int(max(1, budget // max(rows * (self.X.shape[2] + k) * k, 1)))
+            if isinstance(E, (list, tuple)) or len(E) > step:
+                parts = [self.extend(np.stack(E[i:i + step]), None if Ez is None else np.stack(Ez[i:i + step]), budget)
+                         for i in range(0, len(E), step)]
+                return parts[0] if len(parts) == 1 else _stacked(parts)
         E = np.asarray(E)
-        if E.ndim == 4:
-            per_value = E.shape[1] * (self.X.shape[2] + E.shape[3]) * E.shape[3]
-            step = int(max(1, budget // max(per_value, 1)))
-            if E.shape[0] > step:
-                parts = [self.extend(E[i:i + step], None if Ez is None else Ez[i:i + step], budget)
-                         for i in range(0, E.shape[0], step)]
-                return _stacked(parts)
         ax = E.ndim - 3  # the rows' axis
         new = object.__new__(Stats)
         new.starts = self.starts

@@ -120,8 +120,8 @@ def grid(data: "Data", cols: "Columns", rest: Model, effect: Effect, starts: np.
         for c in (cols, icols):
             if c is not None:
                 c.prefetch(values)
-        every = base.extend(np.stack([cols.effect(v) for v in values]),
-                            None if icols is None else np.stack([icols.effect(v) for v in values]))
+        every = base.extend([cols.effect(v) for v in values],
+                            None if icols is None else [icols.effect(v) for v in values]) if values else None
         return Grid(values, [None] * len(values), None, build, lower, mine, every)
     screen = None
     if len(values) > SCREEN_ABOVE:

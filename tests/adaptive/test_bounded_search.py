@@ -68,6 +68,7 @@ def test_a_grid_of_values_at_once_matches_scipys_bounded_least_squares():
     E = np.stack([X[:, :, 4:] * rng.uniform(0.5, 2.0, (1, 1, 2)) + 0.1 * v * rng.normal(size=X[:, :, 4:].shape)
                   for v in range(5)])  # (V, rows, n, 2): five values of the searched columns
     every = base.extend(E, budget=3 * X.shape[0] * 6 * 2)  # (three values per chunk: two chunks)
+    np.testing.assert_array_equal(base.extend(list(E), budget=3 * X.shape[0] * 6 * 2).G, every.G)  # (a list of them)
     masks = rng.random((4, starts.size)) < 0.7
     C = every.coefs(masks, lower)  # (V, F, P)
     errs = every.sses(C, masks)  # (V, F)
