@@ -126,8 +126,7 @@ class Stats:
         as per-joint friction columns are)."""
         A, b = (self.H, self.h) if self.iv else (self.G, self.g)
         m = np.asarray(masks, float)
-        P = A.shape[-1]
-        M, r = (m @ A.reshape(A.shape[:-2] + (P * P,))).reshape(A.shape[:-3] + (m.shape[0], P, P)), m @ b
+        M, r = _over_masks(m, A), m @ b
         C = self._solve(M, r)
         if lower is None or not np.isfinite(lower).any():
             return C
@@ -160,8 +159,7 @@ class Stats:
         # (the sums over each mask's segments first: Σ_s m_s (yy_s − 2 cᵀg_s + cᵀG_s c) is one
         # quadratic form in the mask's G; clipped at 0 where rounding leaves an exact fit negative)
         m = np.asarray(masks, float)
-        P = self.G.shape[-1]
-        Gm = (m @ self.G.reshape(self.G.shape[:-2] + (P * P,))).reshape(C.shape + (P,))
+        Gm = _over_masks(m, self.G)
         quad = np.einsum("...fp,...fpq,...fq->...f", C, Gm, C)
         return np.maximum(m @ self.yy - 2 * np.sum(C * (m @ self.g), -1) + quad, 0.0)
 
@@ -172,6 +170,12 @@ class Stats:
 
     def theta(self, c: np.ndarray) -> np.ndarray:
         return c / self.scale
+
+
+def _over_masks(m: np.ndarray, A: np.ndarray) -> np.ndarray:
+    """Σ_s m_fs A_s for masks m (F, S) and per-segment matrices A (..., S, P, P): (..., F, P, P)."""
+    P = A.shape[-1]
+    return (m @ A.reshape(A.shape[:-2] + (P * P,))).reshape(A.shape[:-3] + (m.shape[0], P, P))
 
 
 def _blocks(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray) -> np.ndarray:
