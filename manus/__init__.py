@@ -6,4 +6,9 @@ One import name for the whole framework. The source tree keeps its packages at t
 `manus.estimators`, `manus.adaptive` and `manus.runs`. See `docs/architecture.md`.
 """
 
-__version__ = "0.2.0"
+from importlib.metadata import PackageNotFoundError, version
+
+try:
+    __version__ = version("manus")
+except PackageNotFoundError:  # a source tree that was never installed
+    __version__ = "0+unknown"

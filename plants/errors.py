@@ -1,5 +1,10 @@
 """Errors that reach a user: each says what is wrong in one line, naming the thing at fault."""
 
+from __future__ import annotations
+
+import importlib
+from types import ModuleType
+
 
 class ManusError(Exception):
     """A problem with the user's input or set-up (bad file, unknown effect, dead link, ...).
@@ -19,3 +24,12 @@ class ModelError(ManusError):
 class RecordingNote(UserWarning):
     """Something done to a recording as it was read that its user should know (a cut last line
     dropped, a wrapped angle unwrapped); the command line prints it as one line."""
+
+
+def require(module: str, extra: str) -> ModuleType:
+    """Import `module`, which only the optional extra `extra` installs; a `ManusError` naming the
+    extra when it is missing (e.g. `require("cvxpy", "consistency")`)."""
+    try:
+        return importlib.import_module(module)
+    except ImportError:
+        raise ManusError(f"this needs {module}, which is not installed: pip install 'manus[{extra}]'") from None
