@@ -222,7 +222,7 @@ def diagnose(rec: Recording | fitting.Data, model: Model | str, cutoff_hz: float
     m = max(1, len(tried))
     cands: list[Candidate] = []
     for e0, values, brought in tried:
-        if e0.kind == "mode":
+        if e0.modal:
             c = _compliance(data, base, k, alpha / m, min_share)
             if isinstance(c, str):
                 notes.append(f"compliance: the recording cannot show a structural mode: {c}")
@@ -256,8 +256,8 @@ def _candidates(model: Model, span, prismatic, notes) -> list[tuple[Effect, tupl
                 continue
             e0 = values[0]
         else:
-            values = e0.space(span) if e0.kind != "mode" else ()
-            if e0.kind not in ("mode", "timing") and not values and type(e0).space is not Effect.space:
+            values = e0.space(span) if not e0.modal else ()
+            if not (e0.modal or e0.timing) and not values and type(e0).space is not Effect.space:
                 notes.append(f"{name}: the recording spans too little to search its parameter (travel or speed too small)")
                 continue
             values = values or (e0,)

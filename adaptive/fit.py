@@ -400,7 +400,7 @@ def _columns_of(effect: Effect, structure, q, qd, qdd, dt):
     the period [t_k − T/2, t_k + T/2] along the motion q + q̇ s + q̈ s²/2 (`SUBSAMPLES` midpoints);
     smooth effects' columns are their values at the samples."""
     reg = jax.vmap(Model(structure, (effect,)).regressor)
-    if effect.kind != "friction" or not dt > 0:
+    if not effect.dry or not dt > 0:
         return reg(q, qd, qdd)
     offsets = ((jnp.arange(SUBSAMPLES) + 0.5) / SUBSAMPLES - 0.5) * dt
 
@@ -620,7 +620,7 @@ def fit(rec: Recording | Data, model: Model | str, cutoff_hz: float | None = Non
     if model.n_joints != data.n_joints:
         raise ModelError(f"the model has {model.n_joints} joints, the recording {data.n_joints}")
     for e in model.effects:
-        if e.kind == "mode":
+        if e.modal:
             raise ModelError(f"{e.name} is a structural mode above the identification bandwidth: "
                              "`manus diagnose` detects it from the spectrum; it has no inverse-dynamics columns")
         why = e.applies(model.structure, data.rec.prismatic)
@@ -694,7 +694,7 @@ def _check_motion(data: Data, model: Model) -> None:
         return
     lost = [k for e in model.effects if e.evidence in ("velocity", "acceleration")
             for k in e.names(model.structure)
-            if any(k.endswith(str(i + 1)) for i in still) or (e.kind == "inertial" and model.n_joints == 2)]
+            if any(k.endswith(str(i + 1)) for i in still) or (e.inertial and model.n_joints == 2)]
     joints = ", ".join(f"joint {i + 1}" for i in still)
     raise ModelError(f"{data.rec.path}: no motion on {joints}: parameters {', '.join(lost)} are not "
                      "identifiable (record the joints moving, e.g. a multi-sine reference)")

@@ -41,7 +41,7 @@ def _physical(model: Model, params: dict) -> dict | None:
     for e in model.effects:
         for k, lo in zip(e.names(s), e.lower_bounds(s)):
             out[k] = max(out[k], lo)
-    rigid = [e for e in model.effects if e.kind == "inertial"]
+    rigid = [e for e in model.effects if e.inertial]
     if rigid and rigid[0].violations(s, out):
         return None
     return out
@@ -65,9 +65,9 @@ def _windows(sim: Simulator, q0, qd0, taus):
 def simulate(data: fitting.Data, model: Model, params: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """(q, q̇, q̈) of the model driven by the recorded command, in windows restarted from the
     measured state; None when it cannot be simulated (unphysical inertia, divergence)."""
-    if not any(e.kind == "inertial" for e in model.effects):
+    if not any(e.inertial for e in model.effects):
         return None  # without its inertia the model has no motion of its own to simulate
-    sim_model = Model(model.structure, tuple(e for e in model.effects if e.kind in ("inertial", "load", "friction", "timing")))
+    sim_model = Model(model.structure, tuple(e for e in model.effects if not e.modal))
     p = _physical(sim_model, {k: params[k] for k in sim_model.names})
     if p is None:
         return None
@@ -104,7 +104,7 @@ def iv_fit(data: fitting.Data, cols: fitting.Columns, ls: fitting.Fit, fixed: se
         iv = fitting._solve(data, cols, ls.model, ls.search, icols)
         current = iv
     if iv is None:
-        why = ("it has no inertia to simulate" if not any(e.kind == "inertial" for e in ls.model.effects)
+        why = ("it has no inertia to simulate" if not any(e.inertial for e in ls.model.effects)
                else "; ".join(ls.violations()) or "the simulation diverged")
         ls.why = f"IV unavailable: the model cannot be simulated from the recorded command ({why}); least squares kept"
         return ls

@@ -115,7 +115,7 @@ class Projection(eqx.Module):
             raise ModelError(f"min_inertia must be >= 0 kg m², got {min_inertia}")
         s, names = model.structure, model.names
         lower = np.full(len(names), -np.inf)
-        bounds = [lo for e in model.effects if e.kind != "inertial" for lo in e.lower_bounds(s)]
+        bounds = [lo for e in model.effects if not e.inertial for lo in e.lower_bounds(s)]
         lower[[i for i, k in enumerate(names) if k not in s.rigid_names]] = bounds  # each effect's own rules
         self.cone = None
         self.links = ()

@@ -94,7 +94,7 @@ class Regressor(eqx.Module):
         s, p = self.model.structure, self.model.unvector(theta)
         total = jnp.zeros(s.n_joints, jnp.result_type(qd_r, theta))
         for e in self.model.effects:
-            if e.kind == "inertial" and self.form == "slotine-li":
+            if e.inertial and self.form == "slotine-li":
                 total = total + s.inertia(q, p) @ qdd_r + s.coriolis(q, qd, p) @ qd_r
                 if getattr(s, "rigid_gravity", ""):  # a serial chain's rigid effect holds gravity, g(q)
                     zero = jnp.zeros_like(qdd_r)
@@ -119,7 +119,7 @@ class Regressor(eqx.Module):
             def rest(th):
                 p = self.model.unvector(th)
                 return sum(e.torque(s, q, qd_r, qdd_r, p, self.boundary) for e in self.model.effects
-                           if e.kind != "inertial")
+                           if not e.inertial)
 
             Yo = jax.jacfwd(rest)(theta0)
             columns.update({k: (Yo[0, i], Yo[1, i]) for i, k in enumerate(self.names) if k not in columns})

@@ -21,7 +21,7 @@ if TYPE_CHECKING:
 def delay_of(model: Model) -> float | np.ndarray:
     """The command delay a model assumes [s]: its timing effect's (one number, or one per
     joint when the delay differs between joints), 0 without one."""
-    e = next((e for e in model.effects if e.kind == "timing"), None)
+    e = next((e for e in model.effects if e.timing), None)
     if e is None:
         return 0.0
     return e.per_joint(model.n_joints) if isinstance(e.seconds, tuple) else float(e.seconds)
@@ -108,7 +108,7 @@ def grid(data: "Data", cols: "Columns", rest: Model, effect: Effect, starts: np.
     Y = cols.model(rest)
     Z = icols.model(rest) if icols is not None else None
     base = lsq.Stats(Y, data.tau(delay), starts, Z)
-    if effect.kind == "timing":
+    if effect.timing:
         build = lambda i: lsq.Stats(Y, data.tau(_timing(values[i], rest, delay)), starts, Z)
         return Grid(values, [None] * len(values), None, build)
     build = lambda i: base.extend(cols.effect(values[i]), icols.effect(values[i]) if icols is not None else None)

@@ -352,7 +352,7 @@ def regressor_entries(regressor: Regressor, q, qd, qd_r, qdd_r) -> list[list]:
     columns = {"a1": (qdd_r[0], zero), "a2": (c * qdd_r[1] - sn * qd[1] * qd_r[1], c * qdd_r[0] + sn * qd[0] * qd_r[0]),
                "a3": (zero, qdd_r[1])}
     for e in model.effects:
-        if e.kind == "inertial":
+        if e.inertial:
             continue
         for k in e.names(s):
             unit = {name: 1.0 if name == k else 0.0 for name in names}

@@ -98,9 +98,12 @@ class Effect(eqx.Module):
     """One physical effect. Configuration only (its non-linear parameters); no state."""
 
     name: ClassVar[str]
-    # "inertial" (rigid), "load" (smooth torque), "friction" (set-valued at rest),
-    # "timing" (delay), "mode" (compliance).
-    kind: ClassVar[str]
+    # What the effect is, as the simulator, the fit and the diagnosis use it:
+    linear: ClassVar[bool] = True  # a torque linear in its parameters: it has regressor columns
+    inertial: ClassVar[bool] = False  # it holds the structure's inertia, H(q) q̈ + C(q, q̇) q̇ (+ g on a chain)
+    dry: ClassVar[bool] = False  # dry friction: set-valued at rest (the simulator's implicit friction step)
+    timing: ClassVar[bool] = False  # it delays the command instead of adding a torque
+    modal: ClassVar[bool] = False  # a structural mode above the identification band: no columns, a spectrum
     # Which side of a compliant shaft it acts on: the motor (friction, cogging, offset) or
     # the link (inertia, gravity).
     side: ClassVar[str] = "motor"
@@ -120,10 +123,6 @@ class Effect(eqx.Module):
     def torque(self, s: Structure, q, qd, qdd, p: dict, boundary: float = 0.0) -> Array:
         """Torque this effect adds on each joint, shape (n,)."""
         return jnp.zeros(s.n_joints, jnp.result_type(qd))
-
-    @property
-    def linear(self) -> bool:
-        return self.kind in ("inertial", "load", "friction")
 
     @property
     def spec(self) -> str:
@@ -199,7 +198,7 @@ class Rigid(Effect):
     """Inertia and Coriolis/centripetal torques of the structure."""
 
     name: ClassVar[str] = "rigid"
-    kind: ClassVar[str] = "inertial"
+    inertial: ClassVar[bool] = True
     side: ClassVar[str] = "link"
 
     def names(self, s):
@@ -223,7 +222,6 @@ class Viscous(Effect):
 
     name: ClassVar[str] = "viscous"
     apart: ClassVar[str] = "motion at several speeds"
-    kind: ClassVar[str] = "load"
 
     def names(self, s):
         return per_joint("b", s)
@@ -245,7 +243,7 @@ class Coulomb(Effect):
 
     name: ClassVar[str] = "coulomb"
     apart: ClassVar[str] = "motion in both directions"
-    kind: ClassVar[str] = "friction"
+    dry: ClassVar[bool] = True
 
     def names(self, s):
         return per_joint("Fc", s)
@@ -271,7 +269,7 @@ class Stribeck(Effect):
 
     name: ClassVar[str] = "stribeck"
     apart: ClassVar[str] = "slow motion through the reversals"
-    kind: ClassVar[str] = "friction"
+    dry: ClassVar[bool] = True
     vs: Array = eqx.field(default=0.05, converter=jnp.asarray)  # Stribeck velocity [rad/s or m/s]
     requires: ClassVar[tuple[str, ...]] = ("coulomb",)
     rule: ClassVar[str] = "static friction is at least the Coulomb level: Fs ≥ Fc"
@@ -317,7 +315,6 @@ class Asymmetry(Effect):
 
     name: ClassVar[str] = "asymmetry"
     apart: ClassVar[str] = "motion in both directions"
-    kind: ClassVar[str] = "load"  # smooth in q̇: |q̇| is continuous, nothing set-valued at rest
 
     def names(self, s):
         return per_joint("db", s)
@@ -333,7 +330,6 @@ class Offset(Effect):
     """A constant torque off_i (amplifier or sensor bias; illustrative defaults)."""
 
     name: ClassVar[str] = "offset"
-    kind: ClassVar[str] = "load"
 
     def names(self, s):
         return per_joint("off", s)
@@ -355,7 +351,6 @@ class Gravity(Effect):
 
     name: ClassVar[str] = "gravity"
     apart: ClassVar[str] = "a wider swing"
-    kind: ClassVar[str] = "load"
     side: ClassVar[str] = "link"
 
     def names(self, s):
@@ -391,7 +386,6 @@ class Cogging(Effect):
 
     name: ClassVar[str] = "cogging"
     apart: ClassVar[str] = "travel over several of its periods"
-    kind: ClassVar[str] = "load"
     evidence: ClassVar[str] = "position"
     order: Array = eqx.field(default=39.0, converter=jnp.asarray)  # cycles per revolution
     # further orders, held at once: arrays (their values are not part of a compiled function's
@@ -485,7 +479,8 @@ class Delay(Effect):
     holds one, a joint's delay may differ from the others' (`grow`: one joint at a time)."""
 
     name: ClassVar[str] = "delay"
-    kind: ClassVar[str] = "timing"
+    linear: ClassVar[bool] = False
+    timing: ClassVar[bool] = True
     evidence: ClassVar[str] = "shift"
     seconds: float | tuple[float, ...] = eqx.field(default=0.001, static=True)
 
@@ -543,7 +538,6 @@ class Spring(Effect):
 
     name: ClassVar[str] = "spring"
     apart: ClassVar[str] = "a wider swing"
-    kind: ClassVar[str] = "load"
     side: ClassVar[str] = "link"
     brings: ClassVar[tuple[str, ...]] = ("offset",)
     evidence: ClassVar[str] = "position"
@@ -573,7 +567,8 @@ class Compliance(Effect):
     """
 
     name: ClassVar[str] = "compliance"
-    kind: ClassVar[str] = "mode"
+    linear: ClassVar[bool] = False
+    modal: ClassVar[bool] = True
     evidence: ClassVar[str] = "frequency"
     f_hz: Array = eqx.field(default=218.7, converter=jnp.asarray)
     zeta: Array = eqx.field(default=0.0081, converter=jnp.asarray)
@@ -591,6 +586,16 @@ class Compliance(Effect):
 
     def describe(self):
         return {"f_hz": float(self.f_hz), "zeta": float(self.zeta), "motor_fraction": self.motor_fraction}
+
+
+def is_dry(e: Effect) -> bool:
+    """Dry friction: a torque set-valued at rest."""
+    return e.dry
+
+
+def is_load(e: Effect) -> bool:
+    """A smooth load: a linear torque that is neither the inertia nor dry friction."""
+    return e.linear and not (e.inertial or e.dry)
 
 
 VOCABULARY: dict[str, type[Effect]] = {
@@ -721,13 +726,13 @@ class Model(eqx.Module):
         return {k: theta[i] for i, k in enumerate(self.names)}
 
     # -- torques and regressors -----------------------------------------------------------
-    def torque(self, q, qd, qdd, params: dict, boundary: float = 0.0, kinds=None, side=None) -> Array:
-        """Σ of the linear effects' torques, shape (n,); only those of `kinds` (e.g.
-        ("friction",)) and acting on `side` ("motor" or "link") when given."""
+    def torque(self, q, qd, qdd, params: dict, boundary: float = 0.0, only=None, side=None) -> Array:
+        """Σ of the linear effects' torques, shape (n,); only the effects `only(effect)` accepts
+        (e.g. `is_dry`, `is_load`) and acting on `side` ("motor" or "link") when given."""
         s = self.structure
         total = jnp.zeros(s.n_joints, jnp.result_type(qd, float))
         for e in self.effects:
-            if e.linear and (kinds is None or e.kind in kinds) and (side is None or e.side == side):
+            if e.linear and (only is None or only(e)) and (side is None or e.side == side):
                 total = total + e.torque(s, q, qd, qdd, params, boundary)
         return total
 

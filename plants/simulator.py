@@ -32,7 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from manus.plants.effects import Compliance, Delay, Model
+from manus.plants.effects import Compliance, Delay, Model, is_dry, is_load
 from manus.plants.errors import ModelError
 from manus.plants.stepper import Plant
 from manus.plants.structures import Diagonal, Joints, Manus2, greater, joints
@@ -238,23 +238,23 @@ class Simulator(Plant):
         return new, self.measure(new)
 
     # -- dynamics, on per-joint scalars -----------------------------------------------------
-    def _torque(self, q: Joints, qd: Joints, kinds, side=None) -> Joints:
-        """The model's torques of `kinds` (`Model.torque` at q̈ = 0), per joint."""
+    def _torque(self, q: Joints, qd: Joints, only, side=None) -> Joints:
+        """The model's torques of the effects `only` accepts (`Model.torque` at q̈ = 0), per joint."""
         qd = jnp.stack(qd)
-        tau = self.model.torque(jnp.stack(q), qd, jnp.zeros_like(qd), self.params, kinds=kinds, side=side)
+        tau = self.model.torque(jnp.stack(q), qd, jnp.zeros_like(qd), self.params, only=only, side=side)
         return joints(tau, self.model.n_joints)
 
     def _friction_bounds(self, q: Joints, qd: Joints, side=None) -> tuple[Joints, Joints]:
         """Friction levels (lo, hi) ≥ 0: f ∈ [−lo, hi], f = hi when sliding forward."""
         spd = tuple(greater(jnp.abs(v), TINY_SPEED) for v in qd)
-        hi = self._torque(q, spd, ("friction",), side)
-        lo = self._torque(q, tuple(-v for v in spd), ("friction",), side)
+        hi = self._torque(q, spd, is_dry, side)
+        lo = self._torque(q, tuple(-v for v in spd), is_dry, side)
         return tuple(greater(-x, 0.0) for x in lo), tuple(greater(x, 0.0) for x in hi)
 
     def _bounds_ahead(self, q: Joints, qd: Joints, h, side=None):
         """The friction bounds of the sub-step that starts at (q, q̇): at its midpoint q + h/2·q̇
         and speed |q̇|; () without friction."""
-        if not any(e.kind == "friction" and (side is None or e.side == side) for e in self.model.effects):
+        if not any(e.dry and (side is None or e.side == side) for e in self.model.effects):
             return ()
         return self._friction_bounds(tuple(x + 0.5 * h * v for x, v in zip(q, qd)), qd, side)
 
@@ -283,7 +283,7 @@ class Simulator(Plant):
     # them: as a loop output XLA evaluates them once, not again inside each of their consumers.
     def _accel_rigid(self, q, qd, pose, tau):
         s, p = self.model.structure, self.params
-        r = [t - b - l for t, b, l in zip(tau, s.bias(pose, qd, p), self._torque(q, qd, ("load",)))]
+        r = [t - b - l for t, b, l in zip(tau, s.bias(pose, qd, p), self._torque(q, qd, is_load))]
         return s.mass(pose, p).solve(r)
 
     def _substep_rigid(self, q, qd, pose, shift, bounds, tau, h):
@@ -305,8 +305,8 @@ class Simulator(Plant):
         for x, a, b, ad, bd in zip(H.diagonal(), th, q, thd, qd):
             k, d = c.shaft(x)
             shaft.append(k * (a - b) + d * (ad - bd))
-        motor = self._torque(th, thd, ("load",), "motor")
-        link = self._torque(q, qd, ("load",), "link")
+        motor = self._torque(th, thd, is_load, "motor")
+        link = self._torque(q, qd, is_load, "link")
         am = tuple((t - x - m) / j for t, x, m, j in zip(tau, shaft, motor, jm))
         rl = [x - b - l for x, b, l in zip(shaft, s.bias(pose, qd, p), link)]
         return am, H.minus_diagonal(jm).solve(rl), jm

@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from manus.plants.effects import VOCABULARY, Model, parse_effects
+from manus.plants.effects import VOCABULARY, Model, is_dry, is_load, parse_effects
 from manus.plants.errors import ModelError
 from manus.plants.structures import Axis, Manus2
 
@@ -44,7 +44,7 @@ def test_closed_form_torques_of_friction_effects():
     q, qd = np.array([0.1, 0.2]), np.array([0.3, -0.02])
     m = Model(s, "rigid,coulomb,stribeck:0.05,asymmetry,cogging:6")
     p = m.defaults()
-    tau = np.asarray(m.torque(q, qd, np.zeros(2), p, kinds=("friction", "load")))
+    tau = np.asarray(m.torque(q, qd, np.zeros(2), p, only=lambda e: is_dry(e) or is_load(e)))
     expected = (np.array([0.099, -0.139])
                 + np.array([0.05 * np.exp(-36), -0.07 * np.exp(-(0.02 / 0.05) ** 2)])
                 + np.array([0.05 * 0.3, 0.04 * 0.02])  # asymmetry: db |q̇|
@@ -87,7 +87,7 @@ def test_effects_own_their_rules():
 def test_boundary_layer_replaces_the_sign_by_a_saturated_ramp():
     m = Model(Axis(n_joints=1), "rigid,coulomb")
     p = {"M1": 1.0, "Fc1": 2.0}
-    tau = lambda v, phi: float(m.torque(np.zeros(1), np.array([v]), np.zeros(1), p, boundary=phi, kinds=("friction",))[0])
+    tau = lambda v, phi: float(m.torque(np.zeros(1), np.array([v]), np.zeros(1), p, boundary=phi, only=is_dry)[0])
     assert tau(0.001, 0.0) == 2.0 and tau(0.0, 0.0) == 0.0
     assert tau(0.001, 0.01) == pytest.approx(0.2) and tau(-0.5, 0.01) == -2.0
 

@@ -15,6 +15,7 @@ import pytest
 
 from manus.adaptive.impedance import Impedance
 from manus.plants import Encoder, Model, Simulator
+from manus.plants.effects import is_dry, is_load
 from manus.plants.closed_loop import simulate, simulate_batch
 from manus.plants.references import Complex, MultiSine
 from manus.plants.structures import Axis, Manus2
@@ -310,11 +311,11 @@ def test_one_period_matches_the_generic_definitions_on_random_states():
     tau = rng.normal(0, 0.25, (n, 2))
 
     dyn = jax.jit(jax.vmap(lambda q, v: (s.inertia(q, p), s.coriolis(q, v, p) @ v
-                                         + model.torque(q, v, jnp.zeros(2), p, kinds=("load",)))))
+                                         + model.torque(q, v, jnp.zeros(2), p, only=is_load))))
     spd = lambda v: jnp.maximum(jnp.abs(v), 1e-12)
     bounds = jax.jit(jax.vmap(lambda q, v: (
-        jnp.maximum(-model.torque(q, -spd(v), jnp.zeros(2), p, kinds=("friction",)), 0.0),
-        jnp.maximum(model.torque(q, spd(v), jnp.zeros(2), p, kinds=("friction",)), 0.0))))
+        jnp.maximum(-model.torque(q, -spd(v), jnp.zeros(2), p, only=is_dry), 0.0),
+        jnp.maximum(model.torque(q, spd(v), jnp.zeros(2), p, only=is_dry), 0.0))))
 
     def accel(q, v):
         H, rest = map(np.asarray, dyn(q, v))
