@@ -1,27 +1,55 @@
 # Two commands for a fresh machine (Python 3.11 and pip are all they need):
-#   make demo   sets up .venv and runs the main job
-#   make test   sets up .venv and runs the tests
+#   make demo   sets up .venv with the package alone and runs the main job
+#   make test   sets up .venv with the test extra, then lints, type-checks, builds the API
+#               reference and runs the tests (the fast ones first)
+# and a few more:
+#   make lint   ruff (lint and format) and pyright, as `make test` runs them
+#   make docs   the API reference from the docstrings, into docs/api/
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
+# the installed packages one level below `manus` (pdoc walks each one's modules)
+API = $(shell $(BIN)/python -c "import tomllib; print(*[p for p in tomllib.load(open('pyproject.toml', 'rb'))['tool']['setuptools']['packages'] if p.count('.') < 2])")
+# one worker per core, each test file on one worker (its module fixtures computed once)
+PYTEST := $(BIN)/python -m pytest -q -n auto --dist loadfile
 
-.PHONY: demo test setup clean
+.PHONY: demo test lint apicheck docs setup clean
 
-setup: $(VENV)/.installed
-
-$(VENV)/.installed: pyproject.toml
+$(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e ".[test]"
+
+# the demo needs the package alone; the test extra is a superset, so it satisfies the demo too
+$(VENV)/.installed-demo: pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install -q -e .
 	touch $@
 
-demo: setup
+$(VENV)/.installed-test: pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install -q -e ".[test]"
+	touch $@ $(VENV)/.installed-demo
+
+setup: $(VENV)/.installed-test
+
+demo: $(VENV)/.installed-demo
 	$(BIN)/manus demo
 
-# one worker per core, each test file on one worker (its module fixtures computed once): on this
-# 2-core machine 12.5 min against 18 min in one process
-test: setup
-	$(BIN)/python -m pytest -q -n auto --dist loadfile
+lint: $(VENV)/.installed-test
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+	$(BIN)/pyright
+
+# the API reference must build (into a scratch directory)
+apicheck: $(VENV)/.installed-test
+	tmp=$$(mktemp -d) && $(BIN)/pdoc -o $$tmp $(API) && rm -rf $$tmp
+
+docs: $(VENV)/.installed-test
+	rm -rf docs/api
+	$(BIN)/pdoc -o docs/api $(API)
+
+# pytest's exit 5 (no test selected) is no failure
+test: lint apicheck
+	$(PYTEST) -m "not slow" || [ $$? -eq 5 ]
+	$(PYTEST) -m slow || [ $$? -eq 5 ]
 
 clean:
-	rm -rf $(VENV) runs/out .pytest_cache
+	rm -rf $(VENV) runs/out docs/api .pytest_cache
