@@ -26,6 +26,7 @@ $(VENV)/.installed-demo: pyproject.toml | $(BIN)/python
 
 $(VENV)/.installed-test: pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install -q -e ".[test]"
+	$(BIN)/python .ci/typing_paths.py
 	touch $@ $(VENV)/.installed-demo
 
 setup: $(VENV)/.installed-test
