@@ -8,5 +8,17 @@ a recorded array with `run`, or tick by tick with `compiled_step(estimator)`.
 from manus.estimators.base import Estimate, Estimator, FilteredFirstDifference, FirstDifference, compiled_step, run
 from manus.estimators.registry import KNOBS, MODEL_BASED, NAMES, SETTINGS, knob_range, make
 
-__all__ = ["Estimate", "Estimator", "FilteredFirstDifference", "FirstDifference", "compiled_step", "run",
-           "KNOBS", "MODEL_BASED", "NAMES", "SETTINGS", "knob_range", "make"]
+__all__ = [
+    "Estimate",
+    "Estimator",
+    "FilteredFirstDifference",
+    "FirstDifference",
+    "compiled_step",
+    "run",
+    "KNOBS",
+    "MODEL_BASED",
+    "NAMES",
+    "SETTINGS",
+    "knob_range",
+    "make",
+]

@@ -39,9 +39,8 @@ def encoder_step(rec: Recording) -> tuple[float, str]:
         return rec.position_step, "metadata"
     q = rec.q - rec.q[0]
     step = smallest_step(q)
-    if step:
-        if np.all(np.abs(q / step - np.round(q / step)) < 1e-3):
-            return step, "grid"
+    if step and np.all(np.abs(q / step - np.round(q / step)) < 1e-3):
+        return step, "grid"
     noise = np.std(rec.q - offline.lowpass(rec.q, rec.dt, min(100.0, 0.4 / rec.dt)), axis=0).max()
     if not noise > 0:
         return THESIS_STEP, "default"
@@ -78,8 +77,9 @@ def run_estimator(estimator, q: np.ndarray, tau: np.ndarray) -> Estimate:
     return Estimate(*(None if x is None else np.asarray(x) for x in out))
 
 
-def tune(setup: Setup, name: str, q: np.ndarray, tau: np.ndarray, reference: np.ndarray | None,
-         start: int, stop: int) -> dict | None:
+def tune(
+    setup: Setup, name: str, q: np.ndarray, tau: np.ndarray, reference: np.ndarray | None, start: int, stop: int
+) -> dict | None:
     """The best knob value of estimator `name` on (q, tau): against `reference` (the truth) when
     given, else by whiteness. Returns {"knob", "value", "criterion", "objective", "at_limit"} (the
     best value at an end of the searched range: the optimum may lie beyond it) or None."""
@@ -92,14 +92,19 @@ def tune(setup: Setup, name: str, q: np.ndarray, tau: np.ndarray, reference: np.
     best = None
     for _ in range(GRID_ROUNDS):
         values = back(np.linspace(lo, hi, GRID_POINTS))
-        out = _run_batch(_stack([setup.make(name, **{knob: float(v)}) for v in values]), jnp.asarray(q),
-                         jnp.asarray(tau))
+        out = _run_batch(
+            _stack([setup.make(name, **{knob: float(v)}) for v in values]), jnp.asarray(q), jnp.asarray(tau)
+        )
         if reference is not None:
             objective = np.sqrt(np.mean((np.asarray(out.qd)[:, start:stop] - reference[start:stop]) ** 2, axis=(1, 2)))
         else:
-            eps = scoring.prediction_residual(q[start:stop], np.asarray(out.q)[:, start:stop],
-                                              np.asarray(out.qd)[:, start:stop],
-                                              None if out.qdd is None else np.asarray(out.qdd)[:, start:stop], setup.dt)
+            eps = scoring.prediction_residual(
+                q[start:stop],
+                np.asarray(out.q)[:, start:stop],
+                np.asarray(out.qd)[:, start:stop],
+                None if out.qdd is None else np.asarray(out.qdd)[:, start:stop],
+                setup.dt,
+            )
             objective = scoring.whiteness(eps)
         objective = np.where(np.isfinite(objective), objective, np.inf)
         i = int(np.argmin(objective))
@@ -107,8 +112,13 @@ def tune(setup: Setup, name: str, q: np.ndarray, tau: np.ndarray, reference: np.
         spacing = (hi - lo) / (GRID_POINTS - 1)
         lo, hi = max(to(low), to(values[i]) - spacing), min(to(high), to(values[i]) + spacing)
     at_limit = bool(np.isclose(best[0], low, rtol=1e-9) or np.isclose(best[0], high, rtol=1e-9))
-    return {"knob": knob, "value": best[0], "criterion": "rms_error" if reference is not None else "whiteness",
-            "objective": best[1], "at_limit": at_limit}
+    return {
+        "knob": knob,
+        "value": best[0],
+        "criterion": "rms_error" if reference is not None else "whiteness",
+        "objective": best[1],
+        "at_limit": at_limit,
+    }
 
 
 def reference_velocity(rec: Recording, cutoff_hz: float) -> tuple[np.ndarray, bool, int, int]:
@@ -120,8 +130,14 @@ def reference_velocity(rec: Recording, cutoff_hz: float) -> tuple[np.ndarray, bo
     return offline.differentiate(rec.q, rec.dt, cutoff_hz)[1], False, max(start, edge), len(rec) - edge
 
 
-def compare(rec: Recording, names=NAMES, tune_knobs: bool = False, cutoff_hz: float = 30.0,
-            model_knobs: dict | None = None, progress=None) -> tuple[dict, dict]:
+def compare(
+    rec: Recording,
+    names=NAMES,
+    tune_knobs: bool = False,
+    cutoff_hz: float = 30.0,
+    model_knobs: dict | None = None,
+    progress=None,
+) -> tuple[dict, dict]:
     """Run and score every estimator in `names` on the recording.
 
     Returns (report, estimates): the report is JSON-ready (docs/cli.md), `estimates[name]` the
@@ -156,8 +172,16 @@ def compare(rec: Recording, names=NAMES, tune_knobs: bool = False, cutoff_hz: fl
             m = scored[sl]
             row = {"name": name, **scoring.score(out.qd[sl][m], reference[sl][m], rec.dt, still[sl][m])}
         else:  # reported, not raised: the other estimators' results stand
-            row = {"name": name, "error": "diverged (non-finite estimate)", "rms_error": None, "max_error": None,
-                   "moving": None, "still": None, "lag_ms": None, "noise_50hz": None}
+            row = {
+                "name": name,
+                "error": "diverged (non-finite estimate)",
+                "rms_error": None,
+                "max_error": None,
+                "moving": None,
+                "still": None,
+                "lag_ms": None,
+                "noise_50hz": None,
+            }
         spec = knob_range(name, step)
         if spec is not None:
             value = tuned["value"] if tuned else float(np.asarray(getattr(estimator, spec[0])))  # knob = field
@@ -165,15 +189,30 @@ def compare(rec: Recording, names=NAMES, tune_knobs: bool = False, cutoff_hz: fl
             if tuned:
                 row["knob"].update({k: tuned[k] for k in ("criterion", "objective", "at_limit")})
         rows.append(row)
-    report = {"recording": rec.path, "samples": len(rec), "joints": rec.n_joints, "dt": rec.dt, "truth": truth,
-              "reference": "truth" if truth else f"offline zero-phase ({cutoff_hz:g} Hz)",
-              "scored_samples": [start, stop], "step": {"value": step, "source": step_source},
-              "still_threshold": scoring.still_threshold(reference[sl]).tolist(), "tuned": tune_knobs,
-              "estimators": rows,
-              **({"gaps": f"{described}: filled for the estimators (positions by a cubic spline); {int((~scored).sum())} "
-                          f"sample{'s' if (~scored).sum() != 1 else ''} not scored (the filled ones, and {1e3 * guard * rec.dt:.3g} ms either side of a gap where "
-                          "the fill may miss by more than an encoder step)"} if lost else {}),
-              "best": min((r for r in rows if r["rms_error"] is not None), key=lambda r: r["rms_error"],
-                          default={"name": None})["name"]}
+    report = {
+        "recording": rec.path,
+        "samples": len(rec),
+        "joints": rec.n_joints,
+        "dt": rec.dt,
+        "truth": truth,
+        "reference": "truth" if truth else f"offline zero-phase ({cutoff_hz:g} Hz)",
+        "scored_samples": [start, stop],
+        "step": {"value": step, "source": step_source},
+        "still_threshold": scoring.still_threshold(reference[sl]).tolist(),
+        "tuned": tune_knobs,
+        "estimators": rows,
+        **(
+            {
+                "gaps": f"{described}: filled for the estimators (positions by a cubic spline); "
+                f"{int((~scored).sum())} sample{'s' if (~scored).sum() != 1 else ''} not scored (the filled ones, "
+                f"and {1e3 * guard * rec.dt:.3g} ms either side of a gap where "
+                "the fill may miss by more than an encoder step)"
+            }
+            if lost
+            else {}
+        ),
+        "best": min(
+            (r for r in rows if r["rms_error"] is not None), key=lambda r: r["rms_error"], default={"name": None}
+        )["name"],
+    }
     return report, estimates
-

@@ -61,15 +61,19 @@ class ModelDynamics(eqx.Module):
             base = jnp.asarray([self.model.defaults()[k] for k in names], float) if current is None else current
             unknown = sorted(set(params or {}) - set(names))
             if unknown:
-                raise ManusError(f"unknown parameter(s) {', '.join(unknown)} for the estimator's model "
-                                 f"{self.model.spec} (it has {', '.join(names)})")
+                raise ManusError(
+                    f"unknown parameter(s) {', '.join(unknown)} for the estimator's model "
+                    f"{self.model.spec} (it has {', '.join(names)})"
+                )
             for k, v in (params or {}).items():
                 base = base.at[names.index(k)].set(v)
             return base
         theta = jnp.asarray(params, float)
         if theta.shape != (len(names),):
-            raise ManusError(f"parameter vector of shape {theta.shape}: the model {self.model.spec} has "
-                             f"{len(names)} parameters ({', '.join(names)})")
+            raise ManusError(
+                f"parameter vector of shape {theta.shape}: the model {self.model.spec} has "
+                f"{len(names)} parameters ({', '.join(names)})"
+            )
         return theta
 
     def commands(self, n: int) -> Array | None:

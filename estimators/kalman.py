@@ -50,16 +50,25 @@ from manus.estimators.linear import equal_noise_bandwidth, quantization_variance
 
 def transition(order: int, dt: float) -> np.ndarray:
     """F of a chain of `order` integrators over one period: F_ij = T^(j−i)/(j−i)! for j ≥ i."""
-    return np.array([[dt ** (j - i) / math.factorial(j - i) if j >= i else 0.0 for j in range(order)]
-                     for i in range(order)])
+    return np.array(
+        [[dt ** (j - i) / math.factorial(j - i) if j >= i else 0.0 for j in range(order)] for i in range(order)]
+    )
 
 
 def white_noise_covariance(order: int, dt: float) -> np.ndarray:
     """Q / q: the covariance that unit-density white noise on the highest derivative adds over one
     period, Q_ij = T^(2d−1−i−j) / ((d−1−i)! (d−1−j)! (2d−1−i−j))."""
     d = order
-    return np.array([[dt ** (2 * d - 1 - i - j) / (math.factorial(d - 1 - i) * math.factorial(d - 1 - j)
-                                                    * (2 * d - 1 - i - j)) for j in range(d)] for i in range(d)])
+    return np.array(
+        [
+            [
+                dt ** (2 * d - 1 - i - j)
+                / (math.factorial(d - 1 - i) * math.factorial(d - 1 - j) * (2 * d - 1 - i - j))
+                for j in range(d)
+            ]
+            for i in range(d)
+        ]
+    )
 
 
 def bandwidth_noise(order: int, dt: float, r: float, bandwidth: float) -> float:
@@ -70,6 +79,7 @@ def bandwidth_noise(order: int, dt: float, r: float, bandwidth: float) -> float:
 @functools.cache
 def default_bandwidth(order: int, dt: float) -> float:
     """ω [rad/s] at which the filter's velocity noise equals the thesis filter's."""
+
     def design(w):
         F = transition(order, dt)
         _, K = steady_state(order, dt, bandwidth_noise(order, dt, 1.0, w), 1.0)
@@ -136,8 +146,14 @@ class KinematicKalman(Estimator):
     P0: Array  # steady-state posterior covariance (d, d), the starting one
     K: Array  # steady-state gain (d,)
 
-    def __init__(self, dt: float = 1e-3, order: int = 3, q: float | None = None, r: float = quantization_variance(),
-                 steady: bool = False):
+    def __init__(
+        self,
+        dt: float = 1e-3,
+        order: int = 3,
+        q: float | None = None,
+        r: float = quantization_variance(),
+        steady: bool = False,
+    ):
         if order not in (2, 3):
             raise ValueError(f"order must be 2 (constant velocity) or 3 (constant acceleration), not {order}")
         self.dt, self.order, self.steady = float(dt), int(order), bool(steady)
@@ -182,10 +198,15 @@ class KinematicKalman(Estimator):
         x = tuple(x[i] + K[i] * e for i in range(d))
         # Joseph form (I − K H) P̄ (I − K H)ᵀ + r K Kᵀ with I − K H = I − K e₀ᵀ, in two halves as the
         # matrix product does them: M = (I − K H) P̄, then M (I − K H)ᵀ; the upper triangle only
-        M = {(i, j): (1.0 - K[0]) * Pb_(0, j) if i == 0 else Pb_(i, j) - K[i] * Pb_(0, j)
-             for i in range(d) for j in range(d)}
-        new = {(i, j): (M[i, 0] * (1.0 - K[0]) if j == 0 else M[i, j] - M[i, 0] * K[j]) + self.r * K[i] * K[j]
-               for i, j in _pairs(d)}
+        M = {
+            (i, j): (1.0 - K[0]) * Pb_(0, j) if i == 0 else Pb_(i, j) - K[i] * Pb_(0, j)
+            for i in range(d)
+            for j in range(d)
+        }
+        new = {
+            (i, j): (M[i, 0] * (1.0 - K[0]) if j == 0 else M[i, j] - M[i, 0] * K[j]) + self.r * K[i] * K[j]
+            for i, j in _pairs(d)
+        }
         P = jnp.stack([jnp.stack([new[min(i, j), max(i, j)] for j in range(d)]) for i in range(d)])
         P = jnp.moveaxis(P, (0, 1), (-2, -1))
         return KalmanState(jnp.moveaxis(jnp.stack(x), 0, -1), P), self._estimate(x)

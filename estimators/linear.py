@@ -11,7 +11,7 @@ The ratio does not depend on the units of position (the noise scales out), only 
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 import scipy.linalg
@@ -43,15 +43,18 @@ def velocity_noise_gain(A: np.ndarray, K: np.ndarray, dt: float) -> float:
     return float(np.sqrt(X[1, 1]) / dt)
 
 
-def equal_noise_bandwidth(design: Callable[[float], tuple[np.ndarray, np.ndarray]], dt: float,
-                          corner: float = THESIS_CORNER) -> float:
+def equal_noise_bandwidth(
+    design: Callable[[float], tuple[np.ndarray, np.ndarray]], dt: float, corner: float = THESIS_CORNER
+) -> float:
     """The bandwidth ω [rad/s] at which `design(ω) -> (A, K)` has the velocity noise gain of the
     thesis's filtered first difference (the gain grows with ω: a bracketed root on log ω)."""
     target = np.log(ffd_noise_gain(dt, corner))
     f = lambda lw: np.log(velocity_noise_gain(*design(np.exp(lw)), dt)) - target
     lo, hi = np.log(1.0), np.log(0.9 * np.pi / dt)
     if not f(lo) < 0 < f(hi):
-        raise ValueError(f"no bandwidth between 1 rad/s and 0.9 Nyquist ({0.45 / dt:.4g} Hz) has the velocity noise of "
-                         f"the {corner / (2 * np.pi):.4g} Hz filtered first difference at {1 / dt:.4g} Hz"
-                         + (" (its corner is above Nyquist: raise the rate)" if corner >= np.pi / dt else ""))
+        raise ValueError(
+            f"no bandwidth between 1 rad/s and 0.9 Nyquist ({0.45 / dt:.4g} Hz) has the velocity noise of "
+            f"the {corner / (2 * np.pi):.4g} Hz filtered first difference at {1 / dt:.4g} Hz"
+            + (" (its corner is above Nyquist: raise the rate)" if corner >= np.pi / dt else "")
+        )
     return float(np.exp(scipy.optimize.brentq(f, lo, hi, xtol=1e-8)))

@@ -47,6 +47,7 @@ def gains(bandwidth: float, dt: float) -> np.ndarray:
 @functools.cache
 def default_bandwidth(dt: float) -> float:
     """ω [rad/s] at which the observer's velocity noise equals the thesis filter's."""
+
     def design(w):
         L = gains(w, dt)
         return (np.eye(2) - np.outer(L, [1.0, 0.0])) @ transition(2, dt), L
@@ -74,8 +75,9 @@ class Luenberger(ModelBased):
     dynamics: ModelDynamics | None
     theta0: Array | None
 
-    def __init__(self, dt: float = 1e-3, bandwidth: float | None = None, dynamics: ModelDynamics | None = None,
-                 theta0=None):
+    def __init__(
+        self, dt: float = 1e-3, bandwidth: float | None = None, dynamics: ModelDynamics | None = None, theta0=None
+    ):
         self.dt = float(dt)
         w = default_bandwidth(self.dt) if bandwidth is None else float(bandwidth)
         if not 0 < w * self.dt < 20:

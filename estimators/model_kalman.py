@@ -67,8 +67,14 @@ class ModelKalman(ModelBased):
     P0: Array  # (2n, 2n)
     theta0: Array
 
-    def __init__(self, dynamics: ModelDynamics, dt: float = 1e-3, q: float | None = None,
-                 r: float = quantization_variance(), theta0=None):
+    def __init__(
+        self,
+        dynamics: ModelDynamics,
+        dt: float = 1e-3,
+        q: float | None = None,
+        r: float = quantization_variance(),
+        theta0=None,
+    ):
         self.dt = float(dt)
         q = bandwidth_noise(2, self.dt, r, default_bandwidth(2, self.dt)) if q is None else float(q)
         if not (q > 0 and r > 0):
@@ -85,8 +91,7 @@ class ModelKalman(ModelBased):
         n = self.dynamics.model.n_joints
         if q0.shape != (n,):
             raise ValueError(f"the estimator's model has {n} joint(s), the first measurement {q0.shape}")
-        return ModelKalmanState(jnp.concatenate([q0, jnp.zeros(n)]), self.P0, self.theta0,
-                                self.dynamics.commands(n))
+        return ModelKalmanState(jnp.concatenate([q0, jnp.zeros(n)]), self.P0, self.theta0, self.dynamics.commands(n))
 
     def step(self, state, q, tau=None):
         n = q.shape[-1]

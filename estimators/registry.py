@@ -32,8 +32,17 @@ from manus.plants.structures import structure_named
 
 NOMINAL_MODEL = "rigid,viscous,coulomb"  # the thesis's nominal model (§3.5)
 
-NAMES = ("first_difference", "filtered_first_difference", "kalman_cv", "kalman_ca", "kalman_model",
-         "luenberger", "luenberger_model", "levant", "foaw")
+NAMES = (
+    "first_difference",
+    "filtered_first_difference",
+    "kalman_cv",
+    "kalman_ca",
+    "kalman_model",
+    "luenberger",
+    "luenberger_model",
+    "levant",
+    "foaw",
+)
 MODEL_BASED = ("kalman_model", "luenberger_model")
 
 # The settings `make` takes for each (every one has a default).
@@ -125,8 +134,10 @@ def make(name: str, dt: float = 1e-3, n_joints: int = 2, step: float | None = No
     unknown = sorted(set(knobs) - set(SETTINGS[name]))
     if unknown:
         accepted = SETTINGS[name]
-        raise ManusError(f"estimator {name} has no setting {', '.join(unknown)}"
-                         + (f" (it takes {', '.join(accepted)})" if accepted else " (it takes none)"))
+        raise ManusError(
+            f"estimator {name} has no setting {', '.join(unknown)}"
+            + (f" (it takes {', '.join(accepted)})" if accepted else " (it takes none)")
+        )
     try:
         return _build(name, float(dt), int(n_joints), step, {k: v for k, v in knobs.items() if v is not None})
     except ValueError as e:

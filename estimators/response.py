@@ -37,14 +37,16 @@ def phasor(x: np.ndarray, t: np.ndarray, freqs_hz: np.ndarray) -> np.ndarray:
     out = np.empty(len(freqs_hz), complex)
     for i, f in enumerate(freqs_hz):
         w = 2 * np.pi * f
-        (a, b, _), *_ = np.linalg.lstsq(np.stack([np.cos(w * t), np.sin(w * t), np.ones_like(t)], 1), x[:, i],
-                                        rcond=None)
+        (a, b, _), *_ = np.linalg.lstsq(
+            np.stack([np.cos(w * t), np.sin(w * t), np.ones_like(t)], 1), x[:, i], rcond=None
+        )
         out[i] = a - 1j * b
     return out
 
 
-def frequency_response(name: str, freqs_hz, dt: float = 1e-3, amplitude: float = 0.01, seconds: float | None = None,
-                       **knobs) -> np.ndarray:
+def frequency_response(
+    name: str, freqs_hz, dt: float = 1e-3, amplitude: float = 0.01, seconds: float | None = None, **knobs
+) -> np.ndarray:
     """H(f) (complex, per frequency) of estimator `name` built by `make(name, dt, **knobs)` for
     one joint (an axis for the model-based ones) and run on every frequency at once (vmapped);
     `seconds` defaults to four periods of the lowest frequency."""

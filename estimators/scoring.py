@@ -47,8 +47,10 @@ def lag_seconds(estimate: np.ndarray, reference: np.ndarray, dt: float, max_lag:
     """Delay of `estimate` behind `reference` [s] by cross-correlation (all joints together)."""
     m = int(round(max_lag / dt))
     n = len(reference)
-    c = sum(signal.correlate(estimate[:, j], reference[:, j], mode="full", method="fft")[n - 1 - m:n + m]
-            for j in range(reference.shape[1]))  # c[m + s] = Σ_k est[k + s] ref[k]
+    c = sum(
+        signal.correlate(estimate[:, j], reference[:, j], mode="full", method="fft")[n - 1 - m : n + m]
+        for j in range(reference.shape[1])
+    )  # c[m + s] = Σ_k est[k + s] ref[k]
     k = int(np.argmax(c))
     if not 0 < k < 2 * m:
         return None
@@ -72,15 +74,20 @@ def score(estimate: np.ndarray, reference: np.ndarray, dt: float, still: np.ndar
     err = estimate - reference
     lag = lag_seconds(estimate, reference, dt)
     part = lambda mask: {"rms_error": rms(err[mask]), "max_error": peak(err[mask]), "fraction": float(mask.mean())}
-    return {"rms_error": rms(err), "max_error": peak(err),
-            "rms_error_per_joint": [rms(err[:, j]) for j in range(err.shape[1])],
-            "moving": part(~still), "still": part(still),
-            "lag_ms": None if lag is None else 1e3 * lag,
-            "noise_50hz": highpass_rms(err, dt)}
+    return {
+        "rms_error": rms(err),
+        "max_error": peak(err),
+        "rms_error_per_joint": [rms(err[:, j]) for j in range(err.shape[1])],
+        "moving": part(~still),
+        "still": part(still),
+        "lag_ms": None if lag is None else 1e3 * lag,
+        "noise_50hz": highpass_rms(err, dt),
+    }
 
 
-def prediction_residual(q: np.ndarray, q_hat: np.ndarray, qd_hat: np.ndarray, qdd_hat: np.ndarray | None,
-                        dt: float) -> np.ndarray:
+def prediction_residual(
+    q: np.ndarray, q_hat: np.ndarray, qd_hat: np.ndarray, qdd_hat: np.ndarray | None, dt: float
+) -> np.ndarray:
     """ε_k = q_k − (q̂_{k−1} + T q̂̇_{k−1} + ½T² q̂̈_{k−1}), shape (T − 1, n); arrays may carry
     leading batch axes."""
     pred = q_hat + dt * qd_hat + (0.0 if qdd_hat is None else 0.5 * dt * dt * qdd_hat)

@@ -142,8 +142,10 @@ class UdpDevice(Device):
                     self.info = packet
                     self.last_seq = None
                     return packet
-        raise DeviceError(f"{self.url}: no answer from the device within {timeout:g} s "
-                          f"(is `manus emulate --port {self.peer[1]}` or the rig running?)")
+        raise DeviceError(
+            f"{self.url}: no answer from the device within {timeout:g} s "
+            f"(is `manus emulate --port {self.peer[1]}` or the rig running?)"
+        )
 
     def receive(self, deadline_ns: int, expect_ns: int | None = None, idle=None) -> P.Sensor | None:
         sock, clock = self.sock, time.perf_counter_ns

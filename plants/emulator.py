@@ -39,13 +39,22 @@ from manus.plants.recording import RecordingWriter
 from manus.plants.simulator import Simulator
 
 
-
 class Emulator:
     """`Emulator(sim, port).serve()`; see the module docstring."""
 
-    def __init__(self, sim: Simulator, port: int, host: str = "127.0.0.1", watchdog: float = 0.005,
-                 linger: float = 1.0, drop: float = 0.0, garbage: float = 0.0, log=None, seed: int = 0,
-                 spin: float = 0.002):
+    def __init__(
+        self,
+        sim: Simulator,
+        port: int,
+        host: str = "127.0.0.1",
+        watchdog: float = 0.005,
+        linger: float = 1.0,
+        drop: float = 0.0,
+        garbage: float = 0.0,
+        log=None,
+        seed: int = 0,
+        spin: float = 0.002,
+    ):
         import jax
 
         if sim.encoder is None or sim.actuator is None:
@@ -84,14 +93,26 @@ class Emulator:
         self.active = False
         self._writer = None
         if log is not None:
-            cols = (["t"] + [f"q{i + 1}" for i in range(self.n)] + [f"tau{i + 1}" for i in range(self.n)]
-                    + [f"qd{i + 1}" for i in range(self.n)] + ["flags", "session", "seq"])
-            self._writer = RecordingWriter(log, cols, {"sample_rate_hz": f"{sim.rate_hz:g}",
-                                                       "counts_per_rev": f"{self.info.counts_per_rev:g}",
-                                                       "structure": sim.model.structure.name,
-                                                       **_robot_of(sim.model.structure),
-                                                       "truth": sim.model.spec, "source": "manus emulate (device side)",
-                                                       "streamed": "true"})
+            cols = (
+                ["t"]
+                + [f"q{i + 1}" for i in range(self.n)]
+                + [f"tau{i + 1}" for i in range(self.n)]
+                + [f"qd{i + 1}" for i in range(self.n)]
+                + ["flags", "session", "seq"]
+            )
+            self._writer = RecordingWriter(
+                log,
+                cols,
+                {
+                    "sample_rate_hz": f"{sim.rate_hz:g}",
+                    "counts_per_rev": f"{self.info.counts_per_rev:g}",
+                    "structure": sim.model.structure.name,
+                    **_robot_of(sim.model.structure),
+                    "truth": sim.model.spec,
+                    "source": "manus emulate (device side)",
+                    "streamed": "true",
+                },
+            )
         self._warm_up()
 
     def _warm_up(self) -> None:
@@ -175,8 +196,9 @@ class Emulator:
         """The log's last row of a session: the device at zero torque from `now`."""
         if self._writer is not None and self._last is not None:
             q, qd = self._last
-            self._rows.append(np.concatenate([[(now - self.t0) / 1e9], q, np.zeros(self.n), qd,
-                                              [self.flags, self.session, self.seq]]))
+            self._rows.append(
+                np.concatenate([[(now - self.t0) / 1e9], q, np.zeros(self.n), qd, [self.flags, self.session, self.seq]])
+            )
 
     def _drain(self) -> None:
         while True:
@@ -224,7 +246,7 @@ class Emulator:
         elif self.saturated:
             flags |= P.STATUS_SATURATED
         self.flags = flags
-        self.state, counts, q_true, qd_true, applied = self._tick(self.state, self.tau)
+        self.state, counts, _q_true, qd_true, applied = self._tick(self.state, self.tau)
         counts = np.asarray(counts)
         self.seq += 1
         if self.garbage and self.rng.random() < self.garbage:
@@ -238,8 +260,9 @@ class Emulator:
         if self._writer is not None:
             q = counts * (2 * math.pi / self.info.counts_per_rev)
             self._last = (q, np.asarray(qd_true))
-            row = np.concatenate([[(now - self.t0) / 1e9], q, np.asarray(applied), self._last[1],
-                                  [flags, self.session, self.seq]])
+            row = np.concatenate(
+                [[(now - self.t0) / 1e9], q, np.asarray(applied), self._last[1], [flags, self.session, self.seq]]
+            )
             self._rows.append(row)
             if len(self._rows) >= 20:
                 self._writer.append(np.array(self._rows))

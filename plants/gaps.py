@@ -32,11 +32,13 @@ class Gaps:
     def __bool__(self) -> bool:
         return bool(self.at.size)
 
-    def describe(self, rec: "Recording") -> str:
+    def describe(self, rec: Recording) -> str:
         first = int(self.at[0])
-        return (f"{int(self.missing.sum())} sample{'s' if self.missing.sum() != 1 else ''} lost in {self.at.size} "
-                f"gap{'s' if self.at.size != 1 else ''} of the time column (the first: t jumps from "
-                f"{rec.t[first - 1]:.6g} to {rec.t[first]:.6g} s)")
+        return (
+            f"{int(self.missing.sum())} sample{'s' if self.missing.sum() != 1 else ''} lost in {self.at.size} "
+            f"gap{'s' if self.at.size != 1 else ''} of the time column (the first: t jumps from "
+            f"{rec.t[first - 1]:.6g} to {rec.t[first]:.6g} s)"
+        )
 
 
 JITTER_WINDOW = 10  # samples either side of a long step whose time stamps say whether samples were lost
@@ -60,8 +62,9 @@ def gaps(rec: Recording) -> Gaps:
         return Gaps(long + 1, np.rint(steps[long]).astype(np.int64) - 1)
     lag = (t - t[0]) / dt - np.arange(len(t))
     w = JITTER_WINDOW
-    moved = np.array([np.rint(np.median(lag[i + 1:i + 1 + w]) - np.median(lag[max(i + 1 - w, 0):i + 1]))
-                      for i in long]).astype(np.int64)
+    moved = np.array(
+        [np.rint(np.median(lag[i + 1 : i + 1 + w]) - np.median(lag[max(i + 1 - w, 0) : i + 1])) for i in long]
+    ).astype(np.int64)
     return Gaps(long[moved >= 1] + 1, moved[moved >= 1])
 
 
@@ -81,8 +84,10 @@ def on_grid(rec: Recording) -> tuple[Recording, np.ndarray]:
     if not g:
         return rec, np.zeros(len(rec), bool)
     if g.missing.sum() > MAX_FILL * len(rec):
-        raise RecordingError(f"{rec.path}: {g.describe(rec)}: more samples are missing than recorded; "
-                             "the file holds separate runs: split it at the gap")
+        raise RecordingError(
+            f"{rec.path}: {g.describe(rec)}: more samples are missing than recorded; "
+            "the file holds separate runs: split it at the gap"
+        )
     steps = np.ones(len(rec) - 1, np.int64)
     steps[g.at - 1] = g.missing + 1
     k = np.r_[0, np.cumsum(steps)]  # each recorded sample's place on the grid
@@ -100,8 +105,16 @@ def on_grid(rec: Recording) -> tuple[Recording, np.ndarray]:
 
     q = fill(rec.q)
     q[filled] = CubicSpline(k, rec.q, axis=0)(grid[filled])
-    return Recording(rec.t[0] + grid * rec.dt, q, fill(rec.tau), fill(rec.qd), dict(rec.meta),
-                     {name: fill(v) for name, v in rec.extra.items()}, rec.path, rec.serial), filled
+    return Recording(
+        rec.t[0] + grid * rec.dt,
+        q,
+        fill(rec.tau),
+        fill(rec.qd),
+        dict(rec.meta),
+        {name: fill(v) for name, v in rec.extra.items()},
+        rec.path,
+        rec.serial,
+    ), filled
 
 
 def spoiled(filled: np.ndarray, qdd: np.ndarray, dt: float, step: float, guard: int) -> np.ndarray:
@@ -113,9 +126,9 @@ def spoiled(filled: np.ndarray, qdd: np.ndarray, dt: float, step: float, guard: 
     out = filled.copy()
     edges = np.diff(np.r_[0, filled.astype(np.int8), 0])
     q4 = np.abs(np.gradient(np.gradient(qdd, dt, axis=0), dt, axis=0))
-    for a, b in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)):
+    for a, b in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True):
         m = b - a
-        off = np.max(q4[max(a - m - 1, 0):b + m + 1]) * 5 / 384 * ((m + 1) * dt) ** 4
+        off = np.max(q4[max(a - m - 1, 0) : b + m + 1]) * 5 / 384 * ((m + 1) * dt) ** 4
         if not off < step:  # (no encoder step known: always)
-            out[max(a - guard, 0):b + guard] = True
+            out[max(a - guard, 0) : b + guard] = True
     return out

@@ -122,14 +122,22 @@ def encode_hello(seq: int, time_ns: int, n_joints: int) -> bytes:
 
 
 def encode_info(seq: int, time_ns: int, info: Info) -> bytes:
-    return _pack(INFO, info.n_joints, 0, seq, time_ns,
-                 _INFO.pack(info.rate_hz, info.counts_per_rev, info.torque_per_volt, info.volt_limit))
+    return _pack(
+        INFO,
+        info.n_joints,
+        0,
+        seq,
+        time_ns,
+        _INFO.pack(info.rate_hz, info.counts_per_rev, info.torque_per_volt, info.volt_limit),
+    )
 
 
 def header(data: bytes) -> Header:
     """Check a packet's framing (length, magic, version, kind, joints, CRC) -> its header."""
     if len(data) < _HEADER.size + _CRC.size:
-        raise ProtocolError("length", f"packet of {len(data)} bytes is shorter than a header ({_HEADER.size + _CRC.size})")
+        raise ProtocolError(
+            "length", f"packet of {len(data)} bytes is shorter than a header ({_HEADER.size + _CRC.size})"
+        )
     magic, version, kind, n, _, flags, seq, time_ns = _HEADER.unpack_from(data)
     if magic != MAGIC:
         raise ProtocolError("magic", f"not a manus packet (starts {magic!r}, expected {MAGIC!r})")
@@ -140,9 +148,11 @@ def header(data: bytes) -> Header:
     if not 1 <= n <= MAX_JOINTS:
         raise ProtocolError("joints", f"packet for {n} joints (1..{MAX_JOINTS} allowed)")
     if len(data) != size(kind, n):
-        raise ProtocolError("length", f"{KINDS[kind]} packet of {len(data)} bytes, expected {size(kind, n)} for {n} joints")
+        raise ProtocolError(
+            "length", f"{KINDS[kind]} packet of {len(data)} bytes, expected {size(kind, n)} for {n} joints"
+        )
     (crc,) = _CRC.unpack_from(data, len(data) - _CRC.size)
-    if crc != zlib.crc32(data[:-_CRC.size]):
+    if crc != zlib.crc32(data[: -_CRC.size]):
         raise ProtocolError("crc", f"{KINDS[kind]} packet fails its CRC (corrupted)")
     return Header(kind, n, flags, seq, time_ns)
 

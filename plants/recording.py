@@ -85,7 +85,7 @@ class Recording:
             return tuple(self.structure.prismatic)
         kinds = [k.strip().lower() for k in self.meta.get("joints", "revolute").split(",")]
         kinds = kinds * self.n_joints if len(kinds) == 1 else kinds
-        return tuple(k == "prismatic" for k in kinds[:self.n_joints])
+        return tuple(k == "prismatic" for k in kinds[: self.n_joints])
 
     @property
     def hold(self) -> str:
@@ -129,14 +129,22 @@ class Recording:
         cols.update(self.extra)
         return cols
 
-    def window(self, start: int, stop: int) -> "Recording":
+    def window(self, start: int, stop: int) -> Recording:
         """Samples start:stop, as a recording of its own."""
         return self.rows(slice(start, stop))
 
-    def rows(self, which) -> "Recording":
+    def rows(self, which) -> Recording:
         """The samples `which` selects (a slice, indices or a mask), as a recording of its own."""
-        return Recording(self.t[which], self.q[which], self.tau[which], None if self.qd is None else self.qd[which],
-                         dict(self.meta), {k: v[which] for k, v in self.extra.items()}, self.path, self.serial)
+        return Recording(
+            self.t[which],
+            self.q[which],
+            self.tau[which],
+            None if self.qd is None else self.qd[which],
+            dict(self.meta),
+            {k: v[which] for k, v in self.extra.items()},
+            self.path,
+            self.serial,
+        )
 
 
 def _serial_of(rec: Recording) -> Structure:
@@ -146,19 +154,29 @@ def _serial_of(rec: Recording) -> Structure:
 
     robot = rec.robot
     if robot is None:
-        raise RecordingError(f"{rec.path}: structure urdf needs the robot's URDF: a '# robot: PATH' line (relative to "
-                             "the recording) or --robot FILE.urdf")
+        raise RecordingError(
+            f"{rec.path}: structure urdf needs the robot's URDF: a '# robot: PATH' line (relative to "
+            "the recording) or --robot FILE.urdf"
+        )
     if not robot.is_file():
-        raise RecordingError(f"{rec.path}: robot {robot}: no such URDF file" +
-                             (f" (the metadata's {rec.meta['robot']!r} is read relative to the recording's folder)"
-                              if not Path(rec.meta["robot"]).is_absolute() else ""))
+        raise RecordingError(
+            f"{rec.path}: robot {robot}: no such URDF file"
+            + (
+                f" (the metadata's {rec.meta['robot']!r} is read relative to the recording's folder)"
+                if not Path(rec.meta["robot"]).is_absolute()
+                else ""
+            )
+        )
     try:
         return structure_named("urdf", rec.n_joints, robot)
     except ModelError as e:
-        raise RecordingError(f"{rec.path}: robot {e}" if str(e).startswith(str(robot)) else f"{rec.path}: {e}") from None
+        raise RecordingError(
+            f"{rec.path}: robot {e}" if str(e).startswith(str(robot)) else f"{rec.path}: {e}"
+        ) from None
 
 
 # -- reading ------------------------------------------------------------------------------------
+
 
 def read(path: str | os.PathLike, robot: str | os.PathLike | None = None) -> Recording:
     """Read a recording: `.csv`, `.npz`, or an EMPS `.mat` file. `robot` (a URDF file) makes it a
@@ -224,7 +242,7 @@ def _read_csv(path: Path) -> Recording:
     header = [h.strip() for h in lines[header_at].split(",")]
     _check_header(path, header_at + 1, header)
     ncol = len(header)
-    body = [(i + 1, line) for i, line in enumerate(lines[header_at + 1:], start=header_at + 1) if line.strip()]
+    body = [(i + 1, line) for i, line in enumerate(lines[header_at + 1 :], start=header_at + 1) if line.strip()]
     # A run killed mid-write leaves an incomplete last line: drop it with a warning. A streamed
     # file (`streamed: true`, written row by row by a live run) ends every complete row with a
     # newline, so there an unterminated last line is dropped even when it parses: its last
@@ -232,8 +250,11 @@ def _read_csv(path: Path) -> Recording:
     if body and not complete:
         lineno, last = body[-1]
         if not _row_ok(last, ncol) or meta.get("streamed", "").lower() == "true":
-            warnings.warn(f"{path}:{lineno}: incomplete last line dropped (the file was cut mid-write)", RecordingNote,
-                          stacklevel=2)
+            warnings.warn(
+                f"{path}:{lineno}: incomplete last line dropped (the file was cut mid-write)",
+                RecordingNote,
+                stacklevel=2,
+            )
             body = body[:-1]
     if not body:
         _fail(path, header_at + 2, "no data rows after the header")
@@ -300,8 +321,13 @@ def _assemble(path, cols: dict, meta: dict, locate) -> Recording:
     qd_cols = _numbered(cols, "qd")
     if qd_cols and qd_cols != list(range(1, n + 1)):
         missing = sorted(set(range(1, n + 1)) - set(qd_cols))
-        _fail(path, None, f"true velocities incomplete: missing column 'qd{missing[0]}'" if missing
-              else f"column 'qd{max(qd_cols)}' has no matching 'q{max(qd_cols)}'")
+        _fail(
+            path,
+            None,
+            f"true velocities incomplete: missing column 'qd{missing[0]}'"
+            if missing
+            else f"column 'qd{max(qd_cols)}' has no matching 'q{max(qd_cols)}'",
+        )
     core = ["t"] + [f"{p}{i}" for p in ("q", "tau") + (("qd",) if qd_cols else ()) for i in range(1, n + 1)]
     bad = np.flatnonzero(~np.isfinite(cols["t"]))
     if bad.size:  # (a sample without its time has no place)
@@ -350,12 +376,17 @@ def _drop_missing(path, cols: dict, names: list[str], locate) -> dict:
     where, name = first
     value = cols[name][where]
     if k > MISSING_AT_MOST * missing.size:
-        raise RecordingError(f"{path}{locate(where)}: column {name!r} is {value} (NaN or infinite), and {k} of "
-                             f"{missing.size} samples hold such values: too few numbers left to analyse")
-    warnings.warn(f"{path}: {k} sample{'s' if k != 1 else ''} with a NaN or infinite value (the first at "
-                  f"{_where(locate(where))}, {name!r} = {value}) read as lost: the analyses fill "
-                  f"{'them' if k != 1 else 'it'} for the filters and leave {'them' if k != 1 else 'it'} out",
-                  RecordingNote, stacklevel=4)
+        raise RecordingError(
+            f"{path}{locate(where)}: column {name!r} is {value} (NaN or infinite), and {k} of "
+            f"{missing.size} samples hold such values: too few numbers left to analyse"
+        )
+    warnings.warn(
+        f"{path}: {k} sample{'s' if k != 1 else ''} with a NaN or infinite value (the first at "
+        f"{_where(locate(where))}, {name!r} = {value}) read as lost: the analyses fill "
+        f"{'them' if k != 1 else 'it'} for the filters and leave {'them' if k != 1 else 'it'} out",
+        RecordingNote,
+        stacklevel=4,
+    )
     keep = ~missing
     return {c: (v[keep] if isinstance(v, np.ndarray) and v.shape[:1] == keep.shape else v) for c, v in cols.items()}
 
@@ -376,18 +407,23 @@ def _unwrap(rec: Recording, locate) -> None:
         big = np.flatnonzero(wraps)
         if prismatic or not big.size:
             continue
-        small, grid = np.abs(np.where(wraps, 0.0, d)), smallest_step(rec.q[:, j:j + 1])
+        small, grid = np.abs(np.where(wraps, 0.0, d)), smallest_step(rec.q[:, j : j + 1])
         for i in big:
             turns = np.rint(d[i] / (2 * math.pi))
-            near = max(small[max(i - 2, 0):i + 3].max(), grid)
+            near = max(small[max(i - 2, 0) : i + 3].max(), grid)
             if abs(d[i] - 2 * math.pi * turns) > 3 * near + 1e-9:
                 raise RecordingError(
-                    f"{rec.path}{locate(i + 1)}: q{j + 1} jumps by {d[i]:.4g} rad in one sample (from {rec.q[i, j]:.6g}); "
-                    "no joint moves that far in one period, and it is not a whole turn (an angle wrapped): a glitch "
-                    "of the encoder, or positions in degrees? (manus reads radians)")
+                    f"{rec.path}{locate(i + 1)}: q{j + 1} jumps by {d[i]:.4g} rad in one sample "
+                    f"(from {rec.q[i, j]:.6g}); no joint moves that far in one period, and it is not a whole turn "
+                    "(an angle wrapped): a glitch of the encoder, or positions in degrees? (manus reads radians)"
+                )
         rec.q[:, j] = rec.q[0, j] + np.r_[0.0, np.cumsum(d - 2 * math.pi * np.rint(d / (2 * math.pi)) * wraps)]
-        warnings.warn(f"{rec.path}: q{j + 1} wraps {big.size} time{'s' if big.size != 1 else ''} by a whole turn "
-                      f"(the first at {_where(locate(big[0] + 1))}): unwrapped", RecordingNote, stacklevel=3)
+        warnings.warn(
+            f"{rec.path}: q{j + 1} wraps {big.size} time{'s' if big.size != 1 else ''} by a whole turn "
+            f"(the first at {_where(locate(big[0] + 1))}): unwrapped",
+            RecordingNote,
+            stacklevel=3,
+        )
 
 
 def _positive(path, meta, key):
@@ -412,17 +448,31 @@ def _check_meta(path, meta, n, t):
     if "joints" in meta:
         kinds = [k.strip().lower() for k in meta["joints"].split(",")]
         if any(k not in ("revolute", "prismatic") for k in kinds) or len(kinds) not in (1, n):
-            _fail(path, None, f"metadata joints: {meta['joints']!r} must be 'revolute' or 'prismatic', one for every "
-                              f"joint or one per joint ({n})")
+            _fail(
+                path,
+                None,
+                f"metadata joints: {meta['joints']!r} must be 'revolute' or 'prismatic', one for every "
+                f"joint or one per joint ({n})",
+            )
     if "command_hold" in meta and meta["command_hold"].strip().lower() not in ("zoh", "none"):
-        _fail(path, None, f"metadata command_hold: {meta['command_hold']!r} must be 'zoh' (held over the period) "
-                          "or 'none' (acting at its sample instant)")
+        _fail(
+            path,
+            None,
+            f"metadata command_hold: {meta['command_hold']!r} must be 'zoh' (held over the period) "
+            "or 'none' (acting at its sample instant)",
+        )
     if "sample_rate_hz" in meta:
         rate = float(meta["sample_rate_hz"])
         step = float(np.median(np.diff(t)))
         if abs(step * rate - 1) > 0.01:
-            hint = next((f" (is t in {unit}?)" for factor, unit in ((1e3, "milliseconds"), (1e6, "microseconds"),
-                                                                     (1e9, "nanoseconds")) if abs(step * rate / factor - 1) < 0.01), "")
+            hint = next(
+                (
+                    f" (is t in {unit}?)"
+                    for factor, unit in ((1e3, "milliseconds"), (1e6, "microseconds"), (1e9, "nanoseconds"))
+                    if abs(step * rate / factor - 1) < 0.01
+                ),
+                "",
+            )
             _fail(path, None, f"t advances by {step:.6g} per sample but sample_rate_hz is {rate:g}{hint}")
 
 
@@ -435,8 +485,11 @@ def smallest_step(q: np.ndarray) -> float:
 
 
 # positions in another unit than the encoder's declared grid: (their grid / the declared one, what it means)
-UNIT_SLIPS = ((180 / math.pi, "degrees, not radians"), (1 / (2 * math.pi), "revolutions, not radians"),
-              (1000.0, "millimetres, not metres"))
+UNIT_SLIPS = (
+    (180 / math.pi, "degrees, not radians"),
+    (1 / (2 * math.pi), "revolutions, not radians"),
+    (1000.0, "millimetres, not metres"),
+)
 
 
 def _check_grid(path, meta, q):
@@ -457,9 +510,13 @@ def _check_grid(path, meta, q):
     slips = UNIT_SLIPS + (((1 / step), "raw encoder counts, not positions"),)
     for factor, what in slips:
         if abs(grid / (step * factor) - 1) < 0.01:
-            _fail(path, None, f"the positions move in steps of {grid:.6g}, {grid / step:.6g} times the encoder's "
-                              f"declared step ({step:.6g}, from {key}: {meta[key]}): {what}? manus reads positions in "
-                              "radians (metres on a prismatic axis)")
+            _fail(
+                path,
+                None,
+                f"the positions move in steps of {grid:.6g}, {grid / step:.6g} times the encoder's "
+                f"declared step ({step:.6g}, from {key}: {meta[key]}): {what}? manus reads positions in "
+                "radians (metres on a prismatic axis)",
+            )
 
 
 def _read_npz(path: Path) -> Recording:
@@ -506,8 +563,12 @@ def _read_mat(path: Path) -> Recording:
         if k in m:
             cols[k] = col(k)
     # the reference identification (and the benchmark's own simulator) read vir(k) as acting at t_k
-    meta = {"structure": "axis", "joints": "prismatic", "command_hold": "none",
-            "source": "EMPS benchmark (Janot, Gautier, Brunot 2019)"}
+    meta = {
+        "structure": "axis",
+        "joints": "prismatic",
+        "command_hold": "none",
+        "source": "EMPS benchmark (Janot, Gautier, Brunot 2019)",
+    }
     for k in ("gtau", "kp", "kv"):
         if k in m:
             meta[k] = repr(float(col(k)[0]))
@@ -518,6 +579,7 @@ def _read_mat(path: Path) -> Recording:
 
 
 # -- writing ------------------------------------------------------------------------------------
+
 
 def _format(v) -> str:
     return f"{v:.12g}"
@@ -552,7 +614,7 @@ class RecordingWriter:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.columns = list(columns)
         self.flush_seconds = flush_seconds
-        self._f = open(self.path, "w", buffering=1 << 20)
+        self._f = open(self.path, "w", buffering=1 << 20)  # noqa: SIM115 (open while the run streams; close() ends it)
         for k, v in (meta or {}).items():
             self._f.write(f"# {k}: {v}\n")
         self._f.write(",".join(self.columns) + "\n")
@@ -591,8 +653,9 @@ class RecordingWriter:
         self.close()
 
 
-def from_trajectory(traj, rate_hz: float, structure: str | Structure, counts_per_rev: float | None = None,
-                    meta: dict | None = None) -> Recording:
+def from_trajectory(
+    traj, rate_hz: float, structure: str | Structure, counts_per_rev: float | None = None, meta: dict | None = None
+) -> Recording:
     """A recording of a simulated closed-loop run (with its true velocities and reference).
     `structure`: a name, or the structure itself; a serial chain (`Serial`, or its base form)
     makes a `structure: urdf` recording whose `robot` is the chain's URDF file (written relative
@@ -613,5 +676,6 @@ def from_trajectory(traj, rate_hz: float, structure: str | Structure, counts_per
         serial = None
     m.update(meta or {})
     extra = {f"qref{i + 1}": np.asarray(traj.q_ref[:, i]) for i in range(n)}
-    return Recording(np.asarray(traj.t), np.asarray(traj.q), np.asarray(traj.tau), np.asarray(traj.qd_true), m, extra,
-                     serial=serial)
+    return Recording(
+        np.asarray(traj.t), np.asarray(traj.q), np.asarray(traj.tau), np.asarray(traj.qd_true), m, extra, serial=serial
+    )

@@ -7,7 +7,7 @@ import pathlib
 # OpenBLAS's threads spin-wait far longer than the work takes. Must precede the first numpy import.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import jax  # noqa: E402
+import jax
 import pytest
 
 jax.config.update("jax_enable_x64", True)

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from manus import estimators
-from manus.plants import Manus2, Model
 from manus.estimators.compare import Setup, reference_velocity, run_estimator, tune
+from manus.plants import Manus2, Model
 
 
 def test_kalman_ca_is_5x_better_than_the_thesis_filter_at_under_1ms(arm_recording, arm_report):
@@ -37,8 +37,9 @@ def test_tuning_against_truth_and_without_it(arm_recording):
     rec = arm_recording
     setup = Setup(rec.dt, 2 * np.pi / 131072, 2)
     ref, _, start, stop = reference_velocity(rec, 30.0)
-    rms = lambda knob: np.sqrt(np.mean((run_estimator(setup.make("kalman_ca", q=knob), rec.q, rec.tau).qd[start:stop]
-                                        - ref[start:stop]) ** 2))
+    rms = lambda knob: np.sqrt(
+        np.mean((run_estimator(setup.make("kalman_ca", q=knob), rec.q, rec.tau).qd[start:stop] - ref[start:stop]) ** 2)
+    )
     default = float(setup.make("kalman_ca").q)
     by_truth = tune(setup, "kalman_ca", rec.q, rec.tau, ref, start, stop)
     blind = tune(setup, "kalman_ca", rec.q, rec.tau, None, start, stop)
@@ -59,8 +60,9 @@ def test_model_based_estimators_use_the_model_and_take_new_parameters(arm_record
     # the model's delay effect: the torque of one sample earlier, exactly
     delayed = estimators.make("luenberger_model", model=Model(Manus2(), "rigid,viscous,coulomb,delay:1ms"))
     shifted = np.vstack([np.zeros((1, 2)), rec.tau[:-1]])
-    np.testing.assert_array_equal(run_estimator(delayed, rec.q, rec.tau).qd,
-                                  run_estimator(estimators.make("luenberger_model"), rec.q, shifted).qd)
+    np.testing.assert_array_equal(
+        run_estimator(delayed, rec.q, rec.tau).qd, run_estimator(estimators.make("luenberger_model"), rec.q, shifted).qd
+    )
 
     est = estimators.make("kalman_model", n_joints=2)
     wrong = est.with_params(est.init(jnp.asarray(rec.q[0])), {"a1": 0.7, "a3": 0.5})
@@ -69,9 +71,11 @@ def test_model_based_estimators_use_the_model_and_take_new_parameters(arm_record
     @eqx.filter_jit
     def replay(state, theta):
         """What an adaptive controller does: hand the estimator its parameters every tick."""
+
         def tick(s, x):
             s, e = est.step(est.with_params(s, theta), *x)
             return s, e.qd
+
         tau_prev = jnp.concatenate([jnp.zeros((1, 2)), jnp.asarray(rec.tau[:-1])])
         return jax.lax.scan(tick, state, (jnp.asarray(rec.q), tau_prev))[1]
 
@@ -87,8 +91,9 @@ def test_acceleration_estimates(arm_recording, arm_report):
     of the true velocity while moving (the hold's stick-slip jumps excluded)."""
     rec = arm_recording
     truth = np.gradient(rec.qd, rec.dt, axis=0)[100:2400]
-    relative = lambda name: np.sqrt(np.mean((run_estimator(estimators.make(name), rec.q, rec.tau).qdd[100:2400]
-                                             - truth) ** 2) / np.mean(truth**2))
+    relative = lambda name: np.sqrt(
+        np.mean((run_estimator(estimators.make(name), rec.q, rec.tau).qdd[100:2400] - truth) ** 2) / np.mean(truth**2)
+    )
     assert relative("kalman_ca") < 0.3
     assert relative("kalman_model") < 0.05
 

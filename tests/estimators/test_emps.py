@@ -1,14 +1,12 @@
 """The EMPS rig's real data (Janot, Gautier, Brunot 2019): its own velocity estimator rebuilds
-the recorded controller output, and `manus estimators` runs on both files."""
+the recorded controller output (`manus estimators` on both files: tests/runs/test_estimators_cmd.py)."""
 
-import json
 
 import numpy as np
 import pytest
 from scipy.io import loadmat
 
 from manus import estimators
-from manus.runs.cli import main
 
 
 def rig_output(m, estimate):
@@ -36,20 +34,3 @@ def test_the_rigs_estimator_rebuilds_its_controller_output(emps_dir):
         fd = np.asarray(estimators.run(estimators.make("first_difference", dt=dt), qm[:, None]).qd)[:, 0]
         if name == "DATA_EMPS.mat":
             assert np.sqrt(np.mean((m["vir"].ravel() - rig_output(m, fd))[10:] ** 2)) > 0.04
-
-
-def test_manus_estimators_runs_on_both_emps_files(emps_dir, tmp_path, capsys):
-    for name, grid in (("DATA_EMPS.mat", "grid"), ("DATA_EMPS_PULSES.mat", "noise")):
-        code = main(["estimators", str(emps_dir / name), "--json", "--no-figures", "--model",
-                     "rigid,viscous,coulomb,offset", "--param", "M1=95.1089", "--param", "b1=203.5034",
-                     "--param", "Fc1=20.3935", "--param", "off1=-3.1648"])
-        out = json.loads(capsys.readouterr().out)
-        assert code == 0 and out["truth"] is False and out["samples"] == 24841
-        assert out["step"]["source"] == grid  # DATA_EMPS sits on a 5e-8 m grid, the PULSES file does not
-        rows = {r["name"]: r for r in out["estimators"]}
-        assert tuple(rows) == estimators.NAMES
-        assert all(np.isfinite(r["rms_error"]) for r in rows.values())
-        # against the offline reference (30 Hz): the thesis filter lags it by about 1/λ
-        assert rows["filtered_first_difference"]["lag_ms"] == pytest.approx(5.3, abs=1.0)
-        # the published model, in the model-based filter, follows the axis with little lag
-        assert abs(rows["kalman_model"]["lag_ms"]) < 1.5

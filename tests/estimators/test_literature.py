@@ -2,7 +2,6 @@
 discretized, does not chatter; FOAW averages quantization away when the motion is slow."""
 
 import equinox as eqx
-import jax.numpy as jnp
 import numpy as np
 
 from manus import estimators

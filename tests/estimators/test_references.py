@@ -51,8 +51,9 @@ def test_filtered_first_difference_is_the_tustin_transform_of_eq_3_19(motion):
     q, tau = motion
     b, a = scipy.signal.bilinear([188.5, 0.0], [1.0, 188.5], fs=1 / DT)  # λs/(s + λ)
     # at rest at q[0] before the first sample: past input q[0], past output 0
-    ref = np.stack([scipy.signal.lfilter(b, a, q[:, j], zi=scipy.signal.lfiltic(b, a, [0.0], [q[0, j]]))[0]
-                    for j in range(2)], 1)
+    ref = np.stack(
+        [scipy.signal.lfilter(b, a, q[:, j], zi=scipy.signal.lfiltic(b, a, [0.0], [q[0, j]]))[0] for j in range(2)], 1
+    )
     agree(estimators.make("filtered_first_difference"), q, tau, ref)
 
 
@@ -134,8 +135,12 @@ def manus2_acceleration(x, tau):
     q1, q2, v1, v2 = x
     c, s = np.cos(q2 - q1), np.sin(q2 - q1)
     sat = lambda v: np.where(abs(v.real) < PHI, v / PHI, np.sign(v.real))
-    r = (tau - np.array([-A2 * s * v2**2, A2 * s * v1**2]) - np.array([B[0] * v1, B[1] * v2])
-         - np.array([FC[0] * sat(v1), FC[1] * sat(v2)]))
+    r = (
+        tau
+        - np.array([-A2 * s * v2**2, A2 * s * v1**2])
+        - np.array([B[0] * v1, B[1] * v2])
+        - np.array([FC[0] * sat(v1), FC[1] * sat(v2)])
+    )
     det = A1 * A3 - (A2 * c) ** 2
     return np.array([A3 * r[0] - A2 * c * r[1], A1 * r[1] - A2 * c * r[0]]) / det
 
@@ -164,7 +169,7 @@ def test_model_kalman_equals_filterpy_ekf_on_the_thesis_arm(motion):
     H = np.hstack([np.eye(2), np.zeros((2, 2))])
     ref, prev = [], np.zeros(2)
     for k in range(len(q)):
-        ekf.F = complex_step_jacobian(lambda x: manus2_transition(x, prev), ekf.x[:, 0].astype(complex))
+        ekf.F = complex_step_jacobian(lambda x, u=prev: manus2_transition(x, u), ekf.x[:, 0].astype(complex))
         ekf.predict(u=prev)
         ekf.update(q[k][:, None], lambda x: H, lambda x: H @ x)
         ref.append(ekf.x[2:, 0].copy())
@@ -214,8 +219,13 @@ def test_levant_solves_its_implicit_step(motion):
                 e, s = 0.0, w / c
             else:  # off it: s = sgn e = sgn w, and e solves e − w + c s + b ⌈e⌋^½ = 0
                 s = np.sign(w)
-                e = scipy.optimize.brentq(lambda e: e - w + c * s + b * np.sign(e) * np.sqrt(abs(e)), 0.0, w,
-                                          xtol=1e-300, rtol=4 * np.finfo(float).eps)
+                e = scipy.optimize.brentq(
+                    lambda e, w=w, s=s: e - w + c * s + b * np.sign(e) * np.sqrt(abs(e)),
+                    0.0,
+                    w,
+                    xtol=1e-300,
+                    rtol=4 * np.finfo(float).eps,
+                )
             # the implicit Euler step, as written in the differentiator's equations
             z1[j] = z1[j] - DT * K2 * L * s
             z0[j] = z0[j] + DT * (-K1 * np.sqrt(L) * np.sign(e) * np.sqrt(abs(e)) + z1[j])
@@ -235,7 +245,7 @@ def test_foaw_equals_the_papers_loop(motion):
         for j in range(2):
             yk = [h[j] for h in hist]
             for n in range(1, N + 1):  # widen the window while a line fits every sample in it
-                b = (n * sum(yk[:n + 1]) - 2 * sum(i * yk[i] for i in range(n + 1))) / (DT * n * (n + 1) * (n + 2) / 6)
+                b = (n * sum(yk[: n + 1]) - 2 * sum(i * yk[i] for i in range(n + 1))) / (DT * n * (n + 1) * (n + 2) / 6)
                 if any(abs(yk[i] - (yk[0] - b * i * DT)) > d for i in range(1, n)):
                     break
                 v[j] = b

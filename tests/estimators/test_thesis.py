@@ -27,8 +27,9 @@ def test_measured_response_is_scipys_transfer_function():
     freqs = np.array([0.7, 3.0, 20.0, 90.0, 300.0])
     a, b = estimators.make("filtered_first_difference", dt=DT).coefficients
     _, h = scipy.signal.freqz([b, -b], [1, -a], worN=freqs, fs=1 / DT)  # q -> v̂
-    np.testing.assert_allclose(frequency_response("filtered_first_difference", freqs, DT), h / (2j * np.pi * freqs),
-                               atol=1e-9)  # relative to q̇ = jω q
+    np.testing.assert_allclose(
+        frequency_response("filtered_first_difference", freqs, DT), h / (2j * np.pi * freqs), atol=1e-9
+    )  # relative to q̇ = jω q
     # and its white-noise gain, √Σh², in closed form
     _, imp = scipy.signal.dimpulse(([b, -b], [1, -a], DT), n=20000)
     assert ffd_noise_gain(DT) == pytest.approx(np.sqrt(np.sum(imp[0] ** 2)), rel=1e-9)
@@ -46,8 +47,9 @@ def test_closed_loop_poles_of_eq_3_20():
     np.testing.assert_allclose(poles[1:].real, -1.7, atol=0.1)  # the thesis rounds −1.77 down
     np.testing.assert_allclose(np.abs(poles[1:].imag), 9.9, atol=0.01)
     # eq. 3.20's denominator itself
-    np.testing.assert_allclose(np.sort_complex(np.roots([m, m * lam + b, b * lam + bc * lam + k, k * lam])), poles,
-                               atol=1e-9)
+    np.testing.assert_allclose(
+        np.sort_complex(np.roots([m, m * lam + b, b * lam + bc * lam + k, k * lam])), poles, atol=1e-9
+    )
     wn = np.abs(poles[1])
     assert wn / (2 * np.pi) == pytest.approx(1.6, abs=0.05) and -poles[1].real / wn == pytest.approx(0.17, abs=0.01)
 
