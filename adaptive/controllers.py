@@ -13,20 +13,27 @@ controller by name.
 `kalman_model` or `luenberger_model`, is built on the controller's model, and Slotine–Li hands it
 its current estimates every tick), or None (each controller's default). Every controller
 returned is a `manus.plants.stepper.Controller`.
+
+Beside them, the controllers experiments drive a plant with: `Replay` (a torque schedule played
+back, open loop), `PPD` (the EMPS rig's P-PD loop) and `LockedSpring` (the thesis's locked-joint
+oscillation tests); and `compiled_tick`, a controller and its reference compiled into the hardware
+loop's tick for a device.
 """
 
 from __future__ import annotations
 
+import jax.numpy as jnp
 import numpy as np
+from jax import Array
 
 from manus import estimators
 from manus.adaptive.composite import Composite
 from manus.adaptive.impedance import Impedance
 from manus.adaptive.slotine_li import SlotineLi
-from manus.estimators.base import Estimator
+from manus.estimators.base import Estimator, FilteredFirstDifference
 from manus.plants.effects import Model
 from manus.plants.errors import ManusError
-from manus.plants.stepper import Controller
+from manus.plants.stepper import Controller, RefSample
 
 NAMES = ("impedance", "slotine-li", "slotine-li-composite")
 COMPOSITE_KNOBS = ("bandwidth", "weight", "forgetting")
@@ -72,3 +79,99 @@ def make_controller(name: str, model: Model, dt: float, estimator: Estimator | s
     if unknown:
         raise ManusError(f"{name} has no setting {', '.join(unknown)} (its settings: {', '.join(settings)})")
     return SlotineLi(model, dt, estimator, composite=composite, **gains)
+
+
+class Replay(Controller):
+    """Open loop: the command `torque[k]` at tick k (the last row after the end), whatever is
+    measured."""
+
+    torque: Array  # (T, n)
+
+    def init(self, q0):
+        return jnp.zeros((), jnp.int32)
+
+    def step(self, state, q, ref):
+        return state + 1, self.torque[jnp.minimum(state, self.torque.shape[0] - 1)]
+
+
+class PPD(Controller):
+    """The EMPS rig's loop: force = gtau (kp kv (q_ref − q) − kv v̂), v̂ the first difference of
+    the two-sample mean 0.5 (q_k + q_{k−1}) (EMPS README)."""
+
+    kp: float
+    kv: float
+    gtau: float
+    dt: float
+
+    def init(self, q0):
+        q0 = jnp.asarray(q0, float)
+        return q0, q0  # q_{k-1}, mean_{k-1}
+
+    def step(self, state, q, ref):
+        q_prev, mean_prev = state
+        mean = 0.5 * (q + q_prev)
+        v = (mean - mean_prev) / self.dt
+        return (q, mean), self.gtau * (self.kp * self.kv * (ref.q - q) - self.kv * v)
+
+
+class LockedSpring(Controller):
+    """The thesis's locked-joint test (§3.5, eq. 3.5): a virtual spring K (q_d,j − q_j) on the
+    joint j that `spring_on` (one-hot) picks, and a stiff servo holding the locked coordinate
+    c·q at c·q_d. (Arrays, not indices: the tests share one compilation.)"""
+
+    spring_on: Array  # e_j (n,)
+    lock: Array  # c (n,)
+    stiffness: float = 10.0  # N·m/rad, eq. 3.5
+    lock_stiffness: float = 1000.0
+    lock_damping: float = 5.0
+    estimator: Estimator = FilteredFirstDifference()
+
+    def init(self, q0):
+        return self.estimator.init(q0)
+
+    def step(self, state, q, ref: RefSample):
+        state, est = self.estimator.step(state, q)
+        spring = self.stiffness * self.spring_on * (ref.q - q)
+        phi = jnp.dot(self.lock, q - ref.q)
+        return state, spring - (self.lock_stiffness * phi + self.lock_damping * jnp.dot(self.lock, est.qd)) * self.lock
+
+
+def compiled_tick(info, controller: str, estimator: str, model_spec: str, structure: str | None, reference: str,
+                  torque_limit: float | None = None, robot: str | None = None):
+    """The hardware loop's tick (`manus.plants.hardware.CompiledTick`) of `controller` +
+    `estimator` following `reference`, for the device described by `info` (its joints, rate,
+    encoder and torque limit), warmed up. `structure`: manus2 or axis (default: manus2 for a
+    2-joint device); `robot`: a URDF instead, adapted in pseudo-inertia coordinates."""
+    from manus.plants import Model, structure_named
+    from manus.plants.hardware import CompiledTick
+    from manus.plants.references import CENTRE, reference_named
+
+    n = info.n_joints
+    if robot is not None:
+        from manus.plants.serial import Serial
+
+        chain = Serial.from_urdf(robot)
+        if chain.n_joints != n:
+            raise ManusError(f"the device has {n} joint(s); the robot {robot} has {chain.n_joints} "
+                             f"({', '.join(chain.joint_names)})")
+        shape, structure = chain.pseudo(), "urdf"
+    else:
+        structure = structure or ("manus2" if n == 2 else "axis")
+        if structure == "manus2" and n != 2:
+            raise ManusError(f"the device has {n} joint(s); manus2 has 2 (use --structure axis)")
+        shape = structure_named(structure, n)
+    dt = 1.0 / info.rate_hz
+    model = Model(shape, model_spec)
+    limit = info.torque_limit if torque_limit is None else min(torque_limit, info.torque_limit)
+    if not limit > 0:
+        raise ManusError(f"--torque-limit must be positive, got {torque_limit}")
+    gains = {} if controller == "impedance" else {"limit": limit}
+    c = make_controller(controller, model, dt, estimator=estimator, **gains)
+    arm = structure == "manus2"
+    try:
+        ref = reference_named(reference, np.array(CENTRE) if arm else np.zeros(n), arm)
+    except ManusError as e:
+        raise ManusError(f"{e} (try --reference multisine)") from None
+    tick = CompiledTick(c, ref, dt, info.counts_per_rev, n, limit)
+    tick.warm_up()
+    return tick

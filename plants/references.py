@@ -1,4 +1,5 @@
-"""Reference trajectories: the thesis's benign and complex ones (App. C) and a multi-sine.
+"""Reference trajectories: the thesis's benign and complex ones (App. C), a multi-sine, a set-point
+step, reaching moves, and a recorded reference.
 
 A reference defines its position q(t) once; velocity and acceleration come from forward-mode
 differentiation, so they are exact and cannot drift out of step with the position.
@@ -14,6 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from manus.plants.errors import ManusError
 from manus.plants.stepper import Reference, RefSample
 
 CENTRE = (0.464, 2.409)  # thesis App. C: workspace centre of MANUS-2 [rad]
@@ -108,4 +110,42 @@ class MultiSine(PositionReference):
         return self.centre + fade * wave
 
 
+class Reaching(PositionReference):
+    """Smooth (quintic) moves between targets with rests: q(t) = q0 + Σ_m Δ_m s((t − t_m)/T_m)."""
+
+    start: Array  # (n,)
+    t0: Array  # (M,) move start times
+    duration: Array  # (M,)
+    delta: Array  # (M, n)
+
+    def position(self, t):
+        x = jnp.clip((t - self.t0) / self.duration, 0.0, 1.0)
+        s = x * x * x * (10 - 15 * x + 6 * x * x)
+        return self.start + s @ self.delta
+
+
+class Sampled(PositionReference):
+    """A recorded reference, linearly interpolated between its samples."""
+
+    t: Array
+    q: Array  # (T, n)
+
+    def position(self, t):
+        return jnp.stack([jnp.interp(t, self.t, self.q[:, i]) for i in range(self.q.shape[1])])
+
+
 REFERENCES = {"benign": Benign, "complex": Complex, "multisine": MultiSine}
+NAMES = ("benign", "complex", "hold", "multisine")
+THESIS_ARM_ONLY = ("benign", "complex")  # the thesis's trajectories, about MANUS-2's workspace centre
+
+
+def reference_named(name: str, centre, arm: bool = True, amplitude: float = 0.15, seed: int = 0) -> PositionReference:
+    """The reference called `name` (one of `NAMES`) about `centre`: the thesis's benign or complex
+    trajectory (the MANUS-2 arm's only: `arm`), holding `centre`, or a multi-sine of `amplitude`
+    with phases from `seed`."""
+    if name not in NAMES:
+        raise ManusError(f"unknown reference {name!r}: one of {', '.join(NAMES)}")
+    if name in THESIS_ARM_ONLY and not arm:
+        raise ManusError(f"the {name} trajectory is the thesis's for the manus2 arm")
+    return {"benign": Benign, "complex": Complex, "hold": lambda: Hold(centre),
+            "multisine": lambda: MultiSine(centre, amplitude, seed=seed)}[name]()

@@ -1,10 +1,10 @@
 """The `manus` command. Each sub-command is a module `runs/cmd_<name>.py` with
 
-    NAME = "fit"                     # the sub-command (defaults to the module's suffix)
+    NAME = "fit"                     # the sub-command
     HELP = "one line"
     def add_arguments(parser): ...
     def run(args) -> dict            # the result; `--json` prints it, else `render(result)`
-    def render(result) -> str        # optional: the human-readable report
+    def render(result) -> str        # the human-readable report
 
 Contract (docs/cli.md): `--json` prints one JSON object on stdout and nothing else there;
 progress and notes go to stderr; figures go to `--out DIR` (default runs/out/); an error is one
@@ -22,33 +22,42 @@ import pkgutil
 import sys
 import warnings
 
-# numpy's small batched solves on one BLAS thread (on a busy 2-core machine OpenBLAS's threads
-# spin-wait far longer than these products take); must precede the first numpy import.
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+from manus import runs
 
-from manus import runs  # noqa: E402
 # Measured on this CPU (docs/performance.md): compile a whole scan body as one
-# function, and expose both cores as devices for sharded batches. Must precede the JAX import.
+# function, and expose both cores as devices for sharded batches.
 XLA_FLAGS = ("--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000000",
              "--xla_force_host_platform_device_count=2")
 
 
-def configure_jax() -> None:
+def configure_environment() -> None:
+    """The environment numpy and JAX read when they start: numpy's small batched solves on one
+    BLAS thread (on a busy 2-core machine OpenBLAS's threads spin-wait far longer than these
+    products take), `XLA_FLAGS` (kept where already given), and TensorFlow's logging quiet.
+    Call it before numpy or JAX is first imported."""
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     flags = os.environ.get("XLA_FLAGS", "")
     extra = [f for f in XLA_FLAGS if f.split("=")[0] not in flags]
     os.environ["XLA_FLAGS"] = " ".join([flags, *extra]).strip()
     os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
+
+
+def configure_jax() -> None:
+    """The environment (`configure_environment`) and JAX in float64, as `manus` runs: for a
+    process the `manus` command did not start (a spawned worker)."""
+    configure_environment()
     import jax
 
     jax.config.update("jax_enable_x64", True)
 
 
 def commands() -> dict[str, object]:
+    """The sub-commands by name: every module `cmd_*` of this package."""
     found = {}
     for info in pkgutil.iter_modules(runs.__path__):
         if info.name.startswith("cmd_"):
             module = importlib.import_module(f"manus.runs.{info.name}")
-            found[getattr(module, "NAME", info.name[4:].replace("_", "-"))] = module
+            found[module.NAME] = module
     return dict(sorted(found.items()))
 
 
@@ -56,6 +65,7 @@ def parser(cmds: dict) -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="manus", description="Adaptive control of interactive robots: "
                                 "simulate, estimate velocity, fit and diagnose models, adapt, run hardware.")
     p.add_argument("--debug", action="store_true", help="show the full traceback of an error")
+    p.add_argument("--version", action="version", version=f"manus {_version()}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name, module in cmds.items():
         sp = sub.add_parser(name, help=module.HELP, description=module.HELP)
@@ -64,6 +74,7 @@ def parser(cmds: dict) -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    configure_environment()  # before a command module imports numpy or JAX
     cmds = commands()
     args = parser(cmds).parse_args(argv)
     configure_jax()
@@ -73,7 +84,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         with _notes_as_lines(args.command):
             result = module.run(args)
-        text = None if getattr(args, "json", False) or not hasattr(module, "render") else module.render(result)
+        text = None if args.json else module.render(result)
     except ManusError as e:
         if args.debug:
             raise
@@ -88,7 +99,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"manus {args.command}: internal error: {type(e).__name__}: {e} (run with --debug for the traceback)",
               file=sys.stderr)
         return 1
-    if getattr(args, "json", False):
+    if args.json:
         print(json.dumps(result, default=_jsonable))
     elif text:
         print(text)
@@ -112,6 +123,12 @@ def _notes_as_lines(command: str):
 
         warnings.showwarning = show
         yield
+
+
+def _version() -> str:
+    from manus import __version__
+
+    return __version__
 
 
 def _jsonable(x):

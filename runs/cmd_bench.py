@@ -1,6 +1,6 @@
 """`manus bench NAME`: a benchmark of one part, its figures beside a baseline run in the same
-process. Each benchmark is a module `runs/bench/<name>.py` with `HELP`, `add_arguments(parser)`
-(optional), `run(args) -> {"figures": {...}, ...}` and optionally `render(result) -> str`."""
+process. Each benchmark is a module `runs/bench/<name>.py` with `HELP`, `add_arguments(parser)`,
+`run(args) -> {"figures": {...}, ...}` and `render(result) -> str`."""
 
 from __future__ import annotations
 
@@ -22,8 +22,7 @@ def add_arguments(p) -> None:
     for name, module in sorted(benchmarks().items()):
         sp = sub.add_parser(name, help=module.HELP, description=module.HELP)
         sp.add_argument("--json", action="store_true", help="print one JSON object on stdout and nothing else")
-        if hasattr(module, "add_arguments"):
-            module.add_arguments(sp)
+        module.add_arguments(sp)
 
 
 def run(args) -> dict:
@@ -33,11 +32,4 @@ def run(args) -> dict:
 
 
 def render(result: dict) -> str:
-    module = benchmarks()[result["benchmark"]]
-    if hasattr(module, "render"):
-        return module.render(result)
-    lines = [f"benchmark {result['benchmark']}"]
-    lines += [f"  {k}: {v:.4g}" if isinstance(v, float) else f"  {k}: {v}" for k, v in result["figures"].items()]
-    if "speedup" in result:
-        lines.append(f"  speedup: {result['speedup']:.3g}x")
-    return "\n".join(lines)
+    return benchmarks()[result["benchmark"]].render(result)

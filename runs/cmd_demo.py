@@ -16,7 +16,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from manus.runs.common import note
+from manus.runs.text import discovery_text, note
 
 NAME = "demo"
 HELP = "the main job: discover a hidden effect in a simulated arm, then the same loop on the real EMPS data; a report"
@@ -46,35 +46,48 @@ def add_arguments(p) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout and nothing else")
 
 
-def simulate_hidden(out: Path, seconds: float):
-    """Part (a)'s recording: the arm with the hidden effect, under impedance control."""
-    from manus.runs import cmd_simulate
-    from manus.runs.cli import commands, parser
+def simulate_hidden(out: Path, seconds: float) -> str:
+    """Part (a)'s recording (written into `out`, its figure beside it): the arm with the hidden
+    effect under impedance control following the default multi-sine, as `manus simulate --truth
+    TRUTH` makes it."""
+    import numpy as np
 
-    path = Path(out) / "hidden_cogging.csv"
-    args = parser(commands()).parse_args(["simulate", "--truth", TRUTH, "--seconds", f"{seconds:g}", "--out", str(path)])
-    return cmd_simulate.run(args)
+    from manus.experiments.simulated import controller_for, simulated_recording
+    from manus.plants import recording
+    from manus.plants.references import reference_named
+    from manus.plants.simulator import workspace_centre
+    from manus.runs.args import build_plant, plant_options
+    from manus.runs.figures.common import plot_recording
+
+    plant = build_plant(plant_options(truth=TRUTH))
+    reference = reference_named("multisine", np.asarray(workspace_centre(plant.model)))
+    controller, how = controller_for(plant, serial=False)
+    note(f"simulating {seconds:g} s of {plant.model.spec} at {plant.rate_hz:g} Hz ...")
+    rec = simulated_recording(plant, controller, how, reference, "multisine", seconds, 0, 131072)
+    path = recording.write(rec, Path(out) / "hidden_cogging.csv")
+    rec.path = str(path)
+    plot_recording(rec, path.with_suffix(".png"), f"{path.name}: truth {plant.model.spec}")
+    return str(path)
 
 
 def run(args) -> dict:
     from manus.plants import recording
     from manus.plants.errors import ManusError
     from manus.runs import report
-    from manus.runs.cmd_discover import discover_section, result
 
     if args.seconds < 5:
         raise ManusError(f"--seconds {args.seconds:g}: the loop needs at least 5 s of recording")
     out = Path(args.out)
     sections = []
     note(f"(a) simulating {args.seconds:g} s of the MANUS-2 arm with a hidden effect: truth {TRUTH} ...")
-    sim = simulate_hidden(out, args.seconds)
-    rec = recording.read(sim["recording"])
+    simulated = simulate_hidden(out, args.seconds)
+    rec = recording.read(simulated)
     note(f"(a) discovering from the thesis's nominal model {NOMINAL} (the analysis is not told the truth) ...")
     intro = (f"The MANUS-2 arm simulated for {args.seconds:g} s under impedance control (K = 30 N·m/rad, B = 1 N·m·s/rad) "
              f"following a multi-sine, with truth `{TRUTH}` (131072 counts/rev encoder, 12-bit D/A). The analysis "
              f"starts from the thesis's nominal model `{NOMINAL}` and is not told about the 39/rev cogging or the 1 ms "
              "amplifier delay.")
-    sections.append(discover_section(rec, NOMINAL, out, "a_", "(a) Simulated arm with a hidden effect", intro,
+    sections.append(report.discover_section(rec, NOMINAL, out, "a_", "(a) Simulated arm with a hidden effect", intro,
                                      max_steps=args.max_steps))
     emps = None if args.no_emps else (args.emps or default_emps())
     emps_note = "skipped (--no-emps)" if args.no_emps else None
@@ -87,24 +100,22 @@ def run(args) -> dict:
         intro = ("The EMPS benchmark (Janot, Gautier, Brunot 2019): a real ball-screw axis in closed loop at 1 kHz. "
                  "The published model is force = M q̈ + Fv q̇ + Fc sgn(q̇) + offset, rel_error 4.08 % "
                  f"(M = 95.11 kg, Fv = 203.5 N·s/m, Fc = 20.39 N, offset = −3.16 N). The loop starts from `{EMPS_START}` alone.")
-        sections.append(discover_section(recording.read(emps), EMPS_START, out, "b_", "(b) Real data: EMPS", intro,
+        sections.append(report.discover_section(recording.read(emps), EMPS_START, out, "b_", "(b) Real data: EMPS", intro,
                                          max_steps=args.max_steps))
     path = report.write(sections, out / "report.md", "manus demo: fit, see where it fails, name the missing effect")
-    r = {"simulated": {"recording": sim["recording"], "truth": TRUTH, "start": NOMINAL, "hidden": HIDDEN,
-                       "discovery": result(sections[0])},
-         "emps": result(sections[1]) if len(sections) > 1 else {"skipped": emps_note}, "report": path}
+    r = {"simulated": {"recording": simulated, "truth": TRUTH, "start": NOMINAL, "hidden": HIDDEN,
+                       "discovery": report.section_result(sections[0])},
+         "emps": report.section_result(sections[1]) if len(sections) > 1 else {"skipped": emps_note}, "report": path}
     return r
 
 
 def render(r: dict) -> str:
-    from manus.runs.cmd_discover import render as discover_render
-
     s = r["simulated"]
-    lines = [f"(a) simulated arm, truth {s['truth']}, starting from {s['start']}:", discover_render(s["discovery"]), ""]
+    lines = [f"(a) simulated arm, truth {s['truth']}, starting from {s['start']}:", discovery_text(s["discovery"]), ""]
     if "skipped" in r["emps"]:
         lines += [f"(b) EMPS: {r['emps']['skipped']}", ""]
     else:
         lines += [f"(b) real EMPS recording {r['emps']['recording']}, starting from {r['emps']['start']['model']}:",
-                  discover_render(r["emps"]), ""]
+                  discovery_text(r["emps"]), ""]
     lines.append(f"the report (Markdown with its figures): {r['report']}")
     return "\n".join(lines)

@@ -5,8 +5,8 @@ from __future__ import annotations
 import signal
 from pathlib import Path
 
-from manus.runs.common import note
-from manus.runs.plants_cli import add_plant_options, build_plant
+from manus.runs.text import note
+from manus.runs.args import add_plant_options, build_plant
 
 NAME = "emulate"
 HELP = "play the rig: the simulator in real time behind the UDP device protocol (for run-hardware)"

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from manus.runs.common import add_common, add_robot_option, note, read_recording, table
+from manus.runs.args import add_common, add_robot_option, read_recording
+from manus.runs.text import note, table
 
 NAME = "estimators"
 HELP = "compare every velocity estimator on a recording (against its true velocity, or the offline reference)"
@@ -30,7 +31,8 @@ def run(args) -> dict:
     from manus.estimators.compare import compare
     from manus.plants import Model
     from manus.plants.errors import ManusError
-    from manus.runs.plants_cli import parse_params
+    from manus.runs.args import parse_params
+    from manus.runs.figures.estimators import estimator_figures
 
     names = NAMES if not args.only else tuple(n.strip() for n in args.only.split(",") if n.strip())
     unknown = [n for n in names if n not in NAMES]
@@ -51,28 +53,8 @@ def run(args) -> dict:
     report, estimates = compare(rec, names, args.tune, args.cutoff, model_knobs,
                                 progress=lambda name: note(f"  {name} ..."))
     if not args.no_figures:
-        report["figures"] = figures(rec, report, estimates, args.out)
+        report["figures"] = estimator_figures(rec, report, estimates, args.out)
     return report
-
-
-def figures(rec, report: dict, estimates: dict, out) -> dict:
-    import numpy as np
-
-    from manus.estimators.response import frequency_response
-    from manus.runs.estimator_figures import estimates_figure, response_figure
-
-    t = rec.t[0] + rec.dt * np.arange(len(estimates["reference"]))  # the sample grid (lost samples filled)
-    paths = {"estimates": [estimates_figure(t, estimates, report, out, j) for j in range(rec.n_joints)]}
-    freqs = np.geomspace(0.5, 0.45 / rec.dt, 40)
-    amplitude = float(np.max(np.std(rec.q, axis=0)))
-    responses = {}
-    for row in report["estimators"]:
-        knob = {row["knob"]["name"]: row["knob"]["value"]} if "knob" in row else {}
-        responses[row["name"]] = frequency_response(row["name"], freqs, rec.dt, amplitude,
-                                                    step=report["step"]["value"], **knob)
-    paths["frequency_response"] = response_figure(
-        freqs, responses, out, f"frequency response at amplitude {amplitude:.3g} (model-based: model exact)")
-    return paths
 
 
 def render(r: dict) -> str:

@@ -1,34 +1,17 @@
 """`manus fit REC --model EFFECTS`: identify a model's parameters from a recording (inverse
-dynamics, `manus.adaptive.fit`), report each with its standard deviation and the rel_error, and draw the
+dynamics, `manus.adaptive.identify`), report each with its standard deviation and the rel_error, and draw the
 `compare` figure: measured against predicted torque, and measured positions against a free run of
-the fitted model in the JAX simulator (`manus.runs.freerun`)."""
+the fitted model in the JAX simulator (`manus.experiments.freerun`)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from manus.runs.common import add_common, add_robot_option, note, read_recording, table
+from manus.runs.args import add_common, add_model_options, load_recording
+from manus.runs.text import note, table
 
 NAME = "fit"
 HELP = "identify a model's parameters from a recording (inverse dynamics), with std, rel_error and a compare figure"
-
-
-def add_model_options(p, required: bool = True) -> None:
-    """REC, --robot, --model and --cutoff: shared by fit, diagnose and discover."""
-    p.add_argument("recording", metavar="REC", help="a recording (.csv, .npz, or an EMPS .mat file)")
-    add_robot_option(p)
-    p.add_argument("--model", required=required, metavar="EFFECTS",
-                   help="effects of the model, e.g. rigid,viscous,coulomb (an argument fixes a non-linear "
-                        "parameter: cogging:39, delay:1ms; without one it is searched)")
-    p.add_argument("--cutoff", type=float, metavar="HZ",
-                   help="identification bandwidth (default: from the motion's band and the encoder's "
-                        "quantization-noise budget)")
-    p.add_argument("--method", choices=("auto", "ls", "iv"), default="auto",
-                   help="least squares (IDIM-LS), instrumental variables (IDIM-IV, instruments from a simulation "
-                        "of the model driven by the recorded command), or auto (IV where LS is biased; default)")
-    p.add_argument("--hold", choices=("zoh", "none"),
-                   help="how the recorded command was held (default: the file's command_hold, else zoh: a digital "
-                        "controller holds each command over its period)")
 
 
 def add_arguments(p) -> None:
@@ -40,46 +23,17 @@ def add_arguments(p) -> None:
     add_common(p)
 
 
-def load(args, proposing: bool = False):
-    """The recording and the model text, checked: a one-line error for bad input. `proposing`
-    (diagnose, discover): a model holding every effect leaves nothing to propose."""
-    from manus.plants.effects import ORDER, parse_effects
-    from manus.plants.errors import ManusError
-
-    if args.cutoff is not None and args.cutoff <= 0:
-        raise ManusError(f"--cutoff {args.cutoff:g}: must be positive")
-    effects = parse_effects(args.model)  # unknown names, duplicates: refused before the file is read
-    if proposing and len(effects) == len(ORDER):
-        raise ManusError(f"the model {args.model} already holds every effect of the vocabulary: nothing is left to propose")
-    rec = read_recording(args)
-    if getattr(args, "hold", None):
-        rec.meta["command_hold"] = args.hold
-    note(f"{rec.path}: {len(rec)} samples of {rec.n_joints} joint(s) at {rec.sample_rate_hz:g} Hz ({rec.structure_name})")
-    return rec
-
-
-def free_run_or_reason(f, open_loop: bool = False):
-    """The free run, or a one-line reason why there is none."""
-    from manus.plants.errors import ManusError
-    from manus.runs.freerun import free_run
-
-    try:
-        return free_run(f, open_loop=open_loop)
-    except ManusError as e:
-        return str(e)
-
-
 def run(args) -> dict:
-    from manus.adaptive.fit import fit
-    from manus.runs.fit_figures import compare_figure
-    from manus.runs.freerun import nrmse_fit
+    from manus.adaptive import fit
+    from manus.experiments.freerun import free_run_or_reason, nrmse_fit
+    from manus.runs.figures.fit import compare_figure
 
-    rec = load(args)
+    rec = load_recording(args)
     f = fit(rec, args.model, cutoff_hz=args.cutoff, method=args.method)
     out = f.report()
     out["fit_percent"] = {"torque": nrmse_fit(f.data.tau(f.delay), f.predicted()).tolist()}
     if "urdf_values" in out:  # a serial chain: the physically consistent stage, reported beside the fit
-        from manus.adaptive.consistency import consistent
+        from manus.adaptive import consistent
         from manus.plants.errors import ModelError
 
         try:

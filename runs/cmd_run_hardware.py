@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from manus.runs.common import note
+from manus.runs.text import note
 
 NAME = "run-hardware"
 HELP = "run an adaptive controller and velocity estimator against a rig at its rate, with safety and a recording"
@@ -30,59 +30,14 @@ def add_arguments(p) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout and nothing else")
 
 
-def reference_for(name: str, structure: str, n: int):
-    import numpy as np
-
-    from manus.plants.errors import ManusError
-    from manus.plants.references import CENTRE, Benign, Complex, Hold, MultiSine
-
-    centre = np.array(CENTRE) if structure == "manus2" else np.zeros(n)
-    if name in ("benign", "complex") and structure != "manus2":
-        raise ManusError(f"the {name} trajectory is the thesis's for the manus2 arm (try --reference multisine)")
-    return {"benign": Benign, "complex": Complex, "hold": lambda: Hold(centre),
-            "multisine": lambda: MultiSine(centre)}[name]()
-
-
-def build_stepper(info, controller: str, estimator: str, model_spec: str, structure: str | None, reference: str,
-                  torque_limit: float | None = None, robot: str | None = None):
-    """The compiled tick of `controller` + `estimator` for the device described by `info`, warmed up."""
-    from manus.adaptive.controllers import make_controller
-    from manus.plants import Model, structure_named
-    from manus.plants.errors import ManusError
-    from manus.plants.hardware import CompiledTick
-
-    n = info.n_joints
-    if robot is not None:
-        from manus.plants.serial import Serial
-
-        chain = Serial.from_urdf(robot)
-        if chain.n_joints != n:
-            raise ManusError(f"the device has {n} joint(s); the robot {robot} has {chain.n_joints} "
-                             f"({', '.join(chain.joint_names)})")
-        shape, structure = chain.pseudo(), "urdf"
-    else:
-        structure = structure or ("manus2" if n == 2 else "axis")
-        if structure == "manus2" and n != 2:
-            raise ManusError(f"the device has {n} joint(s); manus2 has 2 (use --structure axis)")
-        shape = structure_named(structure, n)
-    dt = 1.0 / info.rate_hz
-    model = Model(shape, model_spec)
-    limit = info.torque_limit if torque_limit is None else min(torque_limit, info.torque_limit)
-    if not limit > 0:
-        raise ManusError(f"--torque-limit must be positive, got {torque_limit}")
-    gains = {} if controller == "impedance" else {"limit": limit}
-    c = make_controller(controller, model, dt, estimator=estimator, **gains)
-    tick = CompiledTick(c, reference_for(reference, structure, n), dt, info.counts_per_rev, n, limit)
-    tick.warm_up()
-    return tick
-
-
 def run(args) -> dict:
     from manus.plants.device import open_device
     from manus.plants.errors import ManusError
     from manus.plants.hardware import realtime_jax, report, run_loop
 
-    realtime_jax()
+    realtime_jax()  # before JAX computes anything
+    from manus.adaptive.controllers import compiled_tick
+
     if not args.seconds > 0:
         raise ManusError("--seconds must be positive")
     if not args.watchdog_ms > 0:
@@ -94,7 +49,7 @@ def run(args) -> dict:
         device.stop()
         note(f"{args.device}: {info.n_joints} joints at {info.rate_hz:g} Hz, {info.counts_per_rev:g} counts/rev; "
              f"compiling {args.controller} + {args.estimator} ...")
-        stepper = build_stepper(info, args.controller, args.estimator, args.model, args.structure, args.reference,
+        stepper = compiled_tick(info, args.controller, args.estimator, args.model, args.structure, args.reference,
                                 args.torque_limit, args.robot)
         meta = {"controller": args.controller, "estimator": args.estimator, "model": args.model,
                 "reference": args.reference, "device": args.device,

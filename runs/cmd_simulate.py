@@ -4,11 +4,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from manus.runs.common import note
-from manus.runs.plants_cli import add_plant_options, build_plant
+from manus.runs.args import add_plant_options, build_plant
+from manus.runs.text import note
 
 NAME = "simulate"
-SERIAL_PD_HZ = 5.0  # a serial robot's default PD bandwidth around its computed torque
 HELP = ("simulate the arm, axes or a serial robot (--robot FILE.urdf) under control and write a recording with "
         "true velocities")
 
@@ -30,56 +29,30 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> dict:
-    import jax
-    import jax.numpy as jnp
     import numpy as np
 
-    from manus.adaptive.impedance import Impedance
+    from manus.experiments.simulated import controller_for, simulated_recording, tracking_rms
     from manus.plants import recording
-    from manus.plants.closed_loop import simulate
     from manus.plants.errors import ManusError
-    from manus.plants.references import Benign, Complex, Hold, MultiSine
+    from manus.plants.references import reference_named
     from manus.plants.simulator import workspace_centre
-    from manus.runs.plots import plot_recording, rms
+    from manus.runs.figures.common import plot_recording
 
     if args.seconds <= 0:
         raise ManusError("--seconds must be positive")
     plant = build_plant(args)
-    n = plant.model.n_joints
     centre = np.asarray(workspace_centre(plant.model))
-    if args.reference in ("benign", "complex") and (args.structure != "manus2" or getattr(args, "robot", None)):
-        raise ManusError(f"the {args.reference} trajectory is the thesis's for the manus2 arm")
-    reference = {"multisine": lambda: MultiSine(centre, args.amplitude, seed=args.seed),
-                 "benign": Benign, "complex": Complex, "hold": lambda: Hold(centre)}[args.reference]()
-    serial = getattr(args, "robot", None)
-    if serial:  # a robot arm under gravity: the URDF's computed torque along the reference, plus a PD
-        from manus.plants.serial_sim import Feedforward
-
-        chain = plant.model.structure
-        # by default each joint's PD is a 5 Hz, critically damped loop on its own inertia (the URDF's at the start)
-        h = np.diag(np.asarray(chain.mass_matrix(jnp.asarray(centre), jnp.asarray(chain.defaults))))
-        w = 2 * np.pi * SERIAL_PD_HZ
-        k = h * w**2 if args.stiffness is None else np.full(n, args.stiffness)
-        b = 2 * h * w if args.damping is None else np.full(n, args.damping)
-        controller = Feedforward(chain, plant.dt, stiffness=k, damping=b)
-        how = (f"computed torque (the URDF's parameters) + PD K={', '.join(f'{x:.3g}' for x in k)} "
-               f"B={', '.join(f'{x:.3g}' for x in b)}")
-    else:
-        k, b = (30.0 if args.stiffness is None else args.stiffness), (1.0 if args.damping is None else args.damping)
-        controller = Impedance(k, b, n_joints=n, limit=plant.actuator.limit)
-        how = f"impedance K={k:g} B={b:g}"
+    arm = args.structure == "manus2" and not args.robot
+    reference = reference_named(args.reference, centre, arm, args.amplitude, args.seed)
+    controller, how = controller_for(plant, bool(args.robot), args.stiffness, args.damping)
     note(f"simulating {args.seconds:g} s of {plant.model.spec} at {plant.rate_hz:g} Hz ...")
-    traj = simulate(plant, controller, reference, args.seconds, key=jax.random.PRNGKey(args.seed),
-                    progress=args.seconds > 5)
-    rec = recording.from_trajectory(traj, plant.rate_hz, plant.model.structure,
-                                    args.counts if args.counts > 0 else None,
-                                    {"truth": plant.model.spec, "reference": args.reference, "controller": how})
+    rec = simulated_recording(plant, controller, how, reference, args.reference, args.seconds, args.seed, args.counts)
     path = recording.write(rec, args.out)
     rec.path = str(path)
     figure = plot_recording(rec, path.with_suffix(".png"), f"{path.name}: truth {plant.model.spec}")
     return {"recording": str(path), "figure": figure, "samples": len(rec), "seconds": args.seconds,
             "truth": plant.model.spec, "params": {k: float(v) for k, v in plant.params.items()},
-            "tracking_rms": rms(rec.q - np.stack([rec.extra[f"qref{i + 1}"] for i in range(n)], 1)).tolist()}
+            "tracking_rms": tracking_rms(rec)}
 
 
 def render(r: dict) -> str:

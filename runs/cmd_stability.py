@@ -5,7 +5,7 @@ delayed axis (both thresholds, like Fig. 4-25) with the linear Type 1 curves dra
 of eq. 4.1; the Type 1 curves against the springs of table 4.2; the largest negative damping that
 stays stable; the maps at 100 Hz against the springs of Appendix D; how the thresholds move with
 the delay, the quantization step and the sampling rate; and how the Type 2 boundary depends on
-the PSD normalization. See `runs/stability/` for the models and criteria.
+the PSD normalization. See `manus.experiments.stability` for the models and criteria.
 """
 
 from __future__ import annotations
@@ -15,16 +15,11 @@ import time
 import numpy as np
 
 from manus.plants.errors import ManusError
-from manus.runs.common import add_common, note, table
+from manus.runs.args import add_common
+from manus.runs.text import note, table
 
 NAME = "stability"
 HELP = "impedance limits: Type 1/Type 2 stability map, negative damping, 100 Hz, sensitivity (thesis ch. 4, App. D)"
-
-# Equivalent thresholds, in our normalization (|X|²/N at 1 kHz, a line of amplitude A reads
-# 250 A²), of 10⁻⁶ read in other conventions: a one-sided density in m²/Hz over 1 s (A²/2), and
-# MATLAB's Welch `psd` with a 256-point Hann window (A² 256/6).
-PSD_CONVENTIONS = {"fft |X|^2/N (ours)": 1e-6, "one-sided density m^2/Hz": 1e-6 * 250 / 0.5,
-                   "Welch Hann-256": 1e-6 * 250 / (256 / 6)}
 
 
 def _range(text: list[float], what: str, positive: bool = False) -> np.ndarray:
@@ -47,12 +42,12 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> dict:
+    from manus.experiments.stability import analysis, sweep
+    from manus.experiments.stability.search import stability_map
+    from manus.experiments.stability.sensitivity import sensitivity
+    from manus.experiments.stability.steptest import StepTest, line_amplitude
     from manus.plants.closed_loop import simulate
-    from manus.runs import sweep
-    from manus.runs.stability import analysis, figures
-    from manus.runs.stability.search import boundary, read_map, stability_map
-    from manus.runs.stability.sensitivity import sensitivity
-    from manus.runs.stability.steptest import TYPE2, StepTest, line_amplitude
+    from manus.runs.figures import stability as figures
 
     b_cs, ks = _range(args.b_c, "b-c"), _range(args.k, "k", positive=True)
     cluster = sweep.client_for(args.cluster) if args.cluster else None
@@ -71,11 +66,10 @@ def run(args) -> dict:
         out["type1"] = curves
         out["map"] = analysis.map_summary(smap, test.linear(), test.rate_hz) | {
             "seconds": seconds, "points_per_s": smap.kinds.size / seconds}
-        out["psd_conventions"] = {name: {"threshold": thr, "type2_boundary": boundary(
-            read_map(test, b_cs, ks, smap.metrics, psd_threshold=thr), TYPE2)} for name, thr in PSD_CONVENTIONS.items()}
+        out["psd_conventions"] = analysis.psd_conventions(test, smap)
         out["figures"]["map"] = figures.stability_map(smap, curves, args.out)
         out["figures"]["type1"] = figures.type1_curves(curves, args.out)
-        example = _type2_example(smap)
+        example = analysis.type2_example(smap)
         if example:
             k, b_c = example
             traj = simulate(test.plant(), test.controller(k, b_c), test.reference(), test.seconds)
@@ -97,19 +91,6 @@ def run(args) -> dict:
         if cluster is not None:
             cluster.close()
     return out
-
-
-def _type2_example(smap) -> tuple[float, float] | None:
-    """A point just past the Type 2 threshold (Fig. 4-22): the first unstable k of the Type 2
-    row nearest the middle of that edge."""
-    from manus.runs.stability.steptest import TYPE2
-
-    rows = np.flatnonzero((smap.limit_kind == TYPE2) & np.isfinite(smap.limit))
-    if rows.size == 0:
-        return None
-    r = rows[len(rows) // 2]
-    j = int(np.searchsorted(smap.ks, smap.limit[r])) + 1
-    return float(smap.ks[min(j, len(smap.ks) - 1)]), float(smap.b_cs[r])
 
 
 def render(r: dict) -> str:

@@ -1,7 +1,8 @@
 """The discovery report: a Markdown file with its PNGs beside it, one section per recording
 (`manus discover` writes one, `manus demo` two). A section holds the table of steps, the
 waterfall of the error falling, each step's evidence figure (the verdict that proposed it), the
-residual of the final model and the `compare` figure of the final model."""
+residual of the final model and the `compare` figure of the final model; `discover_section`
+runs the loop and draws them."""
 
 from __future__ import annotations
 
@@ -9,14 +10,15 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from manus.runs.common import figure_dir
+from manus.runs.figures.common import figure_dir
+from manus.runs.text import format_params, limits_line, note, unexplained_line
 
 
 @dataclass
 class Section:
     title: str
     recording: str
-    discovery: object  # adaptive.discover.Discovery
+    discovery: object  # manus.adaptive.Discovery
     figures: dict = field(default_factory=dict)  # "waterfall", "steps" [(spec, path)], "resid", "compare"
     intro: str = ""
     free_run: str = ""  # one line: what drove the free run (or why there is none)
@@ -30,35 +32,11 @@ def step_rows(discovery) -> list[list]:
     return rows
 
 
-def left(rows: list[list], columns: tuple[int, ...]) -> list[list]:
-    """Pad the text of `columns` to a common width, so that `manus.runs.common.table` (which right-aligns
-    every column but the first) shows them left-aligned."""
-    rows = [list(r) for r in rows]
-    for j in columns:
-        w = max((len(str(r[j])) for r in rows), default=0)
-        for r in rows:
-            r[j] = str(r[j]).ljust(w)
-    return rows
-
-
-def format_params(params: dict) -> str:
-    parts = []
-    for k, v in params.items():
-        if isinstance(v, dict):
-            std = v.get("std")
-            parts.append(f"{k}={v['value']:.4g}" + (f"±{std:.2g}" if std is not None else ""))
-        elif isinstance(v, float):
-            parts.append(f"{k}={v:.4g}")
-        elif k not in ("measured_in",):
-            parts.append(f"{k}={v}")
-    return ", ".join(parts)
-
-
 def make_figures(section: Section, out: Path, prefix: str, free_run: bool = True) -> None:
     """Draw the section's figures into `out` (names start with `prefix`)."""
-    from manus.runs.cmd_fit import free_run_or_reason
-    from manus.runs.diagnose_figures import evidence_figure, resid_figure, unexplained_figure
-    from manus.runs.fit_figures import compare_figure, waterfall_figure
+    from manus.experiments.freerun import free_run_or_reason
+    from manus.runs.figures.diagnose import evidence_figure, resid_figure, unexplained_figure
+    from manus.runs.figures.fit import compare_figure, waterfall_figure
 
     disc = section.discovery
     name = Path(section.recording).name
@@ -76,6 +54,33 @@ def make_figures(section: Section, out: Path, prefix: str, free_run: bool = True
     section.free_run = run if isinstance(run, str) else run.how
     figs["compare"] = compare_figure(final, run, out, f"{prefix}final_compare.png", name)
     section.figures = figs
+
+
+def discover_section(rec, model: str, out: Path, prefix: str, title: str, intro: str = "", cutoff_hz=None,
+                     max_steps: int = 6, figures: bool = True, method: str = "auto") -> Section:
+    """Run the loop on `rec` and make its report section (figures drawn into `out`)."""
+    from manus.adaptive import discover
+
+    disc = discover(rec, model, cutoff_hz=cutoff_hz, max_steps=max_steps, method=method,
+                    progress=lambda line: note("  " + line))
+    section = Section(title, str(rec.path), disc, intro=intro)
+    if figures:
+        note("  figures ...")
+        make_figures(section, out, prefix)
+    return section
+
+
+def section_result(section: Section) -> dict:
+    """A section's JSON (`manus discover`'s): the discovery's report, the recording, the figures."""
+    r = section.discovery.report()
+    r["recording"] = section.recording
+    if section.figures:
+        r["figures"] = {"waterfall": section.figures["waterfall"], "compare": section.figures["compare"],
+                        "steps": [p for _, p in section.figures["steps"]]}
+        if "resid" in section.figures:
+            r["figures"]["resid"] = section.figures["resid"]
+        r["free_run"] = section.free_run
+    return r
 
 
 def _md_table(rows: list[list], header: list[str]) -> str:
@@ -119,13 +124,9 @@ def write(sections: list[Section], path: Path, title: str = "manus discover") ->
                    "No effect of the vocabulary is significant on held-out blocks any more; the residual analysis in "
                    "the spirit of MATLAB `resid` (99 % bands):", "", f"![resid]({_link(f['resid'], base)})", ""]
         if disc.final is not None and disc.final.verdict is None and disc.final.detection_limits:
-            from manus.runs.cmd_diagnose import limits_line
-
             md += ["### How large a missing effect would have to be", "", limits_line(disc.final.detection_limits) + ".", ""]
         u = disc.unexplained
         if u:
-            from manus.runs.cmd_diagnose import unexplained_line
-
             md += ["### Something left that no effect explains?", "", unexplained_line(u) + ".", ""]
             if "unexplained" in f:
                 md += [f"![unexplained]({_link(f['unexplained'], base)})", ""]

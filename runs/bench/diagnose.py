@@ -7,19 +7,19 @@ under impedance control following a multi-sine (`manus simulate`'s defaults). Ti
   its non-linear parameter searched, judged on held-out blocks; compliance from the frequency
   response), from the raw recording (the filtering and differentiation included): the first call
   (with JAX compilation of the regressor columns) and the best of `--repeats` after it;
-- `manus.adaptive.fit.fit` of the nominal model alone, the same way;
+- `manus.adaptive.fit` of the nominal model alone, the same way;
 - the baseline: a plain `scipy.optimize.least_squares` fit of the same model (the closed-form
   torque of the arm in numpy on the same kinematics, low-passed like the torque, on the rows `fit` uses),
   and how far its parameters are from `fit`'s.
 
-`--calibrate` instead runs the calibration set (`manus.runs.calibration`): `--recordings` N
+`--calibrate` instead runs the calibration set (`manus.experiments.calibration`): `--recordings` N
 recordings with nothing missing and N per hidden effect of the vocabulary, each under a condition
 drawn from its seed, and reports the false-alarm rate (a verdict on a recording with nothing
 missing), the detection rate (the verdict names the hidden effect; and with the right joint) per
 effect and per condition value, each with its Wilson 95 % interval, and the time per recording.
 Detection is also given over the recordings whose hidden effect is *distinct*: at least
 `DISTINCT` (2.5 %) of the torque is its own, unexplained by the start model plus any one other
-effect (`manus.runs.calibration.distinct`; a delay: what it changes in the torque). Below that no
+effect (`manus.experiments.calibration.distinct`; a delay: what it changes in the torque). Below that no
 procedure can name it (a tilted plane on a small swing is an offset and a spring), so the two
 rates separate what the data cannot tell from what diagnose misses. `--jobs` spreads the
 recordings over worker processes (one per core by default); `--alpha` and `--blocks` run
@@ -44,7 +44,7 @@ def add_arguments(p) -> None:
     p.add_argument("--seconds", type=float, default=20.0, help="length of the simulated recording [s]")
     p.add_argument("--repeats", type=int, default=2, help="best of this many timed runs after the first")
     p.add_argument("--calibrate", action="store_true",
-                   help="false-alarm and detection rates over the calibration set (manus.runs.calibration)")
+                   help="false-alarm and detection rates over the calibration set (manus.experiments.calibration)")
     p.add_argument("--recordings", type=int, default=100,
                    help="with --calibrate: recordings with nothing missing, and this many per hidden effect")
     p.add_argument("--seed", type=int, default=0, help="with --calibrate: the first seed of the set")
@@ -53,10 +53,10 @@ def add_arguments(p) -> None:
                         "'none': the recordings with nothing missing only)")
     p.add_argument("--alpha", type=float, default=None,
                    help="with --calibrate: the family-wise significance level diagnose uses (default: its own, "
-                        "manus.adaptive.diagnose.ALPHA), to see what another level would give")
+                        "manus.adaptive.ALPHA), to see what another level would give")
     p.add_argument("--blocks", type=int, default=None,
                    help="with --calibrate: held-out blocks per recording (default: diagnose's own, "
-                        "manus.adaptive.diagnose.BLOCKS)")
+                        "manus.adaptive.BLOCKS)")
     p.add_argument("--jobs", type=int, default=0,
                    help="with --calibrate: worker processes (default: one per core)")
     p.add_argument("--amplitude", type=float, default=None,
@@ -68,7 +68,7 @@ def add_arguments(p) -> None:
     p.add_argument("--simulator", choices=("manus", "independent"), default="manus",
                    help="with --calibrate: the recordings' simulator: manus's own, or the one written independently "
                         "from the equations (regularized friction, RK4, a PD loop, read back from CSV files; "
-                        "manus.runs.independent)")
+                        "manus.experiments.independent)")
     p.add_argument("--rates", default="",
                    help="with --calibrate: comma-separated sample rates [Hz] the recordings are drawn at (default: "
                         "the set's own, 1000,200), e.g. your rig's")
@@ -124,12 +124,11 @@ def _timed(fn, repeats: int):
 
 
 def run(args) -> dict:
-    if getattr(args, "calibrate", False):
+    if args.calibrate:
         return calibrate(args)
     import jax
 
-    from manus.adaptive.diagnose import diagnose
-    from manus.adaptive.fit import fit, prepare
+    from manus.adaptive import diagnose, fit, prepare
     from manus.plants import Manus2, Model, Simulator
     from manus.plants.closed_loop import simulate
     from manus.plants.errors import ManusError
@@ -137,7 +136,7 @@ def run(args) -> dict:
     from manus.plants.references import MultiSine
     from manus.plants.simulator import workspace_centre
     from manus.adaptive.impedance import Impedance
-    from manus.runs.common import note
+    from manus.runs.text import note
 
     if args.seconds < 5 or args.repeats < 0:
         raise ManusError("--seconds must be at least 5 and --repeats not negative")
@@ -221,14 +220,14 @@ def run_one(seed: int, hidden: str | None, alpha: float | None = None, blocks: i
     from manus.runs.cli import configure_jax
 
     configure_jax()  # float64, as `manus` runs: a spawned worker was not started by it
-    from manus.adaptive.diagnose import diagnose
+    from manus.adaptive import diagnose
     from manus.plants.errors import ManusError
-    from manus.runs import calibration
+    from manus.experiments import calibration
 
     out = {"seed": seed, "hidden": hidden}
     try:
         if simulator == "independent":
-            from manus.runs import independent
+            from manus.experiments import independent
 
             c = independent.case(seed, hidden, rates or independent.RATES, amplitude or calibration.AMPLITUDE)
         else:
@@ -347,7 +346,7 @@ DISTINCT = 0.025  # a hidden effect is distinct when this share of the torque is
 
 def _distinct(r: dict) -> bool:
     """Whether a hidden effect left a part no other reading explains of at least `DISTINCT` of
-    the torque (`manus.runs.calibration.distinct`; a delay: what it changes in the torque; a
+    the torque (`manus.experiments.calibration.distinct`; a delay: what it changes in the torque; a
     mode: counted, its share is not measured). The independent simulator measures neither: its
     recordings do not count here."""
     c = r.get("condition", {})
@@ -366,17 +365,17 @@ def _counts(items) -> dict:
 
 
 def calibrate(args) -> dict:
-    from manus.adaptive.diagnose import ALPHA, BLOCKS
+    from manus.adaptive import ALPHA, BLOCKS
     from manus.plants.errors import ManusError
-    from manus.runs import calibration
-    from manus.runs.common import note
+    from manus.experiments import calibration
+    from manus.runs.text import note
 
     n = args.recordings
     if n < 1:
         raise ManusError("--recordings must be at least 1")
-    simulator = getattr(args, "simulator", "manus")
+    simulator = args.simulator
     if simulator == "independent":
-        from manus.runs import independent
+        from manus.experiments import independent
     vocabulary = independent.EFFECTS if simulator == "independent" else calibration.hidden_effects()
     effects = vocabulary
     if args.effects.strip().lower() == "none":  # the null recordings only: the false-alarm rate
@@ -389,13 +388,13 @@ def calibrate(args) -> dict:
                              f"{', '.join(effects)}")
         effects = tuple(chosen)
     rates = independent.RATES if simulator == "independent" else calibration.RATES
-    if getattr(args, "rates", ""):
+    if args.rates:
         try:
             rates = calibration.check_rates([float(r) for r in args.rates.split(",") if r.strip()])
         except ValueError:
             raise ManusError(f"--rates {args.rates!r}: comma-separated sample rates, whole numbers of Hz from 100 "
                              "to 20000 (e.g. 500,2000)") from None
-    amplitude = getattr(args, "amplitude", None)
+    amplitude = args.amplitude
     try:
         amplitude = calibration.check_amplitude(calibration.AMPLITUDE if amplitude is None else amplitude)
     except ValueError as e:
@@ -411,10 +410,10 @@ def calibrate(args) -> dict:
         raise ManusError(f"--jobs must be at least 1 (got {jobs})")
     t0 = time.perf_counter()
     results = []
-    blocks = getattr(args, "blocks", None)
+    blocks = args.blocks
     if blocks is not None and blocks < 3:
         raise ManusError(f"--blocks must be at least 3 (got {blocks})")
-    lost = getattr(args, "lost", 0.0) or 0.0
+    lost = args.lost
     if not 0 <= lost < 0.5:
         raise ManusError(f"--lost must lie in [0, 0.5) (got {lost})")
     for k, r in enumerate(_each(plan, args.alpha, blocks, jobs, rates, amplitude, lost, simulator), 1):
@@ -473,7 +472,7 @@ def _pct(r: dict) -> str:
 def render_calibration(r: dict) -> str:
     s = r["calibration"]
     at = f", at {'/'.join(str(x) for x in r['rates'])} Hz" if r.get("rates") and tuple(r["rates"]) != (1000, 200) else ""
-    by = " (the independent simulator: manus.runs.independent)" if r.get("simulator") == "independent" else ""
+    by = " (the independent simulator: manus.experiments.independent)" if r.get("simulator") == "independent" else ""
     lines = [f"calibration{by}: {r['recordings']} recordings per row, seed {r['seed']}{at}, hidden at "
              f"{100 * r['amplitude']:g} % of the torque RMS"
              + (f", {100 * r['lost']:g} % of the samples lost at random" if r.get("lost") else "") + f", alpha {r.get('alpha', '-')}, {r.get('blocks', '-')} held-out blocks; rates with Wilson 95 % intervals",

@@ -67,10 +67,11 @@ def _jax_step(estimator, q0, filter_jit: bool = False):
 
 
 def _filterpy_ca(q0, r):
-    from filterpy.common import Q_continuous_white_noise
-    from filterpy.kalman import KalmanFilter
-
     from manus.estimators.kalman import KinematicKalman, transition
+    from manus.plants.errors import require
+
+    Q_continuous_white_noise = require("filterpy.common", "filterpy").Q_continuous_white_noise
+    KalmanFilter = require("filterpy.kalman", "filterpy").KalmanFilter
 
     ref = KinematicKalman(1e-3, 3, r=r)
     filters = []
@@ -98,7 +99,7 @@ def run(args) -> dict:
     from manus.estimators import NAMES, make, run as scan_run
     from manus.estimators.linear import quantization_variance
     from manus.plants.errors import ManusError
-    from manus.runs.common import note
+    from manus.runs.text import note
 
     if args.calls < 300 or args.samples < 1000 or args.joints < 1:
         raise ManusError("--calls must be at least 300, --samples at least 1000, --joints at least 1")
@@ -146,7 +147,7 @@ def run(args) -> dict:
 
 
 def render(r: dict) -> str:
-    from manus.runs.common import table
+    from manus.runs.text import table
 
     rows = [[n, f"{v['p50_us']:.0f}", f"{v['p99_us']:.0f}", f"{v['scan_per_s']:.3g}",
              "yes" if n in r["within_target"] else "NO"] for n, v in r["estimators"].items()]

@@ -126,8 +126,8 @@ def run(args) -> dict:
 
     realtime_jax()  # before JAX computes anything
     from manus.plants.device import open_device
-    from manus.runs.cmd_run_hardware import build_stepper
-    from manus.runs.common import note
+    from manus.adaptive.controllers import compiled_tick
+    from manus.runs.text import note
 
     if not (args.seconds > 0 and args.baseline_seconds > 0):
         raise ManusError("--seconds and --baseline-seconds must be positive")
@@ -139,7 +139,7 @@ def run(args) -> dict:
                 info = device.connect()
                 device.stop()
                 note(f"compiling {args.estimator} + {args.controller} ...")
-                stepper = build_stepper(info, args.controller, args.estimator, "rigid,viscous,coulomb", None, "benign")
+                stepper = compiled_tick(info, args.controller, args.estimator, "rigid,viscous,coulomb", None, "benign")
                 alone = _tick_alone(stepper)
                 note(f"{args.estimator} + {args.controller}: {args.seconds:g} s at {info.rate_hz:g} Hz ...")
                 subject = _measure(device, stepper, args.seconds)

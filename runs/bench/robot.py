@@ -43,7 +43,7 @@ def run(args) -> dict:
 
     from manus.plants.errors import ManusError
     from manus.plants.serial import Serial
-    from manus.runs.common import note
+    from manus.runs.text import note
 
     if args.states < 1 or args.pinocchio_states < 1 or args.repeats < 1 or args.trials < 1 or args.batch_seconds <= 0:
         raise ManusError("--states, --pinocchio-states, --repeats, --trials and --batch-seconds must be positive")
@@ -122,10 +122,10 @@ def accuracy(f, truth: dict, columns=None) -> dict:
     name): per parameter, the most of a joint's torque (RMS over its used equations) it carries
     and its relative error; the acceptance asks those carrying at least 1 % within 1 % (`worst`),
     and the others to add under 0.1 % of every joint's torque in error (`others_add`)."""
-    from manus.adaptive import fit as fitting
+    from manus.adaptive import Columns
 
     data = f.data
-    cols = columns or fitting.Columns(data)
+    cols = columns or Columns(data)
     Y, tau = cols.model(f.model), data.tau(f.delay)
     used = np.maximum(data.mask.sum(0), 1) if data.mask is not None else np.full(data.n_joints, len(tau))
     rms_tau = np.sqrt((tau**2).sum(0) / used)
@@ -147,8 +147,7 @@ def _loop(path: str, args, note) -> dict:
     """The Panda simulated (one trial, then a vmapped batch) and fitted: seconds and rates."""
     import jax
 
-    from manus.adaptive.diagnose import diagnose
-    from manus.adaptive.fit import fit
+    from manus.adaptive import diagnose, fit
     from manus.plants.errors import ManusError
     from manus.plants.closed_loop import simulate_batch
     from manus.plants.serial_sim import Feedforward, record

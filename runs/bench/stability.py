@@ -24,9 +24,9 @@ def run(args) -> dict:
     import jax
 
     from manus.plants.errors import ManusError
-    from manus.runs import sweep
-    from manus.runs.common import note
-    from manus.runs.stability.steptest import StepTest
+    from manus.experiments.stability import sweep
+    from manus.runs.text import note
+    from manus.experiments.stability.steptest import StepTest
 
     if args.points < 1 or args.loop_points < 1 or args.repeats < 1:
         raise ManusError("--points, --loop-points and --repeats must be positive")

@@ -3,7 +3,6 @@ with hidden effects (the truth parameters are the reference), the EMPS axis agai
 reference model, and the compliant shaft under the thesis's open-loop square wave."""
 
 import json
-import time
 
 import numpy as np
 import pytest
@@ -106,17 +105,12 @@ def test_diagnose_report_is_the_json_contract():
     assert first["detail"]["Fc2"] == pytest.approx(0.139, rel=0.02)
 
 
-def test_diagnose_is_fast_on_a_20_s_two_joint_recording():
-    """`manus bench diagnose`'s size: 20 s, 2 joints, 1 kHz, every candidate. Warm (the columns'
-    compilations done by the earlier tests or a first call), a few seconds on a 2-core CPU."""
+def test_diagnose_tries_every_candidate_on_a_20_s_two_joint_recording():
+    """`manus bench diagnose`'s size (which times it): 20 s, 2 joints, 1 kHz, every candidate."""
     rec = hidden.recording(())
     assert len(rec) == 20000 and rec.n_joints == 2
-    diagnose(rec, "rigid")
-    t0 = time.perf_counter()
     d = diagnose(rec, "rigid")
-    seconds = time.perf_counter() - t0
     assert len(d.candidates) == 9  # stribeck waits for coulomb
-    assert seconds < 20.0, seconds  # a generous bound: `manus bench diagnose` measures it
 
 
 # -- EMPS ----------------------------------------------------------------------------------------
@@ -350,8 +344,7 @@ def test_the_detection_limit_a_null_verdict_states_is_what_it_finds():
 
     from manus.adaptive.fit import Columns, prepare
     from manus.plants.effects import Model, Offset
-    from manus.runs import calibration
-    from manus.runs.cmd_diagnose import render
+    from manus.experiments import calibration
 
     c = calibration.case(3, None, structure="arm", rate=1000, excitation="multisine", torque="white", hold="stated")
     d = diagnose(c.rec, c.start)
@@ -359,7 +352,6 @@ def test_the_detection_limit_a_null_verdict_states_is_what_it_finds():
     limits = d.report()["detection_limits"]
     assert set(limits) >= {"offset", "gravity", "asymmetry", "cogging"} and "delay" not in limits
     assert all(0.005 <= v < 0.2 for v in limits.values())
-    assert "to be found 4 times in 5): " in render(json.loads(json.dumps(d.report())))
     data = prepare(c.rec)
     cols = Columns(data)
     X = cols.model(Model(c.rec.structure, c.start)).reshape(-1, 3 + 2 + 2)

@@ -270,7 +270,7 @@ def test_open_loop_steps_at_200_hz_fit_the_true_model():
     """The axis at 200 Hz under open-loop torque steps (broadband), torque recorded exactly: the
     true model fits to about 1 % and its parameters within 2 % (the first difference taken twice,
     whose response falls to 0.41 at a quarter of the rate, left 4–5 % and b 6–7 % high)."""
-    from manus.runs import calibration
+    from manus.experiments import calibration
 
     c = calibration.case(1, None, structure="axis", rate=200, excitation="steps", torque="exact", hold="stated")
     f = fit(c.rec, "rigid,viscous,coulomb", method="ls")
@@ -310,7 +310,7 @@ def test_a_rest_s_torque_does_not_reach_the_rows_around_it():
     half a cut-off period of a rest, left out before, are used."""
     import copy
 
-    from manus.runs import calibration
+    from manus.experiments import calibration
 
     c = calibration.case(3, None, structure="axis", rate=200, excitation="reaching", torque="exact", hold="stated")
     truth = calibration.AXIS.nominal

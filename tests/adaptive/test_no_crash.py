@@ -20,7 +20,7 @@ from manus.adaptive.discover import discover
 from manus.plants.effects import VOCABULARY, Compliance, Delay, Model
 from manus.plants.errors import ManusError
 from manus.plants.recording import from_trajectory
-from manus.runs import calibration
+from manus.experiments import calibration
 
 SEED = 7  # the fuzz's seeds: SEED + case index
 CASES = 16  # random combinations

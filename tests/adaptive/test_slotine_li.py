@@ -190,7 +190,7 @@ def test_the_batch_keeps_the_statistics_of_every_tick_and_a_row_of_every_fifth()
     statistics of every tick) against `rollout` (every tick logged) trial by trial: the rows, the
     estimates, ∫YᵀY dt, the settle times (numpy on the full log), the mean square tracking error
     and the largest command. (`trial`, the same scans unbatched, is `manus bench converge`'s.)"""
-    from manus.runs.cmd_converge import settle_times
+    from manus.experiments.convergence import settle_times
 
     truth_model = Model(Manus2(), "rigid,viscous,coulomb")
     plant = Simulator(truth_model, torque_noise=0.005)

@@ -18,7 +18,7 @@ from manus.plants.effects import Coulomb, parse_effects, sign, stack
 from manus.plants.recording import from_trajectory, read
 from manus.plants.references import MultiSine
 from manus.plants.structures import Manus2
-from manus.runs.calibration import pendulum
+from manus.experiments.calibration import pendulum
 from tests.adaptive import hidden
 from tests.conftest import SHARED
 

@@ -79,13 +79,13 @@ def rigs(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def stepper(rigs):
-    from manus.runs.cmd_run_hardware import build_stepper
+    from manus.adaptive.controllers import compiled_tick
 
     dev = open_device(f"udp://127.0.0.1:{rigs['clean'][1]}")
     info = dev.connect()
     dev.stop()
     dev.close()
-    return build_stepper(info, "slotine-li", "kalman_cv", TRUTH, None, "benign")
+    return compiled_tick(info, "slotine-li", "kalman_cv", TRUTH, None, "benign")
 
 
 def _device(rigs, name):

@@ -18,7 +18,7 @@ def test_bench_converge_reports_the_batch_beside_the_loops_and_the_bare_plant(ca
                       "bare_plant_batch_cpu_ns_per_trial_step", "batch_trial_steps_per_s_idle"}
     assert all(v > 0 for k, v in f.items() if not k.endswith("compile_s"))
     assert r["speedup"] > 0 and r["of_bare_plant"] > 0 and r["trials"] == 4 and r["devices"] >= 1
-    assert r["speedup_cpu"] > 0 and r["load_average"] >= 0 and r["cores"] >= 1
+    assert r["speedup_cpu"] > 0 and "load_average" in r and r["cores"] >= 1
     assert r["seconds"] == 0.05 and r["bare_plant"] == "rigid,viscous,coulomb,delay"
 
 

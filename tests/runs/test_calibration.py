@@ -1,6 +1,6 @@
 """The calibration of `manus diagnose` (issue: "nothing missing: verdict null in at least 98 % of
 recordings; each effect hidden at 5 % of the torque RMS: named in at least 90 %"), on a small
-seeded subset of the calibration set (`manus.runs.calibration`); the whole set is the benchmark
+seeded subset of the calibration set (`manus.experiments.calibration`); the whole set is the benchmark
 `manus bench diagnose --calibrate`. Every test here is named `test_calibration_*`:
 
     pytest tests/runs/test_calibration.py          # or: pytest -k calibration
@@ -12,9 +12,8 @@ its inertia and gravity within 10 %.
 
 import pytest
 
-from manus.adaptive.diagnose import diagnose
-from manus.adaptive.fit import fit
-from manus.runs import calibration
+from manus.adaptive import diagnose, fit
+from manus.experiments import calibration
 
 SEED = 20240607  # the subset's seeds: SEED + index
 PENDULUM_SEED = 3
@@ -130,18 +129,16 @@ def test_calibration_distinct_share_of_a_hidden_effect():
     assert cogging == pytest.approx(size, rel=0.2)
 
 
-def test_calibration_bench_runs_in_worker_processes():
+def test_calibration_bench_runs_in_worker_processes(calibrate_args):
     """`manus bench diagnose --calibrate` over two spawned workers: every recording comes back, in
     the plan's order, with its outcome, its candidates' p-values and the rates' JSON keys."""
-    from types import SimpleNamespace
-
     from manus.runs.bench import diagnose as bench
 
-    args = SimpleNamespace(recordings=1, effects="offset", seed=3, alpha=None, blocks=None, jobs=2)
+    args = calibrate_args(recordings=1, effects="offset", seed=3, alpha=None, blocks=None, jobs=2)
     r = bench.calibrate(args)
     assert [x["hidden"] for x in r["results"]] == [None, "offset"]
     assert all(x["outcome"] in ("quiet", "false alarm", "named", "reading", "missed", "wrong") for x in r["results"]), r["results"]
-    from manus.adaptive.diagnose import ALPHA
+    from manus.adaptive import ALPHA
 
     assert r["crashes"] == {} and r["jobs"] == 2 and r["alpha"] == pytest.approx(ALPHA)
     assert all("p_value" in c for x in r["results"] for c in x["candidates"])
@@ -216,7 +213,7 @@ def test_calibration_at_another_amplitude():
         calibration.case(SEED + 100, "offset", amplitude=1.5, **EASY)
 
 
-def test_calibration_with_samples_lost():
+def test_calibration_with_samples_lost(calibrate_args):
     """`--lost`: a recording that lost 1 % of its samples at random (a loop that misses packets)
     is diagnosed as the whole one: a hidden offset named on its joint, nothing on a null, and the
     count lost in the condition; a fraction outside [0, 0.5) is refused by name."""
@@ -227,10 +224,8 @@ def test_calibration_with_samples_lost():
     assert hidden["outcome"] == "named" and 60 < hidden["condition"]["lost_samples"] < 180, hidden.get("condition")
     null = bench.run_one(SEED, None, lost=0.01)
     assert null["outcome"] == "quiet" and null["condition"]["lost_samples"] > 0, null.get("verdict_spec")
-    from types import SimpleNamespace
-
     with pytest.raises(ManusError, match=r"--lost must lie in \[0, 0.5\) \(got 0.7\)"):
-        bench.calibrate(SimpleNamespace(recordings=1, effects="none", seed=3, alpha=None, blocks=None, jobs=1, lost=0.7))
+        bench.calibrate(calibrate_args(recordings=1, effects="none", seed=3, alpha=None, blocks=None, jobs=1, lost=0.7))
 
 
 def test_a_delay_is_sized_by_what_it_changes():

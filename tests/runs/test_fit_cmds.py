@@ -4,13 +4,15 @@
 One simulated recording is shared: the arm under impedance control for 20 s with 39/rev cogging
 hidden from the thesis's nominal model (rigid, viscous, Coulomb)."""
 
+import contextlib
+import io
 import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from manus.runs.cli import commands, main, parser
+from manus.runs.cli import main
 
 TRUTH = "rigid,viscous,coulomb,cogging:39"
 NOMINAL = "rigid,viscous,coulomb"
@@ -18,11 +20,9 @@ NOMINAL = "rigid,viscous,coulomb"
 
 @pytest.fixture(scope="module")
 def hidden_cogging(tmp_path_factory) -> str:
-    from manus.runs import cmd_simulate
-
     path = tmp_path_factory.mktemp("rec") / "hidden.csv"
-    args = parser(commands()).parse_args(["simulate", "--truth", TRUTH, "--seconds", "20", "--out", str(path)])
-    cmd_simulate.run(args)
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["simulate", "--truth", TRUTH, "--seconds", "20", "--out", str(path), "--json"]) == 0
     return str(path)
 
 

@@ -1,4 +1,4 @@
-"""The independent simulator (`manus.runs.independent`, written from the equations, not from
+"""The independent simulator (`manus.experiments.independent`, written from the equations, not from
 `manus.plants`) against manus's own model, and diagnose on its recordings: the first recordings a
 user's other simulator would give (friction regularized, so a held joint creeps)."""
 
@@ -7,11 +7,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from manus.adaptive import fit as fitting
-from manus.adaptive.diagnose import diagnose
+from manus.adaptive import diagnose, fit, prepare
 from manus.plants.effects import Model
 from manus.plants.structures import Manus2
-from manus.runs import independent
+from manus.experiments import independent
 
 
 def test_independent_arm_dynamics_match_manus_model():
@@ -41,7 +40,7 @@ def test_independent_null_recording_fits_its_truth():
     """manus fit on an independent recording (read back from its CSV file) recovers the true
     inertias and friction of the arm: 1 kHz, multi-sine, torque exact."""
     c = independent.case(1, None, structure="arm", rate=1000, excitation="multisine", torque="exact", hold="stated")
-    f = fitting.fit(c.rec, c.start)
+    f = fit(c.rec, c.start)
     truth = {"a1": independent.A1, "a2": independent.A2, "a3": independent.A3,
              "b1": independent.ARM["b"][0], "b2": independent.ARM["b"][1],
              "Fc1": independent.ARM["fc"][0], "Fc2": independent.ARM["fc"][1]}
@@ -58,7 +57,7 @@ def test_independent_creeping_holds_are_left_out():
     7.5 ms delay before (11 % of the rows left out then, 58 % now)."""
     c = independent.case(1634520124, None)
     assert c.condition["structure"] == "axis" and c.condition["excitation"] == "reaching"
-    data = fitting.prepare(c.rec)
+    data = prepare(c.rec)
     assert data.standstill > 0.4
     d = diagnose(data, c.start)
     assert d.verdict is None, d.verdict.spec
@@ -74,15 +73,13 @@ def test_independent_hidden_offset_named():
         assert d.verdict.joint == c.joint
 
 
-def test_independent_bench_path():
+def test_independent_bench_path(calibrate_args):
     """`manus bench diagnose --calibrate --simulator independent`: its recordings go through the
     same judging as the calibration's, its effects are its own (no compliance: refused by name)."""
-    from types import SimpleNamespace
-
     from manus.plants.errors import ManusError
     from manus.runs.bench import diagnose as bench
 
-    args = SimpleNamespace(recordings=1, effects="viscous", seed=4, alpha=None, blocks=None, jobs=1,
+    args = calibrate_args(recordings=1, effects="viscous", seed=4, alpha=None, blocks=None, jobs=1,
                            simulator="independent")
     r = bench.calibrate(args)
     assert [x["hidden"] for x in r["results"]] == [None, "viscous"] and r["simulator"] == "independent"
@@ -90,4 +87,4 @@ def test_independent_bench_path():
     assert r["crashes"] == {} and r["rates"] == list(independent.RATES)
     assert "independent simulator" in bench.render_calibration(r)
     with pytest.raises(ManusError, match="the independent simulator hides"):
-        bench.calibrate(SimpleNamespace(**{**vars(args), "effects": "compliance"}))
+        bench.calibrate(calibrate_args(**{**vars(args), "effects": "compliance"}))

@@ -223,21 +223,21 @@ def panda_recording():
 @pytest.fixture(scope="module")
 def panda_data(panda_recording):
     """The recording prepared once, with its columns (fit and diagnose share them)."""
-    from manus.adaptive import fit as fitting
+    from manus.adaptive import Columns, prepare
 
     truth, rec = panda_recording
-    data = fitting.prepare(rec)
-    return truth, data, fitting.Columns(data)
+    data = prepare(rec)
+    return truth, data, Columns(data)
 
 
 def test_fit_recovers_the_pandas_base_parameters(panda_data):
     """Every base parameter that carries at least 1 % of some joint's torque within 1 % of its value,
     and the friction within 1 %; the others (products of inertia of 1e-4 kg m²: under the
     recording's resolution) err by less than 0.1 % of every joint's torque in what they add."""
-    from manus.adaptive import fit as fitting
+    from manus.adaptive import fit
 
     truth, data, cols = panda_data
-    f = fitting.fit(data, "rigid,viscous,coulomb,offset", columns=cols, method="ls")
+    f = fit(data, "rigid,viscous,coulomb,offset", columns=cols, method="ls")
     report = f.report()
     base = f.model.structure
     assert list(report["base_parameters"]) == list(base.rigid_names) and len(base.rigid_names) == 48
@@ -252,7 +252,7 @@ def test_fit_recovers_the_pandas_base_parameters(panda_data):
     assert all(report["params"][k]["std"] is not None and report["params"][k]["std"] > 0 for k in f.names)
     # the physically consistent stage (7 pseudo-inertia LMIs): the truth is consistent, so the
     # estimate is, nothing moves, and the masses (which no base parameter holds) are the URDF's
-    from manus.adaptive.consistency import consistent
+    from manus.adaptive import consistent
 
     c = consistent(f).report()
     assert c["already"] and max(abs(v) for v in c["moved_std"].values()) < 0.1
@@ -262,7 +262,7 @@ def test_fit_recovers_the_pandas_base_parameters(panda_data):
 
 @pytest.fixture(scope="module")
 def panda_diagnosis(panda_data):
-    from manus.adaptive.diagnose import diagnose
+    from manus.adaptive import diagnose
 
     _, data, cols = panda_data
     return diagnose(data, "rigid,viscous,coulomb", columns=cols, method="ls").report()

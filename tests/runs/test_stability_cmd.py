@@ -6,8 +6,8 @@ import json
 import pytest
 
 from manus.runs import cli
-from manus.runs.stability.sensitivity import check
-from manus.runs.stability.steptest import TYPE2
+from manus.experiments.stability.sensitivity import check
+from manus.experiments.stability.steptest import TYPE2
 
 
 def test_stability_command_json(tmp_path, capsys):

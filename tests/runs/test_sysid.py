@@ -1,21 +1,27 @@
 """System identification of thesis §3.5 on the simulated arm, and the Cartesian parameters of
 §3.6 against finite differences, statics and the thesis's numbers at the workspace centre."""
 
-import argparse
+import contextlib
+import io
+import json
 import math
 
 import numpy as np
 import pytest
 
-from manus.runs import cmd_sysid, sysid
+from manus.experiments import sysid
+from manus.runs.cli import main
 
 THESIS = {"a1": 0.349, "a2": 0.241, "a3": 0.246, "b1": 0.222, "b2": 0.181, "Fc1": 0.099, "Fc2": 0.139}
 
 
 @pytest.fixture(scope="module")
 def result(tmp_path_factory):
-    args = argparse.Namespace(displacement=0.3, seconds=6.0, out=tmp_path_factory.mktemp("sysid"), json=True)
-    return cmd_sysid.run(args)
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        assert main(["sysid", "--displacement", "0.3", "--seconds", "6", "--out", str(tmp_path_factory.mktemp("sysid")),
+                     "--json"]) == 0
+    return json.loads(out.getvalue())
 
 
 def test_identified_parameters_within_5_percent_of_the_truth(result):

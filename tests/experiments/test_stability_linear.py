@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import scipy.optimize
 
-from manus.runs.stability.linear import SPRINGS, LinearAxis
-from manus.runs.stability.steptest import StepTest
+from manus.experiments.stability.linear import SPRINGS, LinearAxis
+from manus.experiments.stability.steptest import StepTest
 
 M, B, LAM = 1.0, 1.5, 188.5
 

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from manus.runs.common import pyplot, save
-from manus.runs.stability.steptest import SAMPLES_1KHZ, THESIS_PSD, TYPE1, TYPE2, periodogram
+from manus.runs.figures.common import pyplot, save
+from manus.experiments.stability.steptest import SAMPLES_1KHZ, THESIS_PSD, TYPE1, TYPE2, periodogram
 
 COLORS = {0: "#d9f0d3", TYPE1: "#9ecae1", TYPE2: "#fdae6b"}  # stable, Type 1, Type 2
 

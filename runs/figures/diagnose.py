@@ -2,7 +2,7 @@
 evidence figure per candidate effect, drawn so that a person sees why it is (or is not) missing.
 
 The residual is the identification residual of the current model on the used rows (filtered,
-decimated: one row every `k` samples; see `manus.adaptive.fit.prepare`). Lags are in seconds.
+decimated: one row every `k` samples; see `manus.adaptive.identify.prepare`). Lags are in seconds.
 """
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from manus.adaptive.leftover import RIPPLE, what_removes
-from manus.runs.common import pyplot, save
+from manus.adaptive.diagnosis.leftover import RIPPLE, what_removes
+from manus.runs.figures.common import pyplot, save
 
 Z99 = 2.576  # two-sided 99 % normal quantile
 MAX_LAG_ROWS = 60
@@ -240,7 +240,7 @@ def _compliance_panel(ax, c, i: int):
     ax.loglog(m.freq[1:], m.measured[1:, i], color="k", lw=0.7, label="measured |θ̈/τ| (H1)")
     ax.loglog(m.freq[1:], m.rigid[1:, i], color="C0", lw=1.0, label="rigid fit")
     ax.loglog(m.freq[1:], m.fitted[1:, i], color="C3", lw=1.0, label=f"with a mode at {m.f_hz:.0f} Hz, ζ = {m.zeta:g}")
-    from manus.adaptive.modes import band
+    from manus.adaptive.diagnosis.modes import band
 
     ax.axvline(m.f_hz, color="C3", ls=":", lw=0.8)
     lo, hi = band(2 * m.freq[-1])
@@ -296,3 +296,10 @@ def unexplained_figure(d, out: Path, name: str, title: str = "") -> str | None:
     ax.legend(fontsize=7)
     fig.tight_layout()
     return save(fig, out, name)
+
+
+def diagnosis_figures(d, out: Path, stem: str) -> dict:
+    """A diagnosis's figures: the residual, one evidence figure per candidate, what is left."""
+    return {"resid": resid_figure(d, out, f"{stem}_resid.png"),
+            "evidence": evidence_figures(d, out, prefix=f"{stem}_"),
+            "unexplained": unexplained_figure(d, out, f"{stem}_unexplained.png")}

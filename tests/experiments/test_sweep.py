@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 from manus.plants.errors import ManusError
-from manus.runs import sweep
-from manus.runs.stability.search import read_map
-from manus.runs.stability.steptest import StepTest, verdict
+from manus.experiments.stability import sweep
+from manus.experiments.stability.search import read_map
+from manus.experiments.stability.steptest import StepTest, verdict
 
 TEST = StepTest(seconds=2.5, at=1.0)  # a shorter step test: the same code, cheaper
 B_CS = np.array([0.0, 12.0, 24.0, 36.0])

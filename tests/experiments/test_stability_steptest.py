@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from manus.runs.stability.linear import LinearAxis
-from manus.runs.stability.search import edge, stability_map
-from manus.runs.stability.steptest import (STABLE, TYPE1, TYPE2, Metrics, StepTest, batched, line_amplitude, periodogram,
+from manus.experiments.stability.linear import LinearAxis
+from manus.experiments.stability.search import edge, stability_map
+from manus.experiments.stability.steptest import (STABLE, TYPE1, TYPE2, Metrics, StepTest, batched, line_amplitude, periodogram,
                                      verdict)
 
 

@@ -1,12 +1,36 @@
-"""Figures of recordings and trajectories."""
+"""What every figure shares: pyplot on the file-only backend, saving into `--out`, and the
+figure of a recording (positions, velocities, torques against time)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 
-from manus.runs.common import pyplot
+def figure_dir(out: Path) -> Path:
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def pyplot():
+    """matplotlib's pyplot on the file-only Agg backend (no screen needed)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    plt.rcParams.update({"figure.dpi": 110, "axes.grid": True, "grid.alpha": 0.3, "font.size": 9})
+    return plt
+
+
+def save(fig, out: Path, name: str) -> str:
+    path = figure_dir(out) / name
+    fig.savefig(path, bbox_inches="tight")
+    fig.clf()
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    return str(path)
 
 
 def plot_recording(rec, path: Path, title: str = "") -> str:
@@ -34,7 +58,3 @@ def plot_recording(rec, path: Path, title: str = "") -> str:
     fig.savefig(path)
     plt.close(fig)
     return str(path)
-
-
-def rms(x, axis=0):
-    return np.sqrt(np.mean(np.square(x), axis=axis))

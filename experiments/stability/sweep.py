@@ -1,6 +1,6 @@
 """Sweeps at scale: thousands of step tests over a (k, b_c) grid, vmapped, locally or on Dask.
 
-Locally the whole set of points is one vmapped, jitted call (`manus.runs.stability.steptest.batched`),
+Locally the whole set of points is one vmapped, jitted call (`manus.experiments.stability.steptest.batched`),
 its batch split across the host's devices when there are several (`--xla_force_host_platform_
 device_count`, set by the `manus` command: one per core). With `cluster` (a Dask scheduler
 address such as ``tcp://10.0.0.5:8786``, or a `distributed.Client`) the points are cut into
@@ -16,8 +16,8 @@ import sys
 
 import numpy as np
 
-from manus.plants.errors import ManusError
-from manus.runs.stability.steptest import Metrics, StepTest, batched
+from manus.plants.errors import ManusError, require
+from manus.experiments.stability.steptest import Metrics, StepTest, batched
 
 CHUNK = 512  # points per Dask task
 
@@ -62,7 +62,7 @@ def _chunk(test: StepTest, k: np.ndarray, b_c: np.ndarray) -> Metrics:
 
 def client_for(cluster, timeout: str = "10s"):
     """A `distributed.Client` for an address, or the client given."""
-    from distributed import Client
+    Client = require("distributed", "cluster").Client
 
     if isinstance(cluster, Client):
         return cluster

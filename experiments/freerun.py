@@ -1,6 +1,6 @@
 """Free-run simulation of a fitted model against a recording (the position half of `compare`).
 
-The fitted model (`manus.adaptive.fit.Fit`: its effects with their non-linear parameters, and θ) is
+The fitted model (`manus.adaptive.Fit`: its effects with their non-linear parameters, and θ) is
 simulated with the JAX simulator (`manus.plants.simulator.Simulator`: the same effects, set-valued
 friction, the recorded encoder grid) over the whole recording, driven the way the rig was:
 
@@ -25,12 +25,12 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
-import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from manus.plants.references import PositionReference
-from manus.plants.stepper import Controller
+from manus.adaptive.controllers import PPD, Replay
+from manus.plants.errors import ManusError
+from manus.plants.references import Sampled
 
 SUBSTEPS = 10
 
@@ -41,48 +41,6 @@ def nrmse_fit(y: np.ndarray, yhat: np.ndarray) -> np.ndarray:
     den = np.linalg.norm(y - y.mean(0), axis=0)
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(den > 0, 100 * (1 - np.linalg.norm(y - yhat, axis=0) / den), np.nan)
-
-
-class Sampled(PositionReference):
-    """A recorded reference, linearly interpolated between its samples."""
-
-    t: jnp.ndarray
-    q: jnp.ndarray  # (T, n)
-
-    def position(self, t):
-        return jnp.stack([jnp.interp(t, self.t, self.q[:, i]) for i in range(self.q.shape[1])])
-
-
-class Replay(Controller):
-    """Plays the recorded torque back, one sample per tick (open loop)."""
-
-    tau: jnp.ndarray  # (T, n)
-
-    def init(self, q0):
-        return jnp.asarray(0)
-
-    def step(self, k, q, ref):
-        return k + 1, self.tau[jnp.minimum(k, self.tau.shape[0] - 1)]
-
-
-class PPD(Controller):
-    """The EMPS rig's loop: force = gtau (kp kv (q_ref − q) − kv v̂), v̂ the first difference of
-    the two-sample mean 0.5 (q_k + q_{k−1}) (EMPS README)."""
-
-    kp: float
-    kv: float
-    gtau: float
-    dt: float
-
-    def init(self, q0):
-        q0 = jnp.asarray(q0, float)
-        return q0, q0  # q_{k-1}, mean_{k-1}
-
-    def step(self, state, q, ref):
-        q_prev, mean_prev = state
-        mean = 0.5 * (q + q_prev)
-        v = (mean - mean_prev) / self.dt
-        return (q, mean), self.gtau * (self.kp * self.kv * (ref.q - q) - self.kv * v)
 
 
 @dataclass
@@ -112,15 +70,17 @@ def _reference(rec) -> np.ndarray | None:
     return None
 
 
-def _controller(rec, n: int):
-    """The controller the recording says ran, with a one-line description, or None."""
+def _controller(rec, n: int, limit: float | None):
+    """The controller the recording says ran, with a one-line description, or None. `limit`: the
+    actuator's torque limit, which an impedance controller clips its command to (None: its own)."""
     from manus.adaptive.impedance import Impedance
 
     meta = rec.meta
     m = re.match(r"\s*impedance\s+K=([0-9.eE+-]+)\s+B=([0-9.eE+-]+)", meta.get("controller", ""))
     if m:
         k, b = float(m.group(1)), float(m.group(2))
-        return Impedance(k, b, n_joints=n), f"impedance K={k:g} B={b:g} (filtered first difference)"
+        clip = {} if limit is None else {"limit": limit}
+        return Impedance(k, b, n_joints=n, **clip), f"impedance K={k:g} B={b:g} (filtered first difference)"
     if all(k in meta for k in ("kp", "kv", "gtau")) and "qg" in rec.extra:
         kp, kv, gtau = (float(meta[k]) for k in ("kp", "kv", "gtau"))
         return PPD(kp, kv, gtau, rec.dt), f"the EMPS P-PD loop kp={kp:g} kv={kv:g} gtau={gtau:.4g}"
@@ -128,7 +88,7 @@ def _controller(rec, n: int):
 
 
 def free_run(f, open_loop: bool = False) -> FreeRun:
-    """Simulate the fitted model `f` (a `manus.adaptive.fit.Fit`) over its whole recording."""
+    """Simulate the fitted model `f` (a `manus.adaptive.Fit`) over its whole recording."""
     from manus.plants.closed_loop import simulate
     from manus.plants.errors import ModelError
     from manus.plants.references import Hold
@@ -143,12 +103,10 @@ def free_run(f, open_loop: bool = False) -> FreeRun:
     encoder = Encoder(step=f.data.step) if f.data.step > 0 else None
     actuator = Actuator() if rec.structure_name == "manus2" else None
     ref = _reference(rec)
-    ctl = None if open_loop or ref is None else _controller(rec, n)
+    ctl = None if open_loop or ref is None else _controller(rec, n, None if actuator is None else actuator.limit)
     if ctl is not None:
         controller, how = ctl
         reference = Sampled(jnp.asarray(rec.t - rec.t[0]), jnp.asarray(ref))
-        if actuator is not None:
-            controller = eqx.tree_at(lambda c: c.limit, controller, actuator.limit) if hasattr(controller, "limit") else controller
         mode, how = "closed loop", f"closed loop: {how} on the recorded reference"
     else:
         controller, reference = Replay(jnp.asarray(rec.tau)), Hold(rec.q[0])
@@ -164,3 +122,11 @@ def free_run(f, open_loop: bool = False) -> FreeRun:
         out.q_ref = ref[: len(q_sim)]
         out.fit_tracking = nrmse_fit(q - out.q_ref, q_sim - out.q_ref)
     return out
+
+
+def free_run_or_reason(f, open_loop: bool = False) -> FreeRun | str:
+    """The free run, or a one-line reason why there is none."""
+    try:
+        return free_run(f, open_loop=open_loop)
+    except ManusError as e:
+        return str(e)

@@ -15,7 +15,7 @@ What it does differently from `manus.plants.simulator`, on purpose:
 - the recording is written as a CSV file and read back by `manus.plants.recording.read`, as a
   user's file would be.
 
-The conditions follow the calibration's (`manus.runs.calibration`): arm or prismatic axis,
+The conditions follow the calibration's (`manus.experiments.calibration`): arm or prismatic axis,
 three excitations, torque exact / with white noise of 10–30 % of its RMS / with an unrecorded
 disturbance of 3–8 % low-passed at 1–5 Hz, hold stated or not; rates 1 kHz, 500 Hz and 200 Hz.
 A hidden effect's torque RMS is `amplitude` of the recorded torque's (measured on a first run,
@@ -36,7 +36,7 @@ import jax.numpy as jnp
 import numpy as np
 from scipy import signal
 
-from manus.runs.calibration import AMPLITUDE, Case, _rms
+from manus.experiments.calibration import AMPLITUDE, Case, _rms
 
 RATES = (1000, 500, 200)
 A1, A2, A3 = 0.349, 0.241, 0.246  # kg m²: M11, the coupling, M22 (thesis §3.5.5)

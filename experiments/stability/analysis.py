@@ -7,19 +7,27 @@
 - `negative_damping`: the most negative b_c that stays stable (thesis: −1.5 N·s/m, "as much
   negative damping as there is real physical damping"), simulated and linear.
 - `appendix_d`: the stability maps at 100 Hz sampling, uncoupled and against 1050 and 3826 N/m.
+- `psd_conventions`: a map's Type 2 boundary under each normalization of the PSD threshold.
+- `type2_example`: a point just past the Type 2 threshold, whose step response shows it.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from manus.runs.stability.linear import SPRINGS, LinearAxis, curve
-from manus.runs.stability.search import boundary, edge, slope, stability_map
-from manus.runs.stability.steptest import TYPE1, TYPE2, StepTest
+from manus.experiments.stability.linear import SPRINGS, LinearAxis, curve
+from manus.experiments.stability.search import boundary, edge, read_map, slope, stability_map
+from manus.experiments.stability.steptest import TYPE1, TYPE2, StepTest
 
 THESIS_POLES = [-186.5, complex(-1.7, 9.9), complex(-1.7, -9.9)]  # §3.7, k = 100, b_c = 2
 THESIS_NEGATIVE_DAMPING = -1.5  # N·s/m, §4.5
 APPENDIX_D_SPRINGS = (0.0, 1050.0, 3826.0)  # N/m
+
+# Equivalent thresholds, in our normalization (|X|²/N at 1 kHz, a line of amplitude A reads
+# 250 A²), of 10⁻⁶ read in other conventions: a one-sided density in m²/Hz over 1 s (A²/2), and
+# MATLAB's Welch `psd` with a 256-point Hann window (A² 256/6).
+PSD_CONVENTIONS = {"fft |X|^2/N (ours)": 1e-6, "one-sided density m^2/Hz": 1e-6 * 250 / 0.5,
+                   "Welch Hann-256": 1e-6 * 250 / (256 / 6)}
 
 
 def finite(x):
@@ -89,3 +97,20 @@ def appendix_d(b_cs, ks, springs=APPENDIX_D_SPRINGS, base: StepTest = StepTest(r
         maps[s] = stability_map(test, b_cs, ks, cluster, progress)
         out["springs"][f"{s:g}"] = map_summary(maps[s], test.linear(), base.rate_hz)
     return out, maps
+
+
+def psd_conventions(test: StepTest, smap) -> dict:
+    """The Type 2 boundary of a map read with the threshold of each PSD convention (`PSD_CONVENTIONS`)."""
+    return {name: {"threshold": thr, "type2_boundary": boundary(
+        read_map(test, smap.b_cs, smap.ks, smap.metrics, psd_threshold=thr), TYPE2)} for name, thr in PSD_CONVENTIONS.items()}
+
+
+def type2_example(smap) -> tuple[float, float] | None:
+    """A point just past the Type 2 threshold (Fig. 4-22): the first unstable k of the Type 2
+    row nearest the middle of that edge."""
+    rows = np.flatnonzero((smap.limit_kind == TYPE2) & np.isfinite(smap.limit))
+    if rows.size == 0:
+        return None
+    r = rows[len(rows) // 2]
+    j = int(np.searchsorted(smap.ks, smap.limit[r])) + 1
+    return float(smap.ks[min(j, len(smap.ks) - 1)]), float(smap.b_cs[r])

@@ -13,7 +13,8 @@ import pytest
 from manus.plants import Model, Simulator
 from manus.plants.structures import Manus2
 from manus.runs.cli import main
-from manus.runs.cmd_converge import controller_for, reference_named, run_trials, summarize
+from manus.experiments import convergence
+from manus.experiments.convergence import controller_for, run_trials, summarize
 
 TRUTH = "rigid,viscous,coulomb"
 RIGID = ("a1", "a2", "a3")
@@ -23,7 +24,7 @@ def trials(model, law="gradient", trajectory="complex", n=12, estimator="kalman_
     plant = Simulator(Model(Manus2(), TRUTH), torque_noise=0.005)
     model = Model(Manus2(), model)
     controller = controller_for(plant, model, law, estimator)
-    tr = run_trials(plant, controller, reference_named(trajectory, model), n, 4.0)
+    tr = run_trials(plant, controller, convergence.trajectory(trajectory, model), n, 4.0)
     return tr, summarize(tr)
 
 

@@ -53,20 +53,20 @@ from manus.estimators.base import FilteredFirstDifference
 from manus.plants import Axis, Encoder, Model, Simulator
 from manus.plants.effects import Compliance, Effect, per_joint, stack
 from manus.plants.references import Step
-from manus.runs.stability.linear import LinearAxis
+from manus.experiments.stability.linear import LinearAxis
 
 THESIS_PSD = 1e-6  # m², the thesis's Type 2 criterion (§4.5)
 SAMPLES_1KHZ = 1000  # the thesis's last second: 1000 samples
 
 
-class Spring(Effect):
-    """An environment spring on the link: k_env_i q_i [N/m] (the coupled tests, §4.2, eq. 4.2).
+class EnvironmentSpring(Effect):
+    """The environment the robot touches, as a spring on the link: k_env_i q_i [N/m] (the
+    coupled tests, §4.2, eq. 4.2).
 
-    Not in the vocabulary of physical effects: it is the world the robot touches, used only by
-    these stability tests."""
+    Not in the vocabulary of physical effects (not the robot's own `spring`): only these stability
+    tests put it in a plant."""
 
-    name: ClassVar[str] = "spring"
-    kind: ClassVar[str] = "load"
+    name: ClassVar[str] = "environment"
     side: ClassVar[str] = "link"
 
     def names(self, s):
@@ -132,7 +132,7 @@ class StepTest:
         model = Model(Axis(), ",".join(effects))
         params = {"M1": self.mass, "b1": self.damping}
         if self.spring:
-            model = Model(model.structure, (*model.effects, Spring()))
+            model = Model(model.structure, (*model.effects, EnvironmentSpring()))
             params["kenv1"] = self.spring
         return Simulator(model, params, rate_hz=self.rate_hz, substeps=max(1, round(self.physics_hz / self.rate_hz)),
                          actuator=None, encoder=Encoder(step=self.quantum) if self.quantum > 0 else None)

@@ -33,7 +33,7 @@ it changes in the torque, `hidden_fraction`).
 
 `case(seed, hidden)` returns a `Case`; `pendulum(seed)` an errors-in-variables case (a coarse
 encoder at 200 Hz on a swinging pendulum) with its true parameters. `manus bench diagnose
---calibrate` runs the set; `tests/runs/test_calibration.py` a seeded subset of it.
+--calibrate` runs the set; `tests/experiments/test_calibration.py` a seeded subset of it.
 
 Simulations are compiled once per (structure, rate, excitation, delay or compliance): the
 parameters, references, schedules and disturbances are array leaves of the simulated pytree.
@@ -44,20 +44,19 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax import Array
 
+from manus.adaptive.controllers import Replay
 from manus.adaptive.impedance import Impedance
 from manus.estimators.base import FilteredFirstDifference
 from manus.plants.closed_loop import simulate
+from manus.plants.disturbed import Disturbed
 from manus.plants.effects import ORDER, VOCABULARY, Compliance, Cogging, Delay, Model, Stribeck
 from manus.plants.recording import Recording, from_trajectory
-from manus.plants.references import Hold, MultiSine, PositionReference
+from manus.plants.references import Hold, MultiSine, Reaching
 from manus.plants.simulator import Actuator, Encoder, Simulator
-from manus.plants.stepper import Controller, Plant
 from manus.plants.structures import Axis, Manus2
 
 # -- the conditions ------------------------------------------------------------------------------
@@ -123,14 +122,7 @@ def hidden_effects() -> tuple[str, ...]:
 def applies(name: str, setup: Setup) -> bool:
     """Whether effect `name` can be hidden on this structure (gravity is a cos/sin of an angle:
     not on a prismatic axis)."""
-    effect = VOCABULARY[name]()
-    check = getattr(effect, "applies", None)
-    if check is None:
-        return not (name == "gravity" and setup.prismatic)
-    try:
-        return check(setup.structure, (setup.prismatic,) * setup.n) is None
-    except TypeError:
-        return check(setup.structure) is None
+    return VOCABULARY[name]().applies(setup.structure, (setup.prismatic,) * setup.n) is None
 
 
 @dataclass
@@ -151,63 +143,6 @@ class Case:
 
 
 # -- simulation building blocks ------------------------------------------------------------------
-class Disturbed(Plant):
-    """A plant with a torque disturbance `d` (T, n) added to the command at tick k (before the
-    actuator): it acts on the plant but is not in the recorded command. Zeros: no disturbance."""
-
-    inner: Simulator
-    d: Array
-
-    @property
-    def dt(self):
-        return self.inner.dt
-
-    @property
-    def rate_hz(self):
-        return self.inner.rate_hz
-
-    def reset(self, key=None, q0=None, qd0=None):
-        s, q = self.inner.reset(key, q0=q0, qd0=qd0)
-        return (s, jnp.zeros((), jnp.int32)), q
-
-    def measure(self, state):
-        return self.inner.measure(state[0])
-
-    def truth(self, state):
-        return self.inner.truth(state[0])
-
-    def step(self, state, command):
-        s, k = state
-        s, q = self.inner.step(s, command + self.d[jnp.minimum(k, self.d.shape[0] - 1)])
-        return (s, k + 1), q
-
-
-class Replay(Controller):
-    """Open loop: the command u[k] at tick k, whatever is measured."""
-
-    u: Array  # (T, n)
-
-    def init(self, q0):
-        return jnp.zeros((), jnp.int32)
-
-    def step(self, state, q, ref):
-        return state + 1, self.u[jnp.minimum(state, self.u.shape[0] - 1)]
-
-
-class Reaching(PositionReference):
-    """Smooth (quintic) moves between targets with rests: q(t) = q0 + Σ_m Δ_m s((t − t_m)/T_m)."""
-
-    start: Array  # (n,)
-    t0: Array  # (M,) move start times
-    duration: Array  # (M,)
-    delta: Array  # (M, n)
-
-    def position(self, t):
-        x = jnp.clip((t - self.t0) / self.duration, 0.0, 1.0)
-        s = x * x * x * (10 - 15 * x + 6 * x * x)
-        return self.start + s @ self.delta
-
-
 def reaching(setup: Setup, seconds: float, rng: np.random.Generator) -> Reaching:
     """Moves of 0.4–1.0 s to targets within ±swing of the centre, each followed by a rest of
     0.3–1.0 s; a fixed number of moves for a given length (one compilation)."""

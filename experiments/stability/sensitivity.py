@@ -16,9 +16,9 @@ moves, *not reproduced* otherwise.
 
 from __future__ import annotations
 
-from manus.runs.stability.analysis import finite
-from manus.runs.stability.search import edge
-from manus.runs.stability.steptest import KINDS, TYPE1, TYPE2, StepTest
+from manus.experiments.stability.analysis import finite
+from manus.experiments.stability.search import edge
+from manus.experiments.stability.steptest import KINDS, TYPE1, TYPE2, StepTest
 
 PROBE_B_C = (0.0, 5.0, 20.0, 25.0, 30.0)  # N·s/m: k limits found here
 PROBE_K = 300.0  # N/m: the b_c limit found here

@@ -15,7 +15,7 @@ oscillation identifies the one-coordinate model H ẍ + b ẋ + F sgn(ẋ) + K x
 locked coordinate φ = c·q, driven through the same motors: τ_lock = −(K_L (φ − φ_d) + B_L φ̇̂) cᵀ
 with K_L = 1000 N·m/rad and B_L = 5 N·m·s/rad on the filtered first-difference velocity (stable
 with margin ≥ 2.8 for every locked inertia, by the sampled linear analysis of
-`manus.runs.stability.linear`). For the relative lock the pair (+τ, −τ) is what a pin between the
+`manus.experiments.stability.linear`). For the relative lock the pair (+τ, −τ) is what a pin between the
 links would exert; it cancels in τ1 + τ2, the torque the third test reads. The lock yields by
 about a milliradian under the coupling torques: its share of the identified inertia is below
 0.5 %.
@@ -37,36 +37,16 @@ from typing import NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-from manus.estimators.base import Estimator, FilteredFirstDifference
+from manus.adaptive.controllers import LockedSpring
+from manus.estimators.base import FilteredFirstDifference
 from manus.estimators.offline import differentiate, edge, lowpass
-from manus.plants.stepper import Controller, RefSample
 
 LINKS = (0.40533, 0.48793)  # m, upper arm and forearm (two-bar equivalent of the linkage)
 CENTRE = (0.464, 2.409)  # rad, the workspace centre (0.508 m from the motor axis)
 RELATIVE_LOCK = 0.4554  # rad, q2 − q1 in the third test (eq. 3.9)
 SPRING = 10.0  # N·m/rad, eq. 3.5
-
-
-class LockedSpring(Controller):
-    """The virtual spring K (q_d,j − q_j) on the joint j that `spring_on` (one-hot) picks, and
-    a stiff servo holding the locked coordinate c·q at c·q_d. (Arrays, not indices: the three
-    tests share one compilation.)"""
-
-    spring_on: jnp.ndarray  # e_j (2,)
-    lock: jnp.ndarray  # c (2,)
-    stiffness: float = SPRING
-    lock_stiffness: float = 1000.0
-    lock_damping: float = 5.0
-    estimator: Estimator = FilteredFirstDifference()
-
-    def init(self, q0):
-        return self.estimator.init(q0)
-
-    def step(self, state, q, ref: RefSample):
-        state, est = self.estimator.step(state, q)
-        spring = self.stiffness * self.spring_on * (ref.q - q)
-        phi = jnp.dot(self.lock, q - ref.q)
-        return state, spring - (self.lock_stiffness * phi + self.lock_damping * jnp.dot(self.lock, est.qd)) * self.lock
+TOLERANCE = 0.05  # the check: every identified parameter within 5 % of the truth
+THESIS_CENTRE = {"mass": 1.0, "damping": 1.5, "damping_x": 1.6, "damping_y": 0.7}  # §3.7, Figs. 4-28/4-29
 
 
 class LockTest(NamedTuple):
@@ -124,7 +104,8 @@ def simulate_test(test: LockTest, params: dict | None = None, displacement: floa
     plant = Simulator(Model(Manus2(), "rigid,viscous,coulomb"), params)
     eq = np.asarray(test.equilibrium)
     start = eq + displacement * np.asarray(test.direction)
-    ctrl = LockedSpring(jnp.eye(2)[test.joint], jnp.asarray(test.lock), estimator=FilteredFirstDifference(dt=plant.dt))
+    ctrl = LockedSpring(jnp.eye(2)[test.joint], jnp.asarray(test.lock), stiffness=SPRING,
+                        estimator=FilteredFirstDifference(dt=plant.dt))
     return simulate(plant, ctrl, Step(start, eq, release), seconds), plant
 
 
@@ -202,3 +183,60 @@ def workspace(nx: int = 5, ny: int = 5, half_x: float = 0.25, half_y: float = 0.
     centre = endpoint(CENTRE)
     xs, ys = np.linspace(-half_x, half_x, nx), np.linspace(-half_y, half_y, ny)
     return np.array([centre + [x, y] for y in ys for x in xs])
+
+
+# -- the whole study -----------------------------------------------------------------------------
+class Study(NamedTuple):
+    """`study`'s result: the JSON-ready figures, and what the figures are drawn from."""
+
+    result: dict
+    traces: dict  # test name -> the closed-loop trajectory of the simulated arm
+    replays: dict  # test name -> the fitted one-coordinate model through the same test
+    points: np.ndarray  # endpoint positions over the workspace (N, 2)
+    cartesian: list  # `cartesian` at each point
+
+
+def study(displacement: float = 0.3, seconds: float = 6.0) -> Study:
+    """The three tests and their fits against the truth (`identify`), each fitted model replayed
+    through its test (`replay_rms`: its output error), and the Cartesian parameters over the
+    workspace and at its centre against the thesis's."""
+    result = identify(displacement=displacement, seconds=seconds)
+    traces = result.pop("traces")
+    ident = {k: v["identified"] for k, v in result["params"].items()}
+    replays = {t.name: replay(t, Fit(**result["fits"][t.name]), displacement, seconds) for t in lock_tests()}
+    for t in lock_tests():  # output error of the fitted model: how well it replays the test
+        result["fits"][t.name]["replay_rms"] = float(np.sqrt(np.mean(
+            (replays[t.name].q[:, 0] - traces[t.name].q[:, t.joint]) ** 2)))
+    points = workspace()
+    cart = [cartesian(joint_angles(p), ident) for p in points]
+    centre = cartesian(np.asarray(CENTRE), ident)
+    errors = [abs(v["rel_error"]) for v in result["params"].values()]
+    result = result | {
+        "max_rel_error": max(errors), "within_5pct": bool(max(errors) <= TOLERANCE),
+        "cartesian": {"centre": describe(endpoint(CENTRE), centre), "thesis_centre": THESIS_CENTRE,
+                      "by_radius": by_radius(points, cart)}}
+    return Study(result, traces, replays, points, cart)
+
+
+def describe(p, c: dict) -> dict:
+    """The Cartesian parameters `c` at endpoint `p`, JSON-ready, with their eigenvalues."""
+    return {"position": p.tolist(), "radius": float(np.hypot(*p)), "inertia": c["inertia"].tolist(),
+            "inertia_eig": np.linalg.eigvalsh(c["inertia"]).tolist(), "damping": c["damping"].tolist(),
+            "damping_eig": np.linalg.eigvalsh(c["damping"]).tolist(),
+            "friction_range": list(friction_range(c["friction"]))}
+
+
+def friction_range(corners: np.ndarray) -> tuple[float, float]:
+    """Smallest and largest distance from the centre to the parallelogram's boundary [N]."""
+    edges = np.roll(corners, -1, 0) - corners
+    normals = np.stack([edges[:, 1], -edges[:, 0]], 1) / np.linalg.norm(edges, axis=1, keepdims=True)
+    return float(np.min(np.abs(np.sum(normals * corners, 1)))), float(np.max(np.linalg.norm(corners, axis=1)))
+
+
+def by_radius(points, cart) -> list[dict]:
+    """Each parameter's least and largest value along the column through the centre: they
+    depend on the distance from the motor axis alone (§3.6)."""
+    on_axis = np.flatnonzero(np.isclose(points[:, 0], endpoint(CENTRE)[0]))
+    return [{"radius": float(np.hypot(*points[i])), "inertia": np.linalg.eigvalsh(cart[i]["inertia"]).tolist(),
+             "damping": np.linalg.eigvalsh(cart[i]["damping"]).tolist(), "friction": list(friction_range(cart[i]["friction"]))}
+            for i in on_axis]

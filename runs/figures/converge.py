@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from manus.runs.common import pyplot, save
+from manus.runs.figures.common import pyplot, save
 
 
 def plot_tracking(tr, path: Path, title: str = "") -> str:

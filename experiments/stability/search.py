@@ -16,8 +16,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from manus.runs import sweep
-from manus.runs.stability.steptest import STABLE, Metrics, StepTest, verdict
+from manus.experiments.stability import sweep
+from manus.experiments.stability.steptest import STABLE, Metrics, StepTest, verdict
 
 
 class Edge(NamedTuple):

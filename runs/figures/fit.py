@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from manus.runs.common import pyplot, save
-from manus.runs.freerun import nrmse_fit
+from manus.runs.figures.common import pyplot, save
+from manus.experiments.freerun import nrmse_fit
 
 ZOOM_S = 2.0  # the zoom on the tracking error: this many seconds in the middle of the recording
 
@@ -18,7 +18,7 @@ def compare_figure(f, run, out: Path, name: str = "compare.png", title: str = ""
     """Row 1: the measured torque (filtered as identification sees it) against the model's
     prediction, per joint. Row 2: measured positions against the free run. Row 3 (closed loop):
     the tracking error q − q_ref measured and simulated, over a zoom (the position alone follows
-    the reference whatever the model). `run` is a `manus.runs.freerun.FreeRun`, or a string saying why
+    the reference whatever the model). `run` is a `manus.experiments.freerun.FreeRun`, or a string saying why
     there is none."""
     plt = pyplot()
     d = f.data

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from manus.runs.common import pyplot, save
+from manus.runs.figures.common import pyplot, save
 
 ZOOM_SECONDS = 0.2
 
@@ -77,3 +77,21 @@ def response_figure(freqs_hz: np.ndarray, responses: dict, out: Path, title: str
     mag.set_title(title or "frequency response of the velocity estimators", fontsize=9)
     fig.tight_layout()
     return save(fig, out, "estimators_frequency_response.png")
+
+
+def estimator_figures(rec, report: dict, estimates: dict, out) -> dict:
+    """`manus estimators`' figures: the estimates of each joint, and every estimator's frequency response."""
+    from manus.estimators.response import frequency_response
+
+    t = rec.t[0] + rec.dt * np.arange(len(estimates["reference"]))  # the sample grid (lost samples filled)
+    paths = {"estimates": [estimates_figure(t, estimates, report, out, j) for j in range(rec.n_joints)]}
+    freqs = np.geomspace(0.5, 0.45 / rec.dt, 40)
+    amplitude = float(np.max(np.std(rec.q, axis=0)))
+    responses = {}
+    for row in report["estimators"]:
+        knob = {row["knob"]["name"]: row["knob"]["value"]} if "knob" in row else {}
+        responses[row["name"]] = frequency_response(row["name"], freqs, rec.dt, amplitude,
+                                                    step=report["step"]["value"], **knob)
+    paths["frequency_response"] = response_figure(
+        freqs, responses, out, f"frequency response at amplitude {amplitude:.3g} (model-based: model exact)")
+    return paths

@@ -1,0 +1,169 @@
+"""The command line's shared option groups, and what they are read into: a recording, a model's
+text checked, a simulated plant. Every command takes its options from here."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from manus.plants.errors import ManusError
+
+DEFAULT_OUT = Path("runs") / "out"
+THESIS_TRUTH = "rigid,viscous,coulomb,delay"  # the thesis's plant: §3.5 friction, §3.2 delay
+
+
+# -- output --------------------------------------------------------------------------------------
+def add_common(parser, out: bool = True) -> None:
+    """--json, and --out DIR where figures go."""
+    parser.add_argument("--json", action="store_true", help="print one JSON object on stdout and nothing else")
+    if out:
+        parser.add_argument("--out", type=Path, default=DEFAULT_OUT, metavar="DIR",
+                            help=f"where figures go (default {DEFAULT_OUT}/)")
+
+
+# -- a recording and a model ---------------------------------------------------------------------
+def add_robot_option(parser) -> None:
+    """--robot: shared by every command that reads a recording."""
+    parser.add_argument("--robot", metavar="FILE.urdf",
+                        help="the robot's URDF: the recording is this serial chain's (structure urdf), whatever its "
+                             "metadata says (a recording can also name it: '# structure: urdf', '# robot: PATH')")
+
+
+def add_model_options(p, required: bool = True) -> None:
+    """REC, --robot, --model, --cutoff, --method and --hold: shared by fit, diagnose and discover."""
+    p.add_argument("recording", metavar="REC", help="a recording (.csv, .npz, or an EMPS .mat file)")
+    add_robot_option(p)
+    p.add_argument("--model", required=required, metavar="EFFECTS",
+                   help="effects of the model, e.g. rigid,viscous,coulomb (an argument fixes a non-linear "
+                        "parameter: cogging:39, delay:1ms; without one it is searched)")
+    p.add_argument("--cutoff", type=float, metavar="HZ",
+                   help="identification bandwidth (default: from the motion's band and the encoder's "
+                        "quantization-noise budget)")
+    p.add_argument("--method", choices=("auto", "ls", "iv"), default="auto",
+                   help="least squares (IDIM-LS), instrumental variables (IDIM-IV, instruments from a simulation "
+                        "of the model driven by the recorded command), or auto (IV where LS is biased; default)")
+    p.add_argument("--hold", choices=("zoh", "none"),
+                   help="how the recorded command was held (default: the file's command_hold, else zoh: a digital "
+                        "controller holds each command over its period)")
+
+
+def read_recording(args):
+    """The recording `args.recording`, a serial chain's when `--robot` names its URDF."""
+    from manus.plants import recording
+
+    return recording.read(args.recording, robot=args.robot)
+
+
+def load_recording(args, proposing: bool = False):
+    """The recording and the model text of `add_model_options`, checked: a one-line error for bad
+    input. `proposing` (diagnose, discover): a model holding every effect leaves nothing to propose."""
+    from manus.plants.effects import ORDER, parse_effects
+    from manus.runs.text import note
+
+    if args.cutoff is not None and args.cutoff <= 0:
+        raise ManusError(f"--cutoff {args.cutoff:g}: must be positive")
+    effects = parse_effects(args.model)  # unknown names, duplicates: refused before the file is read
+    if proposing and len(effects) == len(ORDER):
+        raise ManusError(f"the model {args.model} already holds every effect of the vocabulary: nothing is left to propose")
+    rec = read_recording(args)
+    if args.hold:
+        rec.meta["command_hold"] = args.hold
+    note(f"{rec.path}: {len(rec)} samples of {rec.n_joints} joint(s) at {rec.sample_rate_hz:g} Hz ({rec.structure_name})")
+    return rec
+
+
+# -- a simulated plant ---------------------------------------------------------------------------
+def add_plant_options(parser, truth_default: str = THESIS_TRUTH, robot: bool = False) -> None:
+    """The simulated plant: its effects and parameters, structure, rates, encoder and noise;
+    with `robot`, --robot FILE.urdf as well."""
+    g = parser.add_argument_group("plant")
+    if robot:
+        g.add_argument("--robot", metavar="FILE.urdf",
+                       help="a serial robot from its URDF instead of --structure (its joints' <dynamics damping "
+                            "friction> are the default viscous and Coulomb levels)")
+    else:
+        parser.set_defaults(robot=None)
+    g.add_argument("--truth", default=truth_default, metavar="EFFECTS",
+                   help=f"effects of the simulated plant, e.g. rigid,viscous,coulomb,cogging:39,delay:1ms "
+                        f"(default {truth_default})")
+    g.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                   help="set a truth parameter, e.g. --param Fc1=0.2 (repeatable)")
+    g.add_argument("--structure", choices=("manus2", "axis"), default="manus2")
+    g.add_argument("--joints", type=int, default=1, help="number of joints of an axis structure")
+    g.add_argument("--rate", type=float, default=1000.0, help="control rate [Hz] (default 1000)")
+    g.add_argument("--substeps", type=int, default=10, help="physics sub-steps per control period")
+    g.add_argument("--counts", type=float, default=131072, help="encoder counts per revolution (0: no quantization)")
+    g.add_argument("--torque-noise", type=float, default=0.0, help="white torque disturbance std [N·m]")
+
+
+def plant_options(**values) -> argparse.Namespace:
+    """The plant options at their defaults, with `values` (option names with underscores) set."""
+    p = argparse.ArgumentParser(add_help=False)
+    add_plant_options(p, robot=True)
+    args = p.parse_args([])
+    for k, v in values.items():
+        if not hasattr(args, k):
+            raise ValueError(f"no plant option {k!r}")
+        setattr(args, k, v)
+    return args
+
+
+def parse_pairs(items: list[str], flag: str, example: str = "") -> dict[str, float]:
+    """NAME=VALUE items (a repeatable option `flag`) as a dict of numbers."""
+    out = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        try:
+            if not sep:
+                raise ValueError
+            out[name.strip()] = float(value)
+        except ValueError:
+            raise ManusError(f"{flag} {item!r}: expected NAME=VALUE with a number{example}") from None
+    return out
+
+
+def parse_params(items: list[str]) -> dict[str, float]:
+    """--param NAME=VALUE items."""
+    return parse_pairs(items, "--param", ", e.g. Fc1=0.2")
+
+
+def build_plant(args, robot_torque_limit: float | None = None):
+    """The simulator the plant options describe. A serial robot gets the torque it is commanded,
+    or, with `robot_torque_limit` [N·m] (a rig behind the device protocol needs a D/A), an ideal
+    24-bit ±10 V D/A reaching that torque."""
+    import math
+
+    from manus.plants import Encoder, Model, Simulator, structure_named
+
+    if not args.rate > 0 or args.substeps < 1:
+        raise ManusError("--rate must be positive and --substeps at least 1")
+    if args.joints < 1:
+        raise ManusError(f"--joints {args.joints}: an axis structure has at least one joint")
+    if not args.torque_noise >= 0 or not args.counts >= 0:
+        raise ManusError("--torque-noise is a standard deviation and --counts a count: neither can be negative")
+    if args.robot:
+        from manus.plants.serial import Serial
+
+        structure = Serial.from_urdf(args.robot)
+    else:
+        structure = structure_named(args.structure, 2 if args.structure == "manus2" else args.joints)
+    model = Model(structure, args.truth)
+    for e in model.effects:  # an effect that cannot act on these joints (gravity is in a chain's rigid)
+        why = e.applies(structure, tuple(getattr(structure, "prismatic", ())))
+        if why:
+            raise ManusError(f"--truth: {e.name}: {why}")
+    encoder = Encoder(step=2 * math.pi / args.counts) if args.counts > 0 else None
+    # a serial robot gets the torque it is commanded (the thesis's 12-bit D/A and its ±22 N·m are
+    # MANUS-2's, not a URDF robot's)
+    extra = {}
+    if args.robot:
+        from manus.plants.simulator import Actuator
+
+        extra["actuator"] = None if robot_torque_limit is None else Actuator(
+            dac_bits=24, volts=10.0, amps_per_volt=1.0, torque_constant=robot_torque_limit / 10.0)
+    sim = Simulator(model, parse_params(args.param), rate_hz=args.rate, substeps=args.substeps,
+                    encoder=encoder, torque_noise=args.torque_noise, **extra)
+    bad = model.violations({k: float(v) for k, v in sim.params.items()})
+    if bad:  # a plant that breaks its effects' physics (a negative inertia, friction that pushes)
+        raise ManusError("--param: the plant breaks physics: " + "; ".join(bad))
+    return sim

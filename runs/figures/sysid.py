@@ -1,0 +1,52 @@
+"""Figures of the system identification of thesis §3.5–3.6: the locked-joint oscillations with
+the fitted models replayed (Figs. 3-18 to 3-20), and the Cartesian inertia and damping ellipses
+and friction parallelograms over the workspace (Figs. 3-21 to 3-23)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from manus.runs.figures.common import pyplot, save
+
+
+def oscillations(traces: dict, replays: dict, out) -> str:
+    """Figs. 3-18 to 3-20: each test's recording and the fitted model run through it."""
+    from manus.experiments.sysid import lock_tests
+
+    plt = pyplot()
+    fig, axes = plt.subplots(1, len(traces), figsize=(4.2 * len(traces), 3.2), squeeze=False)
+    for ax, test in zip(axes[0], lock_tests()):
+        traj, model = traces[test.name], replays[test.name]
+        ax.plot(traj.t, traj.q[:, test.joint], lw=0.9, label=f"q{test.joint + 1}, simulated arm")
+        ax.plot(model.t, model.q[:, 0], "--", lw=0.9, label="fitted 1-DOF model")
+        ax.set(xlabel="t [s]", ylabel=f"q{test.joint + 1} [rad]", title=test.name)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    return save(fig, out, "sysid_oscillations.png")
+
+
+def workspace(points, cart, out) -> str:
+    """Figs. 3-21 to 3-23: ellipses and parallelograms over the workspace, drawn to scale per panel."""
+    plt = pyplot()
+    fig, axes = plt.subplots(1, 3, figsize=(15, 5))
+    theta = np.linspace(0, 2 * np.pi, 80)
+    unit = np.stack([np.cos(theta), np.sin(theta)])
+    spacing = 0.5 * np.min(np.diff(np.unique(points[:, 0])))
+    for ax, key, title in zip(axes, ("inertia", "damping", "friction"),
+                              ("inertia ellipses [kg]", "viscous damping ellipses [N·s/m]",
+                               "Coulomb friction parallelograms [N]")):
+        size = max(np.abs(c[key]).max() for c in cart)
+        for p, c in zip(points, cart):
+            shape = (c[key] @ unit).T if key != "friction" else np.vstack([c[key], c[key][:1]])
+            ax.plot(*(p + spacing * shape / size).T, lw=0.9)
+            ax.plot(*p, "k.", ms=2)
+        for r in np.linspace(*np.percentile(np.hypot(*points.T), [0, 100]), 4):  # arcs of constant radius
+            a = np.linspace(0.2, np.pi - 0.2, 100)
+            ax.plot(r * np.cos(a), r * np.sin(a), "k:", lw=0.5)
+        ax.add_patch(plt.Circle((0, 0), 0.05, fill=False, lw=1.5))  # the actuators
+        lo, hi = points.min(0) - spacing, points.max(0) + spacing
+        ax.add_patch(plt.Rectangle(lo, *(hi - lo), fill=False, lw=1.2))  # the workspace
+        ax.set(aspect="equal", xlabel="x [m]", ylabel="y [m]", title=title, xlim=(lo[0] - 0.05, hi[0] + 0.05),
+               ylim=(-0.08, hi[1] + 0.05))
+    fig.tight_layout()
+    return save(fig, out, "sysid_cartesian.png")

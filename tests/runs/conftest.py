@@ -1,0 +1,20 @@
+"""Fixtures the command tests share."""
+
+import argparse
+
+import pytest
+
+from tests.estimators.conftest import arm_recording  # noqa: F401  (the simulated arm's recording)
+
+
+@pytest.fixture
+def calibrate_args():
+    """The options of `manus bench diagnose --calibrate` at their defaults, with the values given."""
+    from manus.runs.bench import diagnose as bench
+
+    def make(**values) -> argparse.Namespace:
+        p = argparse.ArgumentParser()
+        bench.add_arguments(p)
+        return argparse.Namespace(**{**vars(p.parse_args(["--calibrate"])), **values})
+
+    return make
