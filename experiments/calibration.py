@@ -20,20 +20,20 @@ generically from `Model(structure, effect).defaults()`: on the chosen joint (or 
 parameter is scaled by one factor so that the effect's torque along the recorded motion has an
 RMS of `AMPLITUDE` (5 %) of the recorded torque's (simulate with it absent, measure, rescale,
 simulate; once more if the result is off by more than `TOLERANCE`). A `delay` is sized the same
-way by what the late command changes, τ(t) − τ(t − d) (`delay_change`), to `AMPLITUDE` of the torque
+way by what the late command changes, τ(t) − τ(t − d) (`sizing.delay_change`), to `AMPLITUDE` of the torque
 (RMS, all joints), but at least 1 ms (the thesis's amplifier; open-loop steps change more than that
-with it) and at most `DELAY_MAX`; `compliance` is a lightly damped shaft mode at 15–30 % of the
+with it) and at most `sizing.DELAY_MAX`; `compliance` is a lightly damped shaft mode at 15–30 % of the
 sample rate (inside the band the recording resolves), drawn only under the open-loop steps,
 which ring it. Hidden `rigid`, `viscous` or `coulomb` replace the nominal term (start without it).
 
 How much of a hidden effect the data can tell from every other reading is measured beside it:
-`distinct` (in the case's condition, `distinct_fraction`), the part of its torque left once the
+`sizing.distinct` (in the case's condition, `distinct_fraction`), the part of its torque left once the
 start model plus any one other effect has explained what it can (a hidden delay: the RMS of what
 it changes in the torque, `hidden_fraction`).
 
 `case(seed, hidden)` returns a `Case`; `pendulum(seed)` an errors-in-variables case (a coarse
 encoder at 200 Hz on a swinging pendulum) with its true parameters. `manus bench diagnose
---calibrate` runs the set; `tests/experiments/test_calibration.py` a seeded subset of it.
+--calibrate` runs the set; `tests/runs/test_calibration.py` a seeded subset of it.
 
 Simulations are compiled once per (structure, rate, excitation, delay or compliance): the
 parameters, references, schedules and disturbances are array leaves of the simulated pytree.
@@ -52,6 +52,8 @@ from manus.adaptive.controllers import Replay
 from manus.adaptive.impedance import Impedance
 from manus.estimators.base import FilteredFirstDifference
 from manus.plants.closed_loop import simulate
+from manus.experiments.sizing import (DELAY_MIN, achieved, applies, delay_change, distinct, parameter_joints, rms,
+                                      scale_hidden, size_delay)
 from manus.plants.disturbed import Disturbed
 from manus.plants.effects import ORDER, VOCABULARY, Compliance, Cogging, Delay, Model, Stribeck
 from manus.plants.recording import Recording, from_trajectory
@@ -74,7 +76,6 @@ COLOURED = (0.03, 0.08)  # the unrecorded disturbance: RMS as a fraction of the 
 COLOURED_HZ = (1.0, 5.0)  # ... low-passed (2nd-order Butterworth) at a corner in this range [Hz]
 COMPLIANCE_BAND = (0.15, 0.30)  # hidden shaft mode: f as a fraction of the sample rate
 COMPLIANCE_ZETA = (0.005, 0.03)
-DELAY_MIN, DELAY_MAX = 1e-3, 0.05  # a hidden delay's range [s] (diagnose searches up to 2 % of the record, 100 ms)
 
 
 @dataclass(frozen=True)
@@ -117,12 +118,6 @@ SETUPS = {"arm": ARM, "axis": AXIS}
 def hidden_effects() -> tuple[str, ...]:
     """Every effect of the vocabulary (read at run time: a new effect joins the set)."""
     return tuple(ORDER)
-
-
-def applies(name: str, setup: Setup) -> bool:
-    """Whether effect `name` can be hidden on this structure (gravity is a cos/sin of an angle:
-    not on a prismatic axis)."""
-    return VOCABULARY[name]().applies(setup.structure, (setup.prismatic,) * setup.n) is None
 
 
 @dataclass
@@ -227,131 +222,10 @@ def simulate_case(setup: Setup, rate: int, excitation: str, params: dict, extra:
     return simulate(wrapped, controller, reference, seconds, key=jax.random.PRNGKey(rng_seed % 2**31))
 
 
-def effect_columns(setup: Setup, effect, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
-    """A linear effect's regressor columns along a motion, (T, n, P)."""
-    model = Model(setup.structure, (effect,))
-    return np.asarray(jax.vmap(model.regressor)(jnp.asarray(q), jnp.asarray(qd), jnp.asarray(qdd)))
-
-
-def effect_torque(setup: Setup, effect, params: dict, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
-    """The torque (T, n) a linear effect adds along a motion."""
-    theta = np.array([params.get(k, 0.0) for k in effect.names(setup.structure)], float)
-    return effect_columns(setup, effect, q, qd, qdd) @ theta
-
-
-def parameter_joints(setup: Setup, effect) -> dict[str, int | None]:
-    """For each linear parameter of `effect`: the 0-based joint its column acts on, or None when
-    it acts on several (the arm's a2) — from the regressor itself, not from the names."""
-    rng = np.random.default_rng(0)
-    scales = np.repeat(10.0 ** np.arange(-4, 1), 8)[:, None]  # speeds from 1e-4 to 1 (Stribeck's exp(−(q̇/vs)²))
-    Y = effect_columns(setup, effect, *(rng.normal(size=(scales.size, setup.n)) * scales for _ in range(3)))
-    out = {}
-    for p, name in enumerate(effect.names(setup.structure)):
-        on = np.flatnonzero(np.abs(Y[:, :, p]).max(axis=0) > 0)
-        out[name] = int(on[0]) if on.size == 1 else None
-    return out
-
-
-def _rms(x, axis=0):
-    return np.sqrt(np.mean(np.asarray(x) ** 2, axis=axis))
-
-
-def _qdd(qd: np.ndarray, dt: float) -> np.ndarray:
-    return np.gradient(qd, dt, axis=0)
-
-
-def scale_hidden(setup: Setup, effect, unit: dict, joint: int | None, traj, fraction: float, dt: float) -> tuple[dict, np.ndarray]:
-    """The hidden effect's parameters: `unit` scaled, per joint (or as a whole when its parameters
-    are shared between joints), so that its torque along `traj` is `fraction` of the recorded
-    torque's RMS. Returns (params, the fraction each joint would get before the scaling)."""
-    owner = parameter_joints(setup, effect)
-    tau_e = effect_torque(setup, effect, unit, traj.q_true, traj.qd_true, _qdd(traj.qd_true, dt))
-    tau = np.asarray(traj.tau)
-    ratio = _rms(tau_e) / np.maximum(_rms(tau), 1e-300)
-    out = {}
-    if any(j is None for j in owner.values()):  # shared parameters: one factor for the effect
-        whole = _rms(tau_e.ravel()) / max(_rms(tau.ravel()), 1e-300)
-        f = fraction / whole if whole > 0 else 0.0
-        out = {k: v * f for k, v in unit.items()}
-    else:
-        for k, v in unit.items():
-            j = owner[k]
-            if joint is not None and j != joint - 1:
-                out[k] = 0.0
-            else:
-                out[k] = v * fraction / ratio[j] if ratio[j] > 0 else 0.0
-    return out, ratio
-
-
-def achieved(setup: Setup, effect, params: dict, traj, dt: float, joint: int | None) -> list[float]:
-    """The hidden effect's torque RMS along `traj` as a fraction of the recorded torque's, per joint."""
-    tau_e = effect_torque(setup, effect, params, traj.q_true, traj.qd_true, _qdd(traj.qd_true, dt))
-    return [float(x) for x in _rms(tau_e) / np.maximum(_rms(np.asarray(traj.tau)), 1e-300)]
-
-
-def distinct(setup: Setup, effect, params: dict, start: str, traj, dt: float, others: tuple = ()) -> float:
-    """How much of the hidden effect no other reading explains: the RMS of its torque along the
-    true motion once projected off the span of the start model plus any one other linear
-    effect of the vocabulary that diagnose would offer on top of it (with the effects it brings;
-    `others` gives the non-linear parameters the truth uses: the cogging order, the Stribeck
-    velocity), the smallest over those, as a fraction of the recorded torque's RMS (all joints).
-    A hidden gravity on a small swing is mostly a constant: its distinct part is what sets it
-    apart from an offset, and no procedure can name it from less."""
-    q, qd = np.asarray(traj.q_true), np.asarray(traj.qd_true)
-    motion = (q, qd, _qdd(qd, dt))
-    tau_h = effect_torque(setup, effect, params, *motion).ravel()
-    scale = max(_rms(np.asarray(traj.tau).ravel()), 1e-300)
-    by_name = {e.name: e for e in others}
-    of = lambda name: by_name.get(name) or VOCABULARY[name]()
-    cols: dict = {}
-
-    def columns(name):  # one effect's columns along the motion, (T·n, p), computed once
-        if name not in cols:
-            Y = effect_columns(setup, of(name), *motion)
-            cols[name] = Y.reshape(-1, Y.shape[-1])
-        return cols[name]
-
-    base = start.split(",") if start else []
-    worst = _rms(tau_h) / scale
-    for name in ORDER:
-        rival = of(name)
-        if name == effect.name or name in base or not rival.linear or not applies(name, setup) \
-                or any(r not in base for r in rival.requires):  # (diagnose would not offer it)
-            continue
-        with_ = [b for b in rival.brings if b != effect.name and b not in base] + [name]
-        Y = np.concatenate([columns(b) for b in base + with_], axis=1)
-        coef = np.linalg.lstsq(Y, tau_h, rcond=None)[0]
-        worst = min(worst, _rms(tau_h - Y @ coef) / scale)
-    return float(worst)
-
-
 # -- the calibration cases -----------------------------------------------------------------------
 def seconds_at(rate: float) -> float:
     """The length of a calibration recording at `rate` [s]."""
     return 12.0 if rate >= FAST else 20.0
-
-
-def delay_change(tau: np.ndarray, seconds: float, rate: float) -> np.ndarray:
-    """What a command `seconds` late changes in the torque: the RMS of τ(t) − τ(t − d) (linear
-    interpolation between samples), per joint and then for all joints together (last entry), as
-    a fraction of the torque's RMS."""
-    tau = np.asarray(tau, float)
-    t = np.arange(len(tau), dtype=float)
-    lag = seconds * rate
-    k = min(int(np.ceil(lag)), len(tau) - 1)
-    late = np.stack([np.interp(t - lag, t, tau[:, j]) for j in range(tau.shape[1])], axis=1)
-    diff, ref = (tau - late)[k:], tau[k:]
-    scale = np.r_[np.maximum(_rms(ref), 1e-300), max(_rms(ref.ravel()), 1e-300)]
-    return np.r_[_rms(diff), _rms(diff.ravel())] / scale
-
-
-def size_delay(tau: np.ndarray, rate: float, amplitude: float) -> float:
-    """The shortest delay [s], on a 0.1 ms grid from 1 ms to `DELAY_MAX`, whose change of the
-    torque `tau` (all joints together) reaches `amplitude` of its RMS; `DELAY_MAX` if none does."""
-    for d in np.arange(DELAY_MIN, DELAY_MAX + 1e-12, 1e-4):
-        if delay_change(tau, d, rate)[-1] >= amplitude:
-            return round(float(d), 4)
-    return DELAY_MAX
 
 
 def check_rates(rates) -> tuple[int, ...]:
@@ -448,7 +322,7 @@ def case(seed: int, hidden: str | None = None, rates: tuple = RATES, amplitude: 
     # default, for rigid: a plant needs an inertia)
     d_white, d_coloured = None, None
     first = simulate_case(setup, rate, c["excitation"], params, (), seconds, sim_seed, None, nonlinear)
-    tau_rms = _rms(np.asarray(first.tau))
+    tau_rms = rms(np.asarray(first.tau))
     if c["torque"] == "coloured":
         level = float(rng.uniform(*COLOURED))
         corner = float(rng.uniform(*COLOURED_HZ))
@@ -494,7 +368,7 @@ def case(seed: int, hidden: str | None = None, rates: tuple = RATES, amplitude: 
     rec.extra = {}
     if c["torque"] == "white":
         level = float(rng.uniform(*WHITE))
-        rec.tau = rec.tau + rng.standard_normal(rec.tau.shape) * (level * _rms(rec.tau))
+        rec.tau = rec.tau + rng.standard_normal(rec.tau.shape) * (level * rms(rec.tau))
         info["noise_fraction"] = round(level, 3)
     if c["hold"] == "not stated":
         rec.meta.pop("command_hold", None)

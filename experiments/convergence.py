@@ -56,7 +56,7 @@ def trajectory(name: str, model):
     from manus.plants.references import reference_named
     from manus.plants.simulator import workspace_centre
 
-    return reference_named(name, np.asarray(workspace_centre(model)), model.structure.name == "manus2")
+    return reference_named(name, np.asarray(workspace_centre(model)), model.structure.thesis_arm)
 
 
 def controller_for(plant, model, law: str, estimator, form: str = "slotine-li", uncompensated=False,
@@ -73,7 +73,7 @@ def controller_for(plant, model, law: str, estimator, form: str = "slotine-li", 
     knobs = {"lead": 0.0, "velocity_lag": 0.0} if uncompensated else {"lead": 0.5 * plant.dt + plant.delay}
     if plant.actuator is not None:
         knobs["limit"] = plant.actuator.limit
-    elif hasattr(plant.model.structure, "pseudo"):  # a serial robot: the torque it is commanded, no D/A's limit
+    elif plant.model.structure.name == "urdf":  # a serial robot: the torque it is commanded, no D/A's limit
         knobs["limit"] = float("inf")
     name = "slotine-li-composite" if law == "composite" else "slotine-li"
     return make_controller(name, model, plant.dt, estimator, form=form, **{**knobs, **gains})
@@ -102,9 +102,8 @@ def run_trials(plant, controller, reference, trials: int, seconds: float, init_s
                                      for x in (controller.gamma, controller.lam, controller.kd)))
     keys = jax.random.split(jax.random.PRNGKey(seed), trials)
     known = dict(plant.params)
-    to_mine = getattr(mine, "values", None)  # a chain adapted in pseudo-inertia coordinates: the truth in them
-    if to_mine is not None and hasattr(theirs, "pseudo"):
-        known.update(to_mine(plant.params))
+    if theirs.standard_form is theirs:  # the truth in the coordinates the controller adapts in (a chain's pseudo-inertia)
+        known.update(mine.coordinates_of(plant.params))
     truth = np.array([float(known.get(k, 0.0)) for k in controller.names])
     log = rollout_batch(plant, controller, reference, arrays, keys, steps, EVERY, record, truth)
     return Trials(log.t, log.q_err, log.tau, log.theta, (np.arange(steps // EVERY) + 1) * EVERY * plant.dt,

@@ -36,7 +36,8 @@ import jax.numpy as jnp
 import numpy as np
 from scipy import signal
 
-from manus.experiments.calibration import AMPLITUDE, Case, _rms
+from manus.experiments.calibration import AMPLITUDE, Case
+from manus.experiments.sizing import rms
 
 RATES = (1000, 500, 200)
 A1, A2, A3 = 0.349, 0.241, 0.246  # kg m²: M11, the coupling, M22 (thesis §3.5.5)
@@ -220,14 +221,14 @@ def case(seed: int, hidden: str | None = None, rates: tuple = RATES, amplitude: 
         level, corner = rng.uniform(0.03, 0.08), rng.uniform(1.0, 5.0)
         b, a = signal.butter(2, corner * 2 / rate)
         w = signal.lfilter(b, a, rng.standard_normal((steps, n)), axis=0)
-        disturbance = w / w.std(0) * level * _rms(u)
+        disturbance = w / w.std(0) * level * rms(u)
         info.update(disturbance_fraction=round(float(level), 3), disturbance_corner_hz=round(float(corner), 2))
     if hidden in ("stribeck", "asymmetry", "offset", "gravity", "spring", "cogging"):
         phase = float(rng.uniform(0, 2 * np.pi))
         sign = rng.choice([-1.0, 1.0], n) if hidden in ("offset", "gravity", "cogging") else np.ones(n)
         for _ in range(2):  # sized on the motion without it, then once more on the motion with it
             unit = _unit(hidden, cfg, p, q, np.gradient(q, 1.0 / rate, axis=0), phase)
-            size = amplitude * _rms(u) / np.maximum(_rms(unit), 1e-12) * sign
+            size = amplitude * rms(u) / np.maximum(rms(unit), 1e-12) * sign
             if joint is not None:
                 size[2 - joint] = 0.0
             _set(hidden, p, size, phase)
@@ -237,11 +238,11 @@ def case(seed: int, hidden: str | None = None, rates: tuple = RATES, amplitude: 
     tau = u.copy()
     if torque == "white":
         level = rng.uniform(0.10, 0.30)
-        tau = tau + rng.standard_normal(tau.shape) * level * _rms(u)
+        tau = tau + rng.standard_normal(tau.shape) * level * rms(u)
         info["noise_fraction"] = round(float(level), 3)
     if delay:  # and what the late command changes, τ(t) − τ(t − d), against the torque (as the calibration)
         info["delay_ms"] = 1e3 * delay / rate
-        info["hidden_fraction"] = [round(float(x), 4) for x in _rms(u[delay:] - u[:-delay]) / np.maximum(_rms(u), 1e-300)]
+        info["hidden_fraction"] = [round(float(x), 4) for x in rms(u[delay:] - u[:-delay]) / np.maximum(rms(u), 1e-300)]
     rec = _round_trip(q, tau, rate, arm, hold == "stated")
     rec.path = f"<independent seed {seed}, hidden {hidden or 'nothing'}>"
     start = ",".join(e for e in NOMINAL if e != hidden)

@@ -9,11 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from manus.experiments.sizing import rms
+
 SERIAL_PD_HZ = 5.0  # a serial robot's default PD bandwidth around its computed torque
-
-
-def rms(x, axis=0):
-    return np.sqrt(np.mean(np.square(x), axis=axis))
 
 
 def controller_for(plant, serial: bool, stiffness=None, damping=None):

@@ -149,7 +149,7 @@ def build_plant(args, robot_torque_limit: float | None = None):
         structure = structure_named(args.structure, 2 if args.structure == "manus2" else args.joints)
     model = Model(structure, args.truth)
     for e in model.effects:  # an effect that cannot act on these joints (gravity is in a chain's rigid)
-        why = e.applies(structure, tuple(getattr(structure, "prismatic", ())))
+        why = e.applies(structure, tuple(structure.prismatic))
         if why:
             raise ManusError(f"--truth: {e.name}: {why}")
     encoder = Encoder(step=2 * math.pi / args.counts) if args.counts > 0 else None

@@ -52,9 +52,9 @@ def run(args) -> dict:
     plant = build_plant(args)
     structure = plant.model.structure
     # a serial robot adapts in pseudo-inertia coordinates, where its projection keeps every link consistent
-    model = Model(structure.pseudo() if hasattr(structure, "pseudo") else structure, args.model)
+    model = Model(structure.adaptive_form(), args.model)
     if args.trajectory is None:
-        args.trajectory = "complex" if model.structure.name == "manus2" else "multisine"
+        args.trajectory = "complex" if model.structure.thesis_arm else "multisine"
     reference = trajectory(args.trajectory, model)
     gains = parse_pairs(args.gain, "--gain")
     if args.gamma:
@@ -69,7 +69,7 @@ def run(args) -> dict:
     if tr.stopped.all():
         raise ManusError("every trial stopped itself on a non-finite value: nothing to report")
     result = summarize(tr)
-    if hasattr(model.structure, "values"):  # a serial chain: its identifiable combinations, the base parameters
+    if model.structure.standard_form is not model.structure:  # a chain in other coordinates: its base parameters
         result["base_params"] = base_summary(tr, model.structure)
     title = f"{args.trajectory}: truth {plant.model.spec}, model {model.spec}, {args.law}, {args.estimator}"
     result["figures"] = {"tracking": plot_tracking(tr, args.out / f"converge_{args.trajectory}_tracking.png", title),

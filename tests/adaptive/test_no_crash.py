@@ -15,12 +15,11 @@ import traceback
 import numpy as np
 import pytest
 
-from manus.adaptive.diagnose import diagnose
-from manus.adaptive.discover import discover
+from manus.adaptive import diagnose, discover
 from manus.plants.effects import VOCABULARY, Compliance, Delay, Model
 from manus.plants.errors import ManusError
 from manus.plants.recording import from_trajectory
-from manus.experiments import calibration
+from manus.experiments import calibration, sizing
 
 SEED = 7  # the fuzz's seeds: SEED + case index
 CASES = 16  # random combinations
@@ -45,7 +44,7 @@ def _combination(index: int) -> dict:
     setup = calibration.SETUPS[str(rng.choice(calibration.STRUCTURES))]
     rate = int(rng.choice(RATES))
     excitation = "steps" if rate == 1000 and rng.random() < 0.3 else "multisine"
-    pool = [e for e in calibration.hidden_effects() if calibration.applies(e, setup)
+    pool = [e for e in calibration.hidden_effects() if sizing.applies(e, setup)
             and (e != "compliance" or excitation == "steps")]
     hidden = sorted(rng.choice(pool, size=int(rng.integers(1, 4)), replace=False).tolist(), key=pool.index)
     return {"setup": setup, "rate": rate, "excitation": excitation, "hidden": hidden,
@@ -66,7 +65,7 @@ def _recording(c: dict):
             extra.append(Compliance(f_hz=0.2 * c["rate"], zeta=0.02))
             continue
         effect = VOCABULARY[name]()
-        owner = calibration.parameter_joints(setup, effect)
+        owner = sizing.parameter_joints(setup, effect)
         for k, v in Model(setup.structure, name).defaults().items():
             # the rigid effect is scaled as a whole (a plant needs a positive definite inertia)
             on = name == "rigid" or owner.get(k) is None or c["joint"] is None or owner[k] == c["joint"] - 1

@@ -13,7 +13,7 @@ its inertia and gravity within 10 %.
 import pytest
 
 from manus.adaptive import diagnose, fit
-from manus.experiments import calibration
+from manus.experiments import calibration, judging, sizing
 
 SEED = 20240607  # the subset's seeds: SEED + index
 PENDULUM_SEED = 3
@@ -93,7 +93,7 @@ def test_calibration_pendulum_inertia_and_gravity_within_ten_percent():
 
 def _swing(seconds=6.0, rate=200, amplitude=0.3):
     """The arm swinging ±`amplitude` rad about its workspace centre (both joints), a recorded
-    torque of RMS 1 N·m: what `calibration.distinct` needs of a trajectory."""
+    torque of RMS 1 N·m: what `sizing.distinct` needs of a trajectory."""
     from types import SimpleNamespace
 
     import numpy as np
@@ -115,7 +115,7 @@ def test_calibration_distinct_share_of_a_hidden_effect():
 
     traj, dt = _swing()
     g = {"gc1": 0.03, "gs1": -0.01, "gc2": 0.02, "gs2": 0.015}
-    got = calibration.distinct(calibration.ARM, Gravity(), g, "", traj, dt)
+    got = sizing.distinct(calibration.ARM, Gravity(), g, "", traj, dt)
     q = traj.q_true
     torque = np.stack([g[f"gc{i + 1}"] * np.cos(q[:, i]) + g[f"gs{i + 1}"] * np.sin(q[:, i]) for i in range(2)], 1)
     left = [torque[:, i] - np.polyval(np.polyfit(q[:, i], torque[:, i], 1), q[:, i]) for i in range(2)]
@@ -123,8 +123,8 @@ def test_calibration_distinct_share_of_a_hidden_effect():
     whole = float(np.sqrt(np.mean(torque**2)))
     assert got == pytest.approx(curvature, rel=1e-4) and curvature < 0.05 * whole  # the spring's line is the best rival
     c = {"A1": 0.01, "B1": 0.005, "A2": 0.008, "B2": -0.004}
-    cogging = calibration.distinct(calibration.ARM, Cogging(order=39.0), c, "", traj, dt)
-    size = float(np.sqrt(np.mean(calibration.effect_torque(calibration.ARM, Cogging(order=39.0), c, q, traj.qd_true,
+    cogging = sizing.distinct(calibration.ARM, Cogging(order=39.0), c, "", traj, dt)
+    size = float(np.sqrt(np.mean(sizing.effect_torque(calibration.ARM, Cogging(order=39.0), c, q, traj.qd_true,
                                                            0 * q) ** 2)))
     assert cogging == pytest.approx(size, rel=0.2)
 
@@ -148,7 +148,7 @@ def test_calibration_bench_runs_in_worker_processes(calibrate_args):
     assert "named where distinct" in bench.render_calibration(r)
     # the workers compute as this process does (float64: they once simulated and diagnosed in
     # JAX's default float32, which `manus` never runs in)
-    here = [bench.run_one(x["seed"], x["hidden"]) for x in r["results"]]
+    here = [judging.judge(x["seed"], x["hidden"]) for x in r["results"]]
     key = lambda x: [(c["spec"], c["p_value"], c["cv_error_reduction"]) for c in x["candidates"]]
     assert [key(x) for x in r["results"]] == [key(x) for x in here]
 
@@ -220,9 +220,9 @@ def test_calibration_with_samples_lost(calibrate_args):
     from manus.plants.errors import ManusError
     from manus.runs.bench import diagnose as bench
 
-    hidden = bench.run_one(SEED + 100 + HIDDEN.index("offset"), "offset", lost=0.01)
+    hidden = judging.judge(SEED + 100 + HIDDEN.index("offset"), "offset", lost=0.01)
     assert hidden["outcome"] == "named" and 60 < hidden["condition"]["lost_samples"] < 180, hidden.get("condition")
-    null = bench.run_one(SEED, None, lost=0.01)
+    null = judging.judge(SEED, None, lost=0.01)
     assert null["outcome"] == "quiet" and null["condition"]["lost_samples"] > 0, null.get("verdict_spec")
     with pytest.raises(ManusError, match=r"--lost must lie in \[0, 0.5\) \(got 0.7\)"):
         bench.calibrate(calibrate_args(recordings=1, effects="none", seed=3, alpha=None, blocks=None, jobs=1, lost=0.7))
@@ -238,10 +238,10 @@ def test_a_delay_is_sized_by_what_it_changes():
     rate, w = 1000.0, 2 * np.pi * 3.0
     t = np.arange(20000) / rate
     tau = np.c_[np.sin(w * t), 2 * np.sin(w * t + 1.0)]
-    got = calibration.delay_change(tau, 4.3e-3, rate)
+    got = sizing.delay_change(tau, 4.3e-3, rate)
     assert got == pytest.approx(2 * np.sin(w * 4.3e-3 / 2), rel=1e-3)  # each joint, and both together
     want = 2 * np.arcsin(0.05 / 2) / w
-    d = calibration.size_delay(tau, rate, 0.05)
+    d = sizing.size_delay(tau, rate, 0.05)
     assert want <= d < want + 1e-4 + 1e-9
     steps = np.repeat([[0.0], [1.0], [-1.0], [0.5]], 500, axis=0)
-    assert calibration.size_delay(steps, rate, 0.05) == calibration.DELAY_MIN
+    assert sizing.size_delay(steps, rate, 0.05) == sizing.DELAY_MIN
