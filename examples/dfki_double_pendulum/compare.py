@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from to_relative import relative  # noqa: E402
+from to_relative import relative
 
 MANUS2 = "rigid,viscous,coulomb,gravity"
 CHAIN = "rigid,viscous,coulomb"
@@ -39,60 +39,92 @@ def _error(residual: np.ndarray, tau: np.ndarray) -> float:
 
 
 def compare_one(path: str | Path) -> dict:
-    from manus.adaptive import fit as fitting
+    from manus.adaptive import fit, prepare
     from manus.plants import recording
 
     absolute = recording.read(path)
     chain = relative(path)
-    da = fitting.prepare(absolute, None, exclude_standstill=False)
-    dr = fitting.prepare(chain, da.cutoff_hz, exclude_standstill=False)
-    fa, fr = fitting.fit(da, MANUS2), fitting.fit(dr, CHAIN)
+    da = prepare(absolute, None, exclude_standstill=False)
+    dr = prepare(chain, da.cutoff_hz, exclude_standstill=False)
+    fa, fr = fit(da, MANUS2), fit(dr, CHAIN)
     to_motor = np.linalg.inv(TO_ABSOLUTE)
     ta, tr = da.tau(fa.delay), dr.tau(fr.delay)
-    same = {"samples": int(da.rows.size), "cutoff_hz": da.cutoff_hz,
-            "absolute_torques": {"manus2": _error(fa.residual, ta), "urdf": _error(fr.residual @ TO_ABSOLUTE.T,
-                                                                                   tr @ TO_ABSOLUTE.T)},
-            "motor_torques": {"manus2": _error(fa.residual @ to_motor.T, ta @ to_motor.T), "urdf": _error(fr.residual, tr)},
-            "methods": {"manus2": fa.method, "urdf": fr.method}}
-    f = fitting.fit(chain, CHAIN)  # as manus fit gives it
+    same = {
+        "samples": int(da.rows.size),
+        "cutoff_hz": da.cutoff_hz,
+        "absolute_torques": {
+            "manus2": _error(fa.residual, ta),
+            "urdf": _error(fr.residual @ TO_ABSOLUTE.T, tr @ TO_ABSOLUTE.T),
+        },
+        "motor_torques": {"manus2": _error(fa.residual @ to_motor.T, ta @ to_motor.T), "urdf": _error(fr.residual, tr)},
+        "methods": {"manus2": fa.method, "urdf": fr.method},
+    }
+    f = fit(chain, CHAIN)  # as manus fit gives it
     report = f.report()
-    return {"file": Path(path).name, "same_samples": same, "fit": {
-        "method": f.method, "rel_error": f.rel_error,
-        "params": {k: p["value"] for k, p in report["params"].items()},
-        "std": {k: p["std"] for k, p in report["params"].items()}},
-        "published": {**report["urdf_values"], **PUBLISHED_FRICTION}}
+    return {
+        "file": Path(path).name,
+        "same_samples": same,
+        "fit": {
+            "method": f.method,
+            "rel_error": f.rel_error,
+            "params": {k: p["value"] for k, p in report["params"].items()},
+            "std": {k: p["std"] for k, p in report["params"].items()},
+        },
+        "published": {**report["urdf_values"], **PUBLISHED_FRICTION},
+    }
 
 
 def compare(paths) -> dict:
     runs = [compare_one(p) for p in paths]
     names = list(runs[0]["fit"]["params"]) if runs else []
     median = {k: float(np.median([r["fit"]["params"][k] for r in runs])) for k in names}
-    gain = {k: float(np.mean([r["same_samples"][k]["manus2"] / r["same_samples"][k]["urdf"] for r in runs]))
-            for k in ("absolute_torques", "motor_torques")} if runs else {}
-    return {"recordings": runs, "median": median, "published": runs[0]["published"] if runs else {},
-            "error_ratio_manus2_over_urdf": gain}
+    gain = (
+        {
+            k: float(np.mean([r["same_samples"][k]["manus2"] / r["same_samples"][k]["urdf"] for r in runs]))
+            for k in ("absolute_torques", "motor_torques")
+        }
+        if runs
+        else {}
+    )
+    return {
+        "recordings": runs,
+        "median": median,
+        "published": runs[0]["published"] if runs else {},
+        "error_ratio_manus2_over_urdf": gain,
+    }
 
 
 def render(r: dict) -> str:
-    lines = ["torque error on the same samples (standstill kept), MANUS-2 absolute angles vs the URDF chain in relative coordinates:",
-             f"{'file':24s} {'samples':>7s}  {'absolute torques':>22s}  {'motor torques':>22s}  methods"]
+    lines = [
+        "torque error on the same samples (standstill kept), MANUS-2 absolute angles vs the URDF chain in relative coordinates:",
+        f"{'file':24s} {'samples':>7s}  {'absolute torques':>22s}  {'motor torques':>22s}  methods",
+    ]
     for x in r["recordings"]:
         s = x["same_samples"]
         a, m = s["absolute_torques"], s["motor_torques"]
-        lines.append(f"{x['file']:24s} {s['samples']:7d}  {100 * a['manus2']:8.1f} % -> {100 * a['urdf']:5.1f} %  "
-                     f"{100 * m['manus2']:8.1f} % -> {100 * m['urdf']:5.1f} %  {s['methods']['manus2']}, {s['methods']['urdf']}")
+        lines.append(
+            f"{x['file']:24s} {s['samples']:7d}  {100 * a['manus2']:8.1f} % -> {100 * a['urdf']:5.1f} %  "
+            f"{100 * m['manus2']:8.1f} % -> {100 * m['urdf']:5.1f} %  {s['methods']['manus2']}, {s['methods']['urdf']}"
+        )
     g = r["error_ratio_manus2_over_urdf"]
-    lines.append(f"MANUS-2's error over the chain's, mean: {g['absolute_torques']:.2f}x (absolute torques), "
-                 f"{g['motor_torques']:.2f}x (motor torques)")
+    lines.append(
+        f"MANUS-2's error over the chain's, mean: {g['absolute_torques']:.2f}x (absolute torques), "
+        f"{g['motor_torques']:.2f}x (motor torques)"
+    )
     lines.append("")
     lines.append("the chain's parameters as manus fit gives them (" + CHAIN + "), beside DFKI's model_2.0:")
     files = [x["file"].replace("A0_trajectory_", "")[:2] for x in r["recordings"]]
     lines.append(f"{'parameter':10s} {'DFKI':>9s} " + " ".join(f"{f:>9s}" for f in files) + f" {'median':>9s}")
     for k, med in r["median"].items():
         pub = r["published"].get(k)
-        lines.append(f"{k:10s} {'' if pub is None else f'{pub:9.4g}':>9s} "
-                     + " ".join(f"{x['fit']['params'][k]:9.4g}" for x in r["recordings"]) + f" {med:9.4g}")
-    lines.append("methods: " + ", ".join(f"{f} {x['fit']['method']}" for f, x in zip(files, r["recordings"])))
+        lines.append(
+            f"{k:10s} {'' if pub is None else f'{pub:9.4g}':>9s} "
+            + " ".join(f"{x['fit']['params'][k]:9.4g}" for x in r["recordings"])
+            + f" {med:9.4g}"
+        )
+    lines.append(
+        "methods: " + ", ".join(f"{f} {x['fit']['method']}" for f, x in zip(files, r["recordings"], strict=True))
+    )
     return "\n".join(lines)
 
 

@@ -17,7 +17,7 @@ import functools
 import jax
 import numpy as np
 
-from manus.adaptive.diagnose import diagnose
+from manus.adaptive import diagnose
 from manus.adaptive.impedance import Impedance
 from manus.plants import Model, Simulator
 from manus.plants.closed_loop import simulate
@@ -65,7 +65,7 @@ def recording(hidden: tuple[str, ...] = (), seconds: float = SECONDS, seed: int 
 def discover(rec, model: str, max_steps: int = 6):
     """Diagnose, add the verdict (as found: its spec), repeat until the verdict is null. Returns
     the diagnoses, the last with a null verdict unless the cap was reached."""
-    from manus.adaptive.fit import Columns, prepare
+    from manus.adaptive import Columns, prepare
 
     data = prepare(rec)
     cols = Columns(data)

@@ -5,7 +5,7 @@ checked against scipy's bounded least squares."""
 import numpy as np
 from scipy.optimize import lsq_linear
 
-from manus.adaptive import lsq, search
+from manus.adaptive.identify import lsq, search
 
 
 def _problem(seed, rows=4000, P=5, bounded=2):
@@ -22,7 +22,7 @@ def test_bounded_coefficients_match_scipys_bounded_least_squares():
     for seed in range(5):
         X, tau, lower = _problem(seed)
         starts = np.arange(0, X.shape[0], 100)
-        st = lsq.Stats(X, tau, starts)
+        st = lsq.Stats.of(X, tau, starts)
         rng = np.random.default_rng(seed + 100)
         masks = rng.random((6, starts.size)) < 0.7
         C = st.coefs(masks, lower)
@@ -44,7 +44,7 @@ def test_the_search_chooses_the_value_the_physics_allows():
     e1, e2 = rng.normal(size=(rows, 1, 1)), rng.normal(size=(rows, 1, 1))
     tau = base @ np.array([1.0, -0.5]) - 0.9 * e1[..., 0] + 0.3 * e2[..., 0] + 0.2 * rng.normal(size=(rows, 1))
     starts = np.arange(0, rows, 150)
-    st0 = lsq.Stats(base, tau, starts)
+    st0 = lsq.Stats.of(base, tau, starts)
     stats = [st0.extend(e1), st0.extend(e2)]
     lower = np.array([-np.inf, -np.inf, 0.0])
     own = np.array([False, False, True])
@@ -64,7 +64,7 @@ def test_a_grid_of_values_at_once_matches_scipys_bounded_least_squares():
     X, tau, lower = _problem(7, P=6, bounded=2)
     rng = np.random.default_rng(8)
     starts = np.arange(0, X.shape[0], 100)
-    base = lsq.Stats(X[:, :, :4], tau, starts)
+    base = lsq.Stats.of(X[:, :, :4], tau, starts)
     E = np.stack([X[:, :, 4:] * rng.uniform(0.5, 2.0, (1, 1, 2)) + 0.1 * v * rng.normal(size=X[:, :, 4:].shape)
                   for v in range(5)])  # (V, rows, n, 2): five values of the searched columns
     every = base.extend(E, budget=3 * X.shape[0] * 6 * 2)  # (three values per chunk: two chunks)

@@ -1,4 +1,4 @@
-"""The physically consistent stage of a serial chain's fit (manus.adaptive.consistency): the
+"""The physically consistent stage of a serial chain's fit (manus.adaptive.identify.consistency): the
 pseudo-inertia against pinocchio's, and the convex (LMI) solution against an independent one, a
 log-Cholesky parametrization (Rucker and Wensing 2022: J = U Uᵀ is positive semidefinite for any
 U) minimized by scipy."""
@@ -11,8 +11,8 @@ import pinocchio as pin
 import pytest
 from scipy import optimize
 
-from manus.adaptive import fit as fitting
-from manus.adaptive.consistency import LINK, TIE, consistent, pseudo_inertia
+from manus.adaptive import Columns, fit
+from manus.adaptive.identify.consistency import LINK, TIE, consistent, pseudo_inertia
 from manus.plants import Serial
 from manus.plants.recording import Recording
 
@@ -54,7 +54,7 @@ def swing():
     tau += 0.01 * np.std(tau, 0) * np.random.default_rng(0).normal(size=tau.shape)
     rec = Recording(t, q, tau, qd, {"sample_rate_hz": "500", "command_hold": "none", "structure": "urdf",
                                     "robot": str(URDF)})
-    return fitting.fit(rec, "rigid,viscous", method="ls")
+    return fit(rec, "rigid,viscous", method="ls")
 
 
 def test_a_consistent_estimate_stays(swing):
@@ -75,7 +75,7 @@ def _objective(f):
     """The stage's objective, written out independently: the rise of the squared torque error in
     units of the residual variance per row, plus TIE times the squared relative distance of the
     standard parameters from the URDF's."""
-    Y = fitting.Columns(f.data).model(f.model)
+    Y = Columns(f.data).model(f.model)
     Y = Y.reshape(-1, Y.shape[2])
     var = float(np.sum(f.residual**2)) / (Y.shape[0] - Y.shape[1])
     prior = np.asarray(f.model.structure.serial.defaults)

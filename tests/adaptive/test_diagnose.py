@@ -1,4 +1,4 @@
-"""Diagnosis (`manus.adaptive.diagnose`) on recordings whose missing effect is known: simulated arms
+"""Diagnosis (`manus.adaptive.diagnosis`) on recordings whose missing effect is known: simulated arms
 with hidden effects (the truth parameters are the reference), the EMPS axis against its published
 reference model, and the compliant shaft under the thesis's open-loop square wave."""
 
@@ -7,8 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from manus.adaptive.diagnose import diagnose
-from manus.adaptive.fit import fit
+from manus.adaptive import diagnose, fit
 from manus.plants.errors import ModelError
 from tests.adaptive import hidden
 
@@ -201,7 +200,7 @@ def test_a_white_floor_on_the_recorded_torque_is_fitted_not_read_as_inertia():
     spectra of a motor driving its link (r = 0.1, ζ = 0.02, 220 Hz), gives back the inertia, the
     motor's share and S_nn; without it the misfit stays. A floor is never negative: on spectra
     without one the fit gives 0."""
-    from manus.adaptive import modes
+    from manus.adaptive.diagnosis import modes
 
     fs, f_mode, zeta, r, inertia = 1000.0, 220.0, 0.02, 0.1, 0.35
     f = np.linspace(40.0, 400.0, 200)
@@ -212,25 +211,25 @@ def test_a_white_floor_on_the_recorded_torque_is_fitted_not_read_as_inertia():
     sxy, sxx = h * suu, suu + snn
     z, w = sxx / sxy, np.ones_like(f)
     g = np.stack([np.ones_like(f, complex), modes.link_response(f, 2 * np.pi * fz, zeta)])
-    coef, misfit = modes._fit(z, w, g, modes._floor(sxy, sxx))
+    coef, misfit = modes.fit_response(z, w, g, modes.floor_column(sxy, sxx))
     # the whole grid at once (the search) gives the same at each of its points
-    pts, G = modes._grid(f, fs)
-    many, misfits = modes._fits(z, w, G, modes._floor(sxy, sxx))
+    pts, G = modes.search_grid(f, fs)
+    many, misfits = modes.fit_grid(z, w, G, modes.floor_column(sxy, sxx))
     for qi in (0, 77, 200, len(pts) - 1):
-        one, m1 = modes._fit(z, w, np.stack([np.ones_like(f, complex), G[qi]]), modes._floor(sxy, sxx))
+        one, m1 = modes.fit_response(z, w, np.stack([np.ones_like(f, complex), G[qi]]), modes.floor_column(sxy, sxx))
         assert many[qi] == pytest.approx(one, rel=1e-6, abs=1e-12) and misfits[qi] == pytest.approx(m1, rel=1e-6, abs=1e-15)
     assert coef[0] == pytest.approx(r * inertia, rel=1e-6) and coef[1] == pytest.approx((1 - r) * inertia, rel=1e-6)
     assert coef[2] == pytest.approx(snn, rel=1e-6) and misfit < 1e-12
-    _, without = modes._fit(z, w, g, np.zeros_like(f))
+    _, without = modes.fit_response(z, w, g, np.zeros_like(f))
     assert without > 1e-3
-    coef, _ = modes._fit(1 / h, w, g, modes._floor(h * suu, suu))  # no floor in the data
+    coef, _ = modes.fit_response(1 / h, w, g, modes.floor_column(h * suu, suu))  # no floor in the data
     assert coef[2] == pytest.approx(0.0, abs=1e-9 * snn)
 
 
 def test_a_mode_whose_motor_share_sits_on_its_bound_is_not_proposed():
     """A fitted share at the top of the plausible range (the response asks for more: nothing a
     motor and its link have; recordings with nothing missing land there) is reported with why."""
-    from manus.adaptive import modes
+    from manus.adaptive.diagnosis import modes
 
     def mode(r):
         e = np.ones(8)
@@ -246,16 +245,16 @@ def test_a_mode_near_the_top_of_a_slow_recordings_band_shows_its_peak():
     of its falling flank (1.3–1.6 f) inside the band: enough to see the peak. A response rising
     steadily to the top of the band (closed loop answering encoder noise) has no peak, and a
     mode whose flank lies wholly above the band cannot be shown."""
-    from manus.adaptive import modes
+    from manus.adaptive.diagnosis import modes
 
     fs = 200.0
     f = np.arange(0, fs / 2 + 1e-9, fs / 64)
     top = modes.band(fs)[1]
     for f_mode in (0.2 * fs, 0.29 * fs):
         assert ((f >= 1.3 * f_mode) & (f <= 1.6 * f_mode) & (f <= top)).sum() >= 1
-        assert modes._peaks(f, _motor_response(f, f_mode, 0.02, 0.1), f_mode, top), f_mode
-    assert not modes._peaks(f, 1 + (f / 20) ** 2, 0.29 * fs, top)  # rising to the band's top
-    assert not modes._peaks(f, _motor_response(f, 0.35 * fs, 0.02, 0.1), 0.35 * fs, top)  # flank above the band
+        assert modes.peaks_at(f, _motor_response(f, f_mode, 0.02, 0.1), f_mode, top), f_mode
+    assert not modes.peaks_at(f, 1 + (f / 20) ** 2, 0.29 * fs, top)  # rising to the band's top
+    assert not modes.peaks_at(f, _motor_response(f, 0.35 * fs, 0.02, 0.1), 0.35 * fs, top)  # flank above the band
 
 
 def test_the_band_scales_with_the_rate():
@@ -263,7 +262,7 @@ def test_the_band_scales_with_the_rate():
     of a 2 kHz rate (300–600 Hz) keeps its falling flank (1.3–1.6 f) inside it and shows its
     peak on 2 kHz's Welch bins, as one at 1 kHz does. (A fixed 450 Hz top, chosen at 1 kHz, left
     modes above ~350 Hz at 2 kHz without a flank.)"""
-    from manus.adaptive import modes
+    from manus.adaptive.diagnosis import modes
 
     for fs in (1000.0, 2000.0, 4000.0):
         lo, top = modes.band(fs)
@@ -272,7 +271,7 @@ def test_the_band_scales_with_the_rate():
         for share in (0.15, 0.22, 0.30):
             f_mode = share * fs
             assert ((f >= 1.3 * f_mode) & (f <= 1.6 * f_mode) & (f <= top)).sum() >= 2, (fs, share)
-            assert modes._peaks(f, _motor_response(f, f_mode, 0.02, 0.1), f_mode, top), (fs, share)
+            assert modes.peaks_at(f, _motor_response(f, f_mode, 0.02, 0.1), f_mode, top), (fs, share)
     assert modes.band(200.0) == (20.0, 80.0)
 
 
@@ -281,13 +280,13 @@ def test_a_response_falling_with_frequency_is_no_peak_and_every_physical_mode_is
     falls (a square wave's, as 1/f): |θ̈/τ| falls steadily, and one bin of flank 1.3 f above any
     frequency sits lower. That is no resonance: a peak must also stand above the rise into it
     (0.6–0.8 f). Every physical mode (motor share 0.02–0.9, ζ ≤ 0.2) does, on 3.125 Hz bins."""
-    from manus.adaptive import modes
+    from manus.adaptive.diagnosis import modes
 
     fs = 200.0
     f = np.arange(0, fs / 2 + 1e-9, fs / 64)
     top = modes.band(fs)[1]
     falling = 1 / (1 + (f / 25) ** 2)  # S_ττ of the command over S_ττ + noise: 1.27 down over 15.6–21.9 Hz
-    assert not modes._peaks(f, falling, 15.4, top)  # a seed-5 null that the flank test alone passed
+    assert not modes.peaks_at(f, falling, 15.4, top)  # a seed-5 null that the flank test alone passed
     for r in (0.02, 0.1, 0.5, 0.9):
         for zeta in (0.005, 0.05, 0.2):
             for f_mode in (15.0, 31.9, 45.0):
@@ -296,7 +295,7 @@ def test_a_response_falling_with_frequency_is_no_peak_and_every_physical_mode_is
                 peak = mag[(fine >= 0.9 * f_mode) & (fine <= 1.1 * f_mode)].max()
                 assert peak > modes.PEAK * np.median(mag[(fine >= 0.6 * f_mode) & (fine <= 0.8 * f_mode)]), (r, zeta)
                 if zeta <= 0.05:  # (heavily damped modes on a heavy motor can fail the flank test, as before)
-                    assert modes._peaks(fine, mag, f_mode, np.inf), (r, zeta, f_mode)
+                    assert modes.peaks_at(fine, mag, f_mode, np.inf), (r, zeta, f_mode)
 
 
 # -- bad input -----------------------------------------------------------------------------------
@@ -322,7 +321,7 @@ def test_unknown_effect_and_short_recordings_are_refused():
 def test_prepared_data_and_fixed_nonlinear_parameters_are_kept():
     """`discover` prepares once and passes the data and the model as text: cogging:39 written with
     its order is held, not searched again."""
-    from manus.adaptive.fit import prepare
+    from manus.adaptive import prepare
 
     rec = hidden.recording(("offset", "cogging"))
     data = prepare(rec)
@@ -342,7 +341,7 @@ def test_the_detection_limit_a_null_verdict_states_is_what_it_finds():
     it is not."""
     import copy
 
-    from manus.adaptive.fit import Columns, prepare
+    from manus.adaptive import Columns, prepare
     from manus.plants.effects import Model, Offset
     from manus.experiments import calibration
 

@@ -1,4 +1,4 @@
-"""Inverse-dynamics fitting (`manus.adaptive.fit`) against independent references: the published EMPS
+"""Inverse-dynamics fitting (`manus.adaptive.identify`) against independent references: the published EMPS
 reference model (Janot, Gautier, Brunot 2019) and the simulator's truth parameters."""
 
 import json
@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from manus.adaptive.fit import fit, prepare
+from manus.adaptive import fit, prepare
 from manus.plants.errors import ManusError, ModelError
 from manus.plants.recording import Recording
 from tests.adaptive import hidden
@@ -183,7 +183,7 @@ def test_friction_columns_are_the_average_over_the_sample_period():
     column stays its value at the sample."""
     from scipy.special import erf
 
-    from manus.adaptive.fit import SUBSAMPLES, _effect_columns
+    from manus.adaptive.identify.columns import SUBSAMPLES, effect_columns
     from manus.plants.effects import Coulomb, Stribeck, Viscous
     from manus.plants.structures import Axis
 
@@ -192,14 +192,14 @@ def test_friction_columns_are_the_average_over_the_sample_period():
     q, qd, qdd = (x[:, None] for x in (np.zeros_like(v), v, np.full_like(v, a)))
     hi, lo = v + a * dt / 2, v - a * dt / 2
     tol = 1.0 / SUBSAMPLES  # the midpoint rule resolves a switch to one sub-interval
-    sgn = np.asarray(_effect_columns(Coulomb(), Axis(), q, qd, qdd, dt))[:, 0, 0]
+    sgn = np.asarray(effect_columns(Coulomb(), Axis(), q, qd, qdd, dt))[:, 0, 0]
     np.testing.assert_allclose(sgn, (np.abs(hi) - np.abs(lo)) / (hi - lo), atol=tol)
-    strib = np.asarray(_effect_columns(Stribeck(vs=vs), Axis(), q, qd, qdd, dt))[:, 0, 0]
+    strib = np.asarray(effect_columns(Stribeck(vs=vs), Axis(), q, qd, qdd, dt))[:, 0, 0]
     exact = vs * np.sqrt(np.pi) / 2 * (erf(np.abs(hi) / vs) - erf(np.abs(lo) / vs)) / (hi - lo)
     np.testing.assert_allclose(strib, exact, atol=tol)
     point = np.sign(v) * np.exp(-(v / vs) ** 2)
     assert np.max(np.abs(point - exact)) > 0.3  # (the point values would fail: the test can tell)
-    visc = np.asarray(_effect_columns(Viscous(), Axis(), q, qd, qdd, dt))[:, 0, 0]
+    visc = np.asarray(effect_columns(Viscous(), Axis(), q, qd, qdd, dt))[:, 0, 0]
     np.testing.assert_allclose(visc, v, rtol=1e-12)
 
 
@@ -235,15 +235,15 @@ def test_a_gap_longer_than_the_recording_is_refused_by_name(nominal):
 def test_a_search_computes_the_same_columns_one_value_at_a_time(nominal, monkeypatch):
     """On a long recording the search's columns are computed a few values at a time (memory: a
     10-minute recording at 1 kHz held 5 GB at 32 at once); the columns are the same."""
-    from manus.adaptive import fit as fitting
+    from manus.adaptive.identify import columns
     from manus.plants.effects import Cogging
 
     data = prepare(nominal)
     values = [Cogging(order=float(n)) for n in (6, 38, 39, 40)]
-    together = fitting.Columns(data)
+    together = columns.Columns(data)
     together.prefetch(values)
-    monkeypatch.setattr(fitting, "PREFETCH_BYTES", 1.0)
-    alone = fitting.Columns(data)
+    monkeypatch.setattr(columns, "PREFETCH_BYTES", 1.0)
+    alone = columns.Columns(data)
     alone.prefetch(values)
     for v in values:
         np.testing.assert_allclose(alone.effect(v), together.effect(v), rtol=1e-9, atol=1e-12)
@@ -281,17 +281,15 @@ def test_open_loop_steps_at_200_hz_fit_the_true_model():
 
 def test_a_creeping_joint_is_at_rest_a_reversal_is_not():
     """`prepare` leaves out a joint that creeps (0.2 % of its high speed for 0.5 s: above the
-    encoder's standstill threshold of a 1 µm grid, under `fit.CREEP` of its speed) and keeps the
+    encoder's standstill threshold of a 1 µm grid, under `prepare.CREEP` of its speed) and keeps the
     reversals, which pass such speeds in milliseconds."""
-    from manus.adaptive import fit as fitting
-
     dt, vmax = 1e-3, 0.2
     t = np.arange(0, 6.0, dt)
     v = np.where((t >= 2.0) & (t < 2.5), 0.002 * vmax, vmax * np.sin(np.pi * np.where(t < 2.0, t, t - 2.5)))
     q = np.round(np.cumsum(v) * dt / 1e-6) * 1e-6
     rec = Recording(t, q[:, None], np.random.default_rng(0).standard_normal((t.size, 1)), None,
                     {"sample_rate_hz": "1000", "position_step": "1e-06", "structure": "axis"}, {})
-    data = fitting.prepare(rec)
+    data = prepare(rec)
     used = t[data.rows]
     assert not np.any((used > 2.05) & (used < 2.45))  # the creep
     for reversal in (1.0, 3.5, 4.5):  # v = 0 with |q̈| = π·0.2 m/s²

@@ -10,9 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from manus.adaptive.diagnose import diagnose
-from manus.adaptive.discover import discover
-from manus.adaptive.fit import fit
+from manus.adaptive import diagnose, discover, fit
 from manus.plants import Model, Serial, Simulator
 from manus.plants.references import MultiSine
 from manus.plants.serial_sim import record

@@ -1,4 +1,4 @@
-"""The score test of `manus diagnose` (`manus.adaptive.lsq.block_scores`, `score_p`,
+"""The score test of `manus diagnose` (`manus.adaptive.diagnosis.scores.block_scores`, `score_p`,
 `correlation_time`) against independent references: the Frisch–Waugh–Lovell theorem (numpy's
 least squares of the full model), a direct loop over the sign flips, the closed form of an AR(1)
 process's integrated autocorrelation time, and its size and power on simulated data whose truth
@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 from scipy.optimize import lsq_linear
 
-from manus.adaptive import lsq
+from manus.adaptive.diagnosis import scores as score_test
+from manus.adaptive.identify.lsq import Stats
 
 
 def _design(rng, rows=600, n=2, p=3, k=2):
@@ -29,8 +30,9 @@ def test_block_scores_are_the_partialled_scores_and_recover_the_full_fit():
     X, E = _design(rng)
     tau = X @ np.array([1.0, -2.0, 0.5]) + E @ np.array([0.3, -0.1]) + 0.1 * rng.normal(size=X.shape[:2])
     starts, blocks = _segments(X.shape[0], 10)
-    st = lsq.Stats(np.concatenate([X, E], 2), tau, starts)
-    s, Q = lsq.block_scores(st, np.array([False, False, False, True, True]), blocks)
+    st = Stats.of(np.concatenate([X, E], 2), tau, starts)
+    sc = score_test.block_scores(st, np.array([False, False, False, True, True]), blocks)
+    s, Q = sc.s, sc.Q
     full = np.linalg.lstsq(np.concatenate([X, E], 2).reshape(-1, 5), tau.ravel(), rcond=None)[0]
     beta = np.linalg.solve(Q.sum(0), s.sum(0)) / st.scale[3:]  # (Stats scales its columns)
     assert beta == pytest.approx(full[3:], rel=1e-9)
@@ -49,13 +51,13 @@ def test_the_flips_fast_algebra_equals_the_statistic_computed_again(mode, monkey
     """Each draw's Ω is expanded algebraically (D − T·β − (T·β)ᵀ + S·β·β); a loop that flips the
     blocks' jackknifed noise scores (wild) or the scores themselves (exact) and recomputes W from
     them from scratch (refit, jackknife, Ω) counts the same exceedances."""
-    monkeypatch.setattr(lsq, "MIN_EFFECTIVE_BLOCKS", 0.0 if mode == "wild" else np.inf)
+    monkeypatch.setattr(score_test, "MIN_EFFECTIVE_BLOCKS", 0.0 if mode == "wild" else np.inf)
     rng = np.random.default_rng(1)
     G, k = 12, 3
     scores = []
     for _ in range(4):  # four values of a searched parameter
         A = rng.normal(size=(G, k, k))
-        scores.append((rng.normal(size=(G, k)), np.einsum("gij,gkj->gik", A, A)))
+        scores.append(score_test.Scores(rng.normal(size=(G, k)), np.einsum("gij,gkj->gik", A, A)))
 
     def jackknifed(s, Q):  # each block's score with the fit left out of it
         Qi = np.linalg.inv(Q.sum(0))
@@ -66,14 +68,14 @@ def test_the_flips_fast_algebra_equals_the_statistic_computed_again(mode, monkey
         d = jackknifed(s, Q)
         return s.sum(0) @ np.linalg.solve(d.T @ d, s.sum(0))
 
-    observed = max(wald(s, Q) for s, Q in scores)
-    flipped = [jackknifed(s, Q) if mode == "wild" else s for s, Q in scores]  # a draw: w_b times these
-    w = np.random.default_rng(0).choice((-1.0, 1.0), size=(lsq.FLIPS, G))  # the draws score_p makes
-    exceed = sum(max(wald(wi[:, None] * d, Q) for d, (_, Q) in zip(flipped, scores)) >= observed * (1 - 1e-9)
+    observed = max(wald(x.s, x.Q) for x in scores)
+    flipped = [jackknifed(x.s, x.Q) if mode == "wild" else x.s for x in scores]  # a draw: w_b times these
+    w = np.random.default_rng(0).choice((-1.0, 1.0), size=(score_test.FLIPS, G))  # the draws score_p makes
+    exceed = sum(max(wald(wi[:, None] * d, x.Q) for d, x in zip(flipped, scores)) >= observed * (1 - 1e-9)
                  for wi in w)
-    p, _, how = lsq.score_p(scores, alpha=0.5, stop_above=2.0)
+    p, _, how = score_test.score_p(scores, alpha=0.5, stop_above=2.0)
     assert how == mode
-    assert p == pytest.approx((1 + exceed) / (1 + lsq.FLIPS), abs=1e-12)
+    assert p == pytest.approx((1 + exceed) / (1 + score_test.FLIPS), abs=1e-12)
 
 
 def _null_case(rng, G=40, heavy=40, beta=0.0):
@@ -87,8 +89,8 @@ def _null_case(rng, G=40, heavy=40, beta=0.0):
     noise = rng.normal(size=(rows, n)) * np.repeat(rng.uniform(0.5, 2.0, G), rows // G)[:, None]
     tau = X @ np.array([1.0, 0.5]) + beta * E[..., 0] + noise
     starts, blocks = _segments(rows, G)
-    st = lsq.Stats(np.concatenate([X, E], 2), tau, starts)
-    return lsq.block_scores(st, np.array([False, False, True]), blocks)
+    st = Stats.of(np.concatenate([X, E], 2), tau, starts)
+    return score_test.block_scores(st, np.array([False, False, True]), blocks)
 
 
 @pytest.mark.parametrize("heavy", [2, 6, 12, 40], ids=lambda h: f"{h}-of-40-blocks")
@@ -98,7 +100,7 @@ def test_the_score_test_holds_its_size_under_the_null(heavy):
     wild bootstrap alone gave 11 % with 2 heavy blocks and 4 % with 6; under 12 effective blocks
     the exact flips are used)."""
     rng = np.random.default_rng(11)
-    ps = np.array([lsq.score_p([_null_case(rng, heavy=heavy)], alpha=0.02, stop_above=1.0)[0] for _ in range(300)])
+    ps = np.array([score_test.score_p([_null_case(rng, heavy=heavy)], alpha=0.02, stop_above=1.0)[0] for _ in range(300)])
     assert np.mean(ps < 0.02) <= 0.045 and 0.04 <= np.mean(ps < 0.1) <= 0.17, (np.mean(ps < 0.02), np.mean(ps < 0.1))
 
 
@@ -110,20 +112,20 @@ def test_the_one_sided_score_test_holds_its_size_and_judges_by_the_sign(heavy):
     test), and at the wrong sign nothing is found."""
     rng = np.random.default_rng(12)
     signed = np.array([True])
-    ps = np.array([lsq.score_p([_null_case(rng, heavy=heavy)], alpha=0.02, stop_above=1.0, signed=signed)[0]
+    ps = np.array([score_test.score_p([_null_case(rng, heavy=heavy)], alpha=0.02, stop_above=1.0, signed=signed)[0]
                    for _ in range(300)])
     assert np.mean(ps < 0.02) <= 0.045 and 0.04 <= np.mean(ps < 0.1) <= 0.17, (np.mean(ps < 0.02), np.mean(ps < 0.1))
     ratios = []
     for _ in range(20):
         x = _null_case(rng, heavy=heavy, beta=0.02 if heavy == 40 else 0.06)
-        two = lsq.score_p([x], alpha=0.01, stop_above=1.0)[0]
-        one = lsq.score_p([x], alpha=0.01, stop_above=1.0, signed=signed)[0]
+        two = score_test.score_p([x], alpha=0.01, stop_above=1.0)[0]
+        one = score_test.score_p([x], alpha=0.01, stop_above=1.0, signed=signed)[0]
         assert one <= two + 1e-12 or one == 1.0  # (the fitted coefficient's sign: physical, or not)
         if 0.003 < two < 0.5:  # (above the flips' floor)
             ratios.append(one / two)
-        wrong = (x[0] * -1, x[1]) if heavy == 40 else None  # (the scores' sign turned: the effect's opposite)
+        wrong = score_test.Scores(x.s * -1, x.Q) if heavy == 40 else None  # (the scores' sign turned: the effect's opposite)
         if wrong is not None and two < 0.01:
-            assert lsq.score_p([wrong], alpha=0.01, stop_above=1.0, signed=signed)[0] > 0.3
+            assert score_test.score_p([wrong], alpha=0.01, stop_above=1.0, signed=signed)[0] > 0.3
     assert len(ratios) >= 5 and 0.35 <= np.median(ratios) <= 0.65, ratios
 
 
@@ -132,12 +134,12 @@ def test_an_effect_spread_over_the_blocks_is_found_and_one_in_two_blocks_is_judg
     information in two blocks of forty the exact flips judge it, and their p is larger than the
     wild bootstrap's on the same data (whose size fails there, see above)."""
     rng = np.random.default_rng(3)
-    p, _, how = lsq.score_p([_null_case(rng, heavy=40, beta=0.3)], alpha=0.01)
+    p, _, how = score_test.score_p([_null_case(rng, heavy=40, beta=0.3)], alpha=0.01)
     assert how == "wild" and p < 0.01
     scores = [_null_case(rng, heavy=2, beta=0.3)]
-    p, _, how = lsq.score_p(scores, alpha=0.01)
-    monkeypatch.setattr(lsq, "MIN_EFFECTIVE_BLOCKS", 0.0)
-    p_wild, _, _ = lsq.score_p(scores, alpha=0.01)
+    p, _, how = score_test.score_p(scores, alpha=0.01)
+    monkeypatch.setattr(score_test, "MIN_EFFECTIVE_BLOCKS", 0.0)
+    p_wild, _, _ = score_test.score_p(scores, alpha=0.01)
     assert how == "exact" and p > p_wild
 
 
@@ -150,7 +152,7 @@ def test_correlation_time_of_an_ar1_process():
     x[0] = e[0]
     for t in range(1, n):
         x[t] = rho * x[t - 1] + e[t]
-    assert lsq.correlation_time(x[:, None], 0.01) == pytest.approx(0.01 * (1 + rho) / (1 - rho), rel=0.1)
+    assert score_test.correlation_time(x[:, None], 0.01) == pytest.approx(0.01 * (1 + rho) / (1 - rho), rel=0.1)
 
 
 def test_nothing_to_test_gives_p_one():
@@ -158,14 +160,14 @@ def test_nothing_to_test_gives_p_one():
     rng = np.random.default_rng(5)
     X, _ = _design(rng)
     starts, blocks = _segments(X.shape[0], 10)
-    st = lsq.Stats(np.concatenate([X, X[:, :, :1]], 2), rng.normal(size=X.shape[:2]), starts)
-    assert lsq.score_p([lsq.block_scores(st, np.array([False, False, False, True]), blocks)])[0] == 1.0
-    assert lsq.score_p([lsq.block_scores(st, np.zeros(4, bool), blocks)])[0] == 1.0
+    st = Stats.of(np.concatenate([X, X[:, :, :1]], 2), rng.normal(size=X.shape[:2]), starts)
+    assert score_test.score_p([score_test.block_scores(st, np.array([False, False, False, True]), blocks)])[0] == 1.0
+    assert score_test.score_p([score_test.block_scores(st, np.zeros(4, bool), blocks)])[0] == 1.0
 
 
 def _lambda_closed_form(k, dof, alpha, power):
     """The non-centrality of an F(k, dof) test at `alpha` with `power`, from scipy by bisection
-    (independent of lsq's root finder)."""
+    (independent of the score test's root finder)."""
     from scipy import stats
     crit = stats.f.isf(alpha, k, dof)
     lo, hi = 0.0, 1000.0
@@ -187,9 +189,9 @@ def test_the_detection_limit_is_the_closed_form_for_white_noise(k):
     E = rng.normal(size=(rows, 1, k)) * 3.0 + X[:, :, :1]
     tau = X @ np.array([1.0, 0.5]) + sigma * rng.normal(size=(rows, 1))
     starts, blocks = _segments(rows, G)
-    st = lsq.Stats(np.concatenate([X, E], 2), tau, starts)
-    scores = [lsq.block_scores(st, np.r_[False, False, [True] * k], blocks)]
-    assert lsq.detectable(scores, alpha=0.01) == pytest.approx(_lambda_closed_form(k, G - k, 0.01, 0.8) * sigma**2, rel=0.15)
+    st = Stats.of(np.concatenate([X, E], 2), tau, starts)
+    scores = [score_test.block_scores(st, np.r_[False, False, [True] * k], blocks)]
+    assert score_test.detectable(scores, alpha=0.01) == pytest.approx(_lambda_closed_form(k, G - k, 0.01, 0.8) * sigma**2, rel=0.15)
 
 
 def test_an_effect_at_the_detection_limit_is_found_four_times_in_five():
@@ -205,19 +207,19 @@ def test_an_effect_at_the_detection_limit_is_found_four_times_in_five():
         noise = rng.normal(size=(rows, 1)) * np.repeat(rng.uniform(0.5, 2.0, G), rows // G)[:, None]
         base = X @ np.array([1.0, 0.5])
         test = np.array([False, False, True])
-        null = lsq.Stats(np.concatenate([X, E], 2), base + noise, starts)
-        ss = lsq.detectable([lsq.block_scores(null, test, blocks)], alpha=0.05)
+        null = Stats.of(np.concatenate([X, E], 2), base + noise, starts)
+        ss = score_test.detectable([score_test.block_scores(null, test, blocks)], alpha=0.05)
         Xf, Ef = X.reshape(-1, 2), E.reshape(-1, 1)
         partialled = Ef - Xf @ np.linalg.lstsq(Xf, Ef, rcond=None)[0]
         beta = np.sqrt(ss / np.sum(partialled**2))
-        st = lsq.Stats(np.concatenate([X, E], 2), base + beta * E[..., 0] + noise, starts)
-        hits += lsq.score_p([lsq.block_scores(st, test, blocks)], alpha=0.05, stop_above=0.06)[0] < 0.05
+        st = Stats.of(np.concatenate([X, E], 2), base + beta * E[..., 0] + noise, starts)
+        hits += score_test.score_p([score_test.block_scores(st, test, blocks)], alpha=0.05, stop_above=0.06)[0] < 0.05
     print("power at the limit", hits / trials)
     assert 0.7 <= hits / trials <= 0.9, hits / trials
 
 
 def test_simes_combination_of_the_two_tests():
-    """A candidate's p from its score test and its held-out errors (`diagnose._combined`) is
+    """A candidate's p from its score test and its held-out errors (`significance.combined`) is
     Simes' rule: min(2 p₍₁₎, p₍₂₎); one test alone is its own p. Its level holds for two
     one-sided tests that rise and fall together (positively correlated normal statistics, the
     dependence the two tests computed from one residual have): the share of null draws it
@@ -227,12 +229,12 @@ def test_simes_combination_of_the_two_tests():
     both see the same effect."""
     from scipy import stats
 
-    from manus.adaptive.diagnose import _combined
+    from manus.adaptive.diagnosis.significance import combined
 
-    assert _combined({"score": 0.004, "held_out": 0.005}) == pytest.approx(0.005)
-    assert _combined({"score": 0.001, "held_out": 0.5}) == pytest.approx(0.002)
-    assert _combined({"held_out": 0.03}) == pytest.approx(0.03)
-    assert _combined({"score": 0.7, "held_out": 0.9}) == pytest.approx(0.9)
+    assert combined({"score": 0.004, "held_out": 0.005}) == pytest.approx(0.005)
+    assert combined({"score": 0.001, "held_out": 0.5}) == pytest.approx(0.002)
+    assert combined({"held_out": 0.03}) == pytest.approx(0.03)
+    assert combined({"score": 0.7, "held_out": 0.9}) == pytest.approx(0.9)
     rng = np.random.default_rng(0)
     alpha = 0.05
     for rho in (0.0, 0.5, 0.9, 0.99):
@@ -245,7 +247,7 @@ def test_simes_combination_of_the_two_tests():
         assert size < alpha + 3 * np.sqrt(alpha * (1 - alpha) / z.shape[0])
         # the draws are the function's own rule
         k = np.flatnonzero(simes < alpha)[:20]
-        assert [_combined({"score": a, "held_out": b}) for a, b in p[k]] == pytest.approx(simes[k].tolist())
+        assert [combined({"score": a, "held_out": b}) for a, b in p[k]] == pytest.approx(simes[k].tolist())
     # positively dependent, both tests see the same effect: more power than the doubled minimum
     z = rng.normal(size=(200_000, 2)) * 0.3 + 2.7
     p = stats.norm.sf(z)
@@ -255,7 +257,7 @@ def test_simes_combination_of_the_two_tests():
 
 
 def test_the_one_sided_statistic_is_the_distance_to_the_physical_cone():
-    """`lsq._physical` for a spring on top of its preload (two correlated columns, the stiffness
+    """`scores.physical` for a spring on top of its preload (two correlated columns, the stiffness
     signed): Wald's statistic minus the squared distance, in β̂'s precision metric, from β̂ to
     the coefficients with a stiffness ≥ 0, against scipy's bounded least squares; Wald's own
     where β̂ has the physical sign."""
@@ -267,7 +269,7 @@ def test_the_one_sided_statistic_is_the_distance_to_the_physical_cone():
         R = np.linalg.qr(rng.normal(size=(2, 2)))[0]  # the identified directions (a rotation)
         omega = np.diag(rng.uniform(0.5, 2.0, 2))
         m = rng.normal(size=2) * 3
-        got = lsq._physical(m[None, None], Qs[None], np.linalg.inv(Qs)[None], R[None], omega[None, None], signed)[0, 0]
+        got = score_test.physical(m[None, None], Qs[None], np.linalg.inv(Qs)[None], R[None], omega[None, None], signed)[0, 0]
         W_plus = got @ np.linalg.solve(omega, got)
         b = R @ np.linalg.solve(Qs, m)  # β̂ in the columns
         A = R @ Qs @ np.linalg.inv(omega) @ Qs @ R.T  # its precision there

@@ -8,9 +8,7 @@ import jax
 import numpy as np
 import pytest
 
-from manus.adaptive.diagnose import diagnose
-from manus.adaptive.discover import discover
-from manus.adaptive.fit import fit, prepare
+from manus.adaptive import diagnose, discover, fit, prepare
 from manus.adaptive.impedance import Impedance
 from manus.plants import Model, Simulator
 from manus.plants.closed_loop import simulate
@@ -228,7 +226,7 @@ def test_a_torque_ripple_is_said_to_be_left_as_what_it_is():
     """A torque times a function of position is no effect of the vocabulary: what is left is
     found, and found as the model's torque times a function of position (held out, p below the
     level, over 10 % of the remaining error); on the same axis without the ripple, nothing."""
-    from manus.adaptive.leftover import RIPPLE
+    from manus.adaptive.diagnosis.leftover import RIPPLE
 
     u = diagnose(rippled_axis(), "rigid,viscous,coulomb").report()["unexplained"]
     assert u["significant"] is True and u["variable"] == RIPPLE and u["fraction"] > 0.2

@@ -99,8 +99,8 @@ def test_samples_with_nan_are_lost_samples(tmp_path):
     lost one: dropped at read with one note, then filled and left out like a sample missing from
     the time column. 20 s of the simulated arm with 3 such samples fits to within 0.2 % of the
     whole recording's parameters, and the fit says what it filled."""
-    from manus.adaptive.fit import fit
-    from manus.runs import calibration
+    from manus.adaptive import fit
+    from manus.experiments import calibration
 
     rec = calibration.case(1, None, structure="arm", rate=1000, excitation="multisine", torque="exact", hold="stated").rec
     whole = fit(rec, "rigid,viscous,coulomb", method="ls")

@@ -9,7 +9,7 @@ import pytest
 import jax
 import jax.numpy as jnp
 
-from manus.adaptive.fit import fit
+from manus.adaptive import fit
 from manus.plants import Model, Serial, SerialBase, recording, structure_named
 from manus.plants.effects import Gravity
 from manus.plants.errors import ModelError, RecordingError

@@ -28,8 +28,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from manus.adaptive import fit as fitting
-from manus.plants.errors import ModelError
+from manus.adaptive.identify.columns import Columns
+from manus.adaptive.identify.result import Fit
+from manus.plants.errors import ModelError, require
 
 TIE = 1e-2  # cost of a standard parameter 100 % away from the URDF's, in squared standard deviations of the fit
 LINK = 10  # standard parameters per link: m, mx, my, mz, Ixx, Ixy, Ixz, Iyy, Iyz, Izz
@@ -49,7 +50,9 @@ def pseudo_inertia(p) -> np.ndarray:
 
 @dataclass
 class Consistency:
-    fit: fitting.Fit
+    """The physically consistent parameters closest to a fit (`consistent`)."""
+
+    fit: Fit
     theta: np.ndarray  # every parameter of the model, consistent
     standard: np.ndarray  # the standard parameters (10 per link, then armatures) that give them
     already: bool  # the estimate itself is consistent: standard parameters give its rigid part, the rest in bounds
@@ -73,10 +76,10 @@ class Consistency:
                 "links": links, "armature": self.standard[LINK * serial.n_joints:].tolist()}
 
 
-def consistent(f: fitting.Fit) -> Consistency:
+def consistent(f: Fit) -> Consistency:
     """The physically consistent parameters closest to the fit `f` of a serial chain (module
     docstring). A `ModelError` for another structure, or when the solver fails."""
-    import cvxpy as cp
+    cp = require("cvxpy", "consistency")
 
     s = f.model.structure
     if not hasattr(s, "K"):
@@ -86,7 +89,7 @@ def consistent(f: fitting.Fit) -> Consistency:
     n = serial.n_joints
     names = f.names
     rigid = [names.index(k) for k in s.base_names]
-    Y = fitting.Columns(f.data).model(f.model)
+    Y = Columns(f.data).model(f.model)
     Y = Y.reshape(-1, Y.shape[2])
     tau = f.data.tau(f.delay).reshape(-1)
     G = Y.T @ Y

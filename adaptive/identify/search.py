@@ -1,21 +1,21 @@
 """The search of an effect's non-linear parameter (a cogging order, a delay, a Stribeck velocity)
 over the space the effect derives from the recording (`Effect.space`): every grid value's
-least-squares statistics on the same row segments (`manus.adaptive.lsq.Stats`), so that the full
-fit and each held-out fold of `diagnose` can choose their own value on the rows they see. Long
-grids are ranked first on unfiltered columns and only the best few evaluated exactly."""
+least-squares statistics on the same row segments (`manus.adaptive.identify.lsq.Stats`), so that
+the full fit and each held-out fold of `diagnose` can choose their own value on the rows they
+see. Long grids are ranked first on unfiltered columns and only the best few evaluated exactly.
+`search_all` searches each of a model's effects in turn, the others held."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from manus.adaptive import lsq
+from manus.adaptive.identify import lsq
+from manus.adaptive.identify.columns import Columns
+from manus.adaptive.identify.prepare import Data
 from manus.plants.effects import Effect, Model
-
-if TYPE_CHECKING:
-    from manus.adaptive.fit import Columns, Data
 
 
 def delay_of(model: Model) -> float | np.ndarray:
@@ -39,12 +39,13 @@ class Grid:
     values: list  # the effect at each grid value
     stats: list  # lsq.Stats of the rest of the model plus that value (exact columns), or None until needed
     screen: list | None  # lsq.Stats on unfiltered columns (long grids), else None
-    build: object  # value index -> exact lsq.Stats
+    build: Callable[[int], lsq.Stats] | None  # value index -> exact lsq.Stats
     lower: np.ndarray | None = None  # each column's lower bound (the effect's physical ones; −inf: none)
     own: np.ndarray | None = None  # which columns are the effect's (a mask: the last ones)
     every: lsq.Stats | None = None  # every value's exact statistics at once (a leading axis), when built together
 
     def exact(self, i: int) -> lsq.Stats:
+        """Value i's exact statistics (built on first use)."""
         if self.stats[i] is None:
             self.stats[i] = self.every.one(i) if self.every is not None else self.build(i)
         return self.stats[i]
@@ -94,7 +95,7 @@ class Grid:
         return out
 
 
-def grid(data: "Data", cols: "Columns", rest: Model, effect: Effect, starts: np.ndarray,
+def grid(data: Data, cols: Columns, rest: Model, effect: Effect, starts: np.ndarray,
          values: tuple | None = None, icols: Columns | None = None, keep: np.ndarray | None = None,
          exact: bool = False) -> Grid:
     """The grid search of `effect`'s non-linear parameter on top of `rest` (see `Grid`): a linear
@@ -107,9 +108,9 @@ def grid(data: "Data", cols: "Columns", rest: Model, effect: Effect, starts: np.
     delay = delay_of(rest)
     Y = cols.model(rest)
     Z = icols.model(rest) if icols is not None else None
-    base = lsq.Stats(Y, data.tau(delay), starts, Z)
+    base = lsq.Stats.of(Y, data.tau(delay), starts, Z)
     if effect.timing:
-        build = lambda i: lsq.Stats(Y, data.tau(_timing(values[i], rest, delay)), starts, Z)
+        build = lambda i: lsq.Stats.of(Y, data.tau(_timing(values[i], rest, delay)), starts, Z)
         return Grid(values, [None] * len(values), None, build)
     build = lambda i: base.extend(cols.effect(values[i]), icols.effect(values[i]) if icols is not None else None)
     bounds = np.asarray(effect.lower_bounds(rest.structure), float)  # the effect's own columns' physical bounds
@@ -125,7 +126,7 @@ def grid(data: "Data", cols: "Columns", rest: Model, effect: Effect, starts: np.
         return Grid(values, [None] * len(values), None, build, lower, mine, every)
     screen = None
     if len(values) > SCREEN_ABOVE:
-        rough = lsq.Stats(Y, data.tau(delay), starts)
+        rough = lsq.Stats.of(Y, data.tau(delay), starts)
         screen = [rough.extend(cols.screen(v)) for v in values]
     return Grid(values, [None] * len(values), screen, build, lower, mine)
 
@@ -139,7 +140,7 @@ def _timing(value: Effect, rest: Model, delay) -> float | np.ndarray:
 class _Kept:
     """Columns of an effect with some left out (held at 0): what `grid` sees."""
 
-    def __init__(self, cols: "Columns", keep: np.ndarray):
+    def __init__(self, cols: Columns, keep: np.ndarray):
         self.cols, self.keep = cols, keep
 
     def model(self, model):
@@ -153,3 +154,22 @@ class _Kept:
 
     def prefetch(self, effects):
         self.cols.prefetch(effects)
+
+
+def search_all(data: Data, cols: Columns, model: Model, fixed: set[str],
+               icols: Columns | None = None) -> tuple[Model, dict]:
+    """Each effect's non-linear parameter not `fixed`, searched on all rows, the others held:
+    the model with the values found, and the search curves (name -> (the values described,
+    their rel_errors))."""
+    curves: dict = {}
+    span = data.span()
+    everything = np.ones(1, bool)
+    for e in model.effects:
+        if e.name in fixed or not e.space(span):
+            continue
+        g = grid(data, cols, model.without(e.name), e, np.array([0]), icols=icols)
+        best, errs = g.choose(everything)
+        yy = float(np.sum(data.tau(delay_of(model.without(e.name))) ** 2))
+        model = model.with_effect(g.values[best])
+        curves[e.name] = ([v.describe() for v in g.values], np.sqrt(np.maximum(errs, 0) / yy) if yy else errs)
+    return model, curves

@@ -1,6 +1,6 @@
 """The discovery loop (`manus discover`): diagnose, add the verdict, refit, repeat.
 
-Starting from a model, each step diagnoses the current fit (`manus.adaptive.diagnose`), adds the
+Starting from a model, each step diagnoses the current fit (`manus.adaptive.diagnosis.verdict`), adds the
 verdict's effect with its non-linear parameter as found (its spec, e.g. `cogging:39` or
 `delay:1ms`) and refits, the searched parameters the loop found searched again with the new
 effect in the model (`_refine`: a cogging order chosen while a smooth load was missing can be
@@ -10,8 +10,8 @@ the verdict is `compliance`: a structural mode lives above the identification ba
 inverse-dynamics columns, so it is recorded as a step (with the frequency response's f and ζ) but
 cannot be refitted, and the loop ends there.
 
-The recording is prepared once (`manus.adaptive.fit.prepare`): every step sees the same rows, so the
-errors of successive steps are comparable.
+The recording is prepared once (`manus.adaptive.identify.prepare`): every step sees the same
+rows, so the errors of successive steps are comparable.
 """
 
 from __future__ import annotations
@@ -19,8 +19,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Callable
 
-from manus.adaptive import fit as fitting
-from manus.adaptive.diagnose import Candidate, Diagnosis, diagnose
+from manus.adaptive.diagnosis.candidates import Candidate
+from manus.adaptive.diagnosis.verdict import Diagnosis, diagnose
+from manus.adaptive.identify.columns import Columns
+from manus.adaptive.identify.fit import fit, model_from
+from manus.adaptive.identify.prepare import Data, prepare
+from manus.adaptive.identify.result import Fit
 from manus.plants.errors import ModelError
 from manus.plants.recording import Recording
 
@@ -40,14 +44,16 @@ class Step:
     rel_error: float  # after the refit (unchanged for compliance, which is not refitted)
     model: str  # the model's spec after the addition
     diagnosis: Diagnosis
-    fit: fitting.Fit | None  # the refit (None for compliance)
+    fit: Fit | None  # the refit (None for compliance)
     note: str = ""
 
     @property
     def verdict(self) -> Candidate:
+        """The candidate the step added."""
         return self.diagnosis.verdict
 
     def report(self) -> dict:
+        """The step in `manus discover`'s JSON."""
         out = {"step": self.index, "effect": self.effect, "spec": self.spec, "params": self.params,
                "rel_error_before": self.rel_error_before, "rel_error": self.rel_error, "model": self.model,
                "error_reduction": self.verdict.error_reduction, "p_value": self.verdict.p_value,
@@ -59,7 +65,9 @@ class Step:
 
 @dataclass
 class Discovery:
-    start: fitting.Fit  # the starting model, fitted
+    """The loop's run: the starting fit, its steps, the last diagnosis and why it stopped."""
+
+    start: Fit  # the starting model, fitted
     steps: list[Step]
     final: Diagnosis | None  # the last diagnosis (its verdict null unless the loop was capped)
     stopped: str  # "nothing significant missing" | "step cap" | "compliance (not refitted)"
@@ -73,18 +81,22 @@ class Discovery:
 
     @property
     def model(self) -> str:
+        """The final model's spec."""
         return self.steps[-1].model if self.steps else self.start.model.spec
 
     @property
     def rel_error(self) -> float:
+        """The final model's rel_error."""
         return self.steps[-1].rel_error if self.steps else self.start.rel_error
 
     @property
-    def final_fit(self) -> fitting.Fit:
+    def final_fit(self) -> Fit:
+        """The final model's fit."""
         fits = [s.fit for s in self.steps if s.fit is not None]
         return fits[-1] if fits else self.start
 
     def report(self) -> dict:
+        """The JSON contract of `manus discover` (docs/cli.md)."""
         return {"start": {"model": self.start.model.spec, "rel_error": self.start.rel_error},
                 "steps": [s.report() for s in self.steps], "model": self.model, "rel_error": self.rel_error,
                 "stopped": self.stopped, "samples": int(self.start.data.rows.size),
@@ -94,7 +106,7 @@ class Discovery:
                 "detection_limits": self.final.detection_limits if self.final is not None else {}, "notes": self.notes}
 
 
-def effect_params(f: fitting.Fit, effect: str) -> dict:
+def effect_params(f: Fit, effect: str) -> dict:
     """The fitted parameters of one effect of `f`: {name: {"value", "std"}} plus its
     non-linear parameters (order, vs, delay_ms) as plain numbers."""
     e = f.model.get(effect)
@@ -107,7 +119,7 @@ def effect_params(f: fitting.Fit, effect: str) -> dict:
     return out
 
 
-def _refine(data, cols, current: fitting.Fit, given: set[str], method: str) -> tuple[fitting.Fit, str]:
+def _refine(data: Data, cols: Columns, current: Fit, given: set[str], method: str) -> tuple[Fit, str]:
     """The model's searched non-linear parameters searched again, each with every other effect
     in the model (a cogging order found while a smooth load was still missing can be off by a
     few). Values the user gave, and grown ones outside their effect's search space (a delay per
@@ -119,25 +131,25 @@ def _refine(data, cols, current: fitting.Fit, given: set[str], method: str) -> t
     if not free:
         return current, ""
     keep = {e.name for e in current.model.effects} - {e.name for e in free}
-    again = fitting.fit(data, current.model, fixed=keep, columns=cols, method=method)
+    again = fit(data, current.model, fixed=keep, columns=cols, method=method)
     changed = [(e, again.model.get(e.name)) for e in free if again.model.get(e.name).spec != e.spec]
     if not changed or not again.rel_error < current.rel_error or any(b.edge(span) for _, b in changed):
         return current, ""
     return again, ", ".join(f"{a.spec} -> {b.spec}" for a, b in changed)
 
 
-def discover(rec: Recording | fitting.Data, model: str, cutoff_hz: float | None = None,
+def discover(rec: Recording | Data, model: str, cutoff_hz: float | None = None,
              max_steps: int = MAX_STEPS, progress: Callable[[str], None] | None = None, method: str = "auto",
              **diagnose_options) -> Discovery:
     """Run the loop from `model` (text, e.g. "rigid,viscous,coulomb"). `progress` receives a line
-    per step; `diagnose_options` go to `manus.adaptive.diagnose.diagnose` (blocks, alpha, min_share)."""
+    per step; `diagnose_options` go to `diagnose` (blocks, alpha, min_share)."""
     if max_steps < 1:
         raise ModelError(f"max_steps must be at least 1 (got {max_steps})")
     say = progress or (lambda line: None)
-    data = rec if isinstance(rec, fitting.Data) else fitting.prepare(rec, cutoff_hz)
-    cols = fitting.Columns(data)
-    start = fitting.fit(data, model, columns=cols, method=method)
-    given = fitting._model_from(model, data.rec.structure)[1]  # values the user wrote stay as written
+    data = rec if isinstance(rec, Data) else prepare(rec, cutoff_hz)
+    cols = Columns(data)
+    start = fit(data, model, columns=cols, method=method)
+    given = model_from(model, data.rec.structure)[1]  # values the user wrote stay as written
     current = start
     spec = start.model.spec
     steps: list[Step] = []
@@ -168,7 +180,7 @@ def discover(rec: Recording | fitting.Data, model: str, cutoff_hz: float | None 
             say(f"step {len(steps)}: + {v.spec} (frequency response; not refitted)")
             return Discovery(start, steps, None, "compliance (not refitted)", notes)
         spec = v.fit.model.spec  # the model with the verdict's effect as found (its search fixed)
-        current = fitting.fit(data, spec, columns=cols, method=method)
+        current = fit(data, spec, columns=cols, method=method)
         current, moved = _refine(data, cols, current, given, method)
         spec = current.model.spec
         steps.append(Step(len(steps) + 1, v.effect, v.spec, effect_params(current, v.effect), before,

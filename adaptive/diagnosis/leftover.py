@@ -6,9 +6,9 @@ a smooth function of one variable (piecewise-linear hats on quantile knots) is f
 training rows' residual of one joint and judged on the held-out block's: each joint's position,
 velocity, position by direction of motion (for every joint's residual: a friction acting on a
 relative velocity shows on both) and position times the model's torque (a torque ripple), time,
-and a sinusoid at the training residual's spectral peak.
-The per-block improvement is tested as in `manus.adaptive.diagnose` (log ratio, t-test), at
-`alpha` over the number of variables tested (Bonferroni); a function must also remove at least
+and a sinusoid at the training residual's spectral peak. The per-block improvement is tested as
+a candidate's held-out errors are (log ratio, t-test: `significance.one_sided_p`), at `alpha`
+over the number of variables tested (Bonferroni); a function must also remove at least
 `UNEXPLAINED_MIN` of the remaining error held out, and account for at least `min_share` of the
 recorded torque (RMS, as a candidate effect must: on a model that is right to 0.3 % of the torque,
 a tenth of what is left is a quantizer's pattern, not a missing effect).
@@ -18,8 +18,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from manus.adaptive import lsq
-from manus.adaptive.lsq import one_sided_p
+from manus.adaptive.diagnosis.context import Context
+from manus.adaptive.diagnosis.significance import one_sided_p
+from manus.adaptive.identify.prepare import Data
+from manus.adaptive.identify.result import Fit
 
 UNEXPLAINED_MIN = 0.10  # a smooth function must remove this share of the remaining error
 KNOTS = 10  # hat functions per smooth function of position or velocity
@@ -44,7 +46,7 @@ def _smooth_basis(x: np.ndarray, m: int = KNOTS) -> np.ndarray | None:
 RIPPLE = "position x torque"  # the model's torque times a function of position (a motor's torque ripple)
 
 
-def _bases(data: fitting.Data, fitted: np.ndarray) -> dict:
+def _bases(data: Data, fitted: np.ndarray) -> dict:
     """Candidate smooth structures of the residual: name -> basis (rows, m). `fitted` (rows, n):
     the model's torque, for a torque that ripples with position (τ·(1 + ε(q)): the residual is
     the torque times a function of position; the model's torque, not the recorded one, whose
@@ -68,12 +70,14 @@ def _bases(data: fitting.Data, fitted: np.ndarray) -> dict:
     return out
 
 
-def residual_structure(data, cols, icols, f: fitting.Fit, starts, folds, alpha, min_share: float = 0.0) -> dict:
+def residual_structure(ctx: Context, f: Fit, alpha: float) -> dict:
     """Structure left in the residual of `f` that a smooth function of one variable removes on
-    held-out blocks (see the module docstring): the JSON `unexplained`."""
-    Y = cols.model(f.model)
+    the held-out blocks of `ctx` (see the module docstring), judged at `alpha` and relevant at
+    `ctx.min_share`: the JSON `unexplained`."""
+    data, starts, folds, min_share = ctx.data, ctx.starts, ctx.folds, ctx.min_share
+    Y = ctx.cols.model(f.model)
     tau = data.tau(f.delay)
-    st = lsq.Stats(Y, tau, starts, None if icols is None else icols.model(f.model))
+    st = ctx.stats(f.model, f.delay)
     seg_of_row = np.searchsorted(starts, np.arange(data.rows.size), side="right") - 1
     resid = []
     for train, test in folds:

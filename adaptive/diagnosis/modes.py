@@ -23,8 +23,8 @@ the coherence-weighted relative error of Z over the band, and the error reductio
 of the rigid model's misfit the mode removes. Both models carry a white floor S_nn ≥ 0 on the
 recorded torque (a torque read from a measured current): H1 divides by S_xx = S_uu + S_nn, so
 where the floor dominates the measured inertia is Z = 1/H + S_nn/S_xy, a column linear in S_nn
-(`_floor`); without it that bias, growing with frequency as the torque's spectrum falls, hid
-the mode or dressed itself up as one. Frequency responses are estimated with the H1
+(`floor_column`); without it that bias, growing with frequency as the torque's spectrum falls,
+hides the mode or dresses itself up as one. Frequency responses are estimated with the H1
 estimator (cross-spectrum over input spectrum, unbiased by noise on the measured position) per
 joint, corrected for what sampling does to a rigid joint's response (`sampling`: the held
 command and the differentiated position), which otherwise looks like a mode near Nyquist at low
@@ -52,10 +52,11 @@ TOP = 0.4  # of the sample rate: above, the sampling correction is ill-condition
 
 def band(fs: float) -> tuple[float, float]:
     """Where the frequency response is fitted at sample rate `fs`: from `LOW` (or a tenth of the
-    rate, when that is lower) to 0.4 fs. (A fixed top of 450 Hz, chosen at 1 kHz, hid every mode
-    above ~350 Hz of a 2 kHz recording: a calibration at rates it was not tuned on, 500 Hz and
-    2 kHz, named 0 of 5 hidden modes at 2 kHz.)"""
+    rate, when that is lower) to `TOP` fs (the band scales with the rate: a fixed top would hide
+    the modes a faster recording resolves)."""
     return min(LOW, 0.1 * fs), TOP * fs
+
+
 # Bins below this coherence carry no usable frequency response. The variance of H1 in a bin is
 # (1 − γ²)/(2 n γ²) over n averaged segments: at γ² = 0.1 and the ~90 segments of 12 s at 1 kHz
 # it is ~5 %, enough to weigh, and a bin of no coherence at all reaches 0.1 with probability
@@ -157,10 +158,10 @@ def _weights(f, coh, fs):
     return np.where(inband[:, None] & (c >= MIN_COHERENCE), c / (1 - c), 0.0)  # ∝ 1/variance of H
 
 
-def _fit(z, w, g, floor):
+def fit_response(z, w, g, floor):
     """Weighted LS of the apparent inertia z (F,) on real coefficients of the columns g (k, F)
-    and of `floor` (F,), the column of a white floor S_nn on the recorded torque (`_floor`), held
-    at S_nn ≥ 0; returns (coef (k + 1,), misfit)."""
+    and of `floor` (F,), the column of a white floor S_nn on the recorded torque (`floor_column`),
+    held at S_nn ≥ 0; returns (coef (k + 1,), misfit)."""
     rel = np.sqrt(w / np.maximum(np.abs(z) ** 2, 1e-300))
 
     def solve(cols):
@@ -178,22 +179,22 @@ def _model(coef, g, floor):
     return coef[:-1] @ g + coef[-1] * floor
 
 
-def _floor(sxy, sxx):
+def floor_column(sxy, sxx):
     """The column of a white floor on the recorded torque in the apparent inertia: with x = u + n
     (n white, S_nn) and y = H u, S_xx = S_uu + S_nn and S_xy = H S_uu, so the H1 inertia
     Z = S_xx/S_xy = 1/H + S_nn/S_xy."""
     return np.where(np.abs(sxy) > 0, 1 / np.where(sxy == 0, 1, sxy), 0)
 
 
-def _grid(f: np.ndarray, fs: float) -> tuple[np.ndarray, np.ndarray]:
+def search_grid(f: np.ndarray, fs: float) -> tuple[np.ndarray, np.ndarray]:
     """The searched (anti-resonance f_z, ζ) pairs (Q, 2) and their link responses G (Q, F)."""
     lo, hi = band(fs)
     pts = np.array([(fz, zeta) for fz in np.geomspace(lo / 4, hi, 60) for zeta in ZETAS])
     return pts, np.stack([link_response(f, 2 * np.pi * fz, zeta) for fz, zeta in pts])
 
 
-def _fits(z, w, G, floor):
-    """`_fit` of z (F,) on the columns 1, G_q and the floor, for every grid point q at once:
+def fit_grid(z, w, G, floor):
+    """`fit_response` of z (F,) on the columns 1, G_q and the floor, for every grid point q at once:
     coefficients (Q, 3) (α, β, S_nn ≥ 0) and misfits (Q,). (The normal equations of three
     columns scaled to unit norm; S_nn held at 0 where it comes out negative.)"""
     rel2 = w / np.maximum(np.abs(z) ** 2, 1e-300)
@@ -219,8 +220,8 @@ def _search(z, w, floor, pts, G, fs):
     coefficients per joint (n, 3)); None where no point is plausible."""
     n = z.shape[1]
     one = np.ones((1, z.shape[0]), complex)
-    rigid = np.array([_fit(z[:, i], w[:, i], one, floor[:, i])[1] for i in range(n)])
-    fits = [_fits(z[:, i], w[:, i], G, floor[:, i]) for i in range(n)]
+    rigid = np.array([fit_response(z[:, i], w[:, i], one, floor[:, i])[1] for i in range(n)])
+    fits = [fit_grid(z[:, i], w[:, i], G, floor[:, i]) for i in range(n)]
     coef = np.stack([c for c, _ in fits], 1)  # (Q, n, 3)
     misfit = np.stack([m for _, m in fits], 1)  # (Q, n)
     joint = np.argmax(rigid[None] - misfit, axis=1)
@@ -261,8 +262,8 @@ def detect(q: np.ndarray, tau: np.ndarray, dt: float, blocks: int = 8) -> Mode |
                 f"acceleration (coherence below {MIN_COHERENCE:g} throughout: the encoder's resolution or noise "
                 "on the torque swamps the motion there)")
     coherent = float(f[np.any(w > 0, axis=1)].max())
-    floor = _floor(total[0], total[1])
-    pts, G = _grid(f, fs)
+    floor = floor_column(total[0], total[1])
+    pts, G = search_grid(f, fs)
     found = _search(z, w, floor, pts, G, fs)
     if found is None:
         short = coherent_only(coherent, fs)
@@ -281,11 +282,11 @@ def detect(q: np.ndarray, tau: np.ndarray, dt: float, blocks: int = 8) -> Mode |
         rest = [total[j] - part[j + 1] for j in range(3)]
         _, zo, co = _frf(*rest)
         wo = _weights(f, co, fs)
-        fk, fo = _floor(*part[1:3]), _floor(*rest[:2])
+        fk, fo = floor_column(*part[1:3]), floor_column(*rest[:2])
         there = _search(zo, wo, fo, pts, G, fs)
         for i in range(n):
             rel = wo[:, i] / np.maximum(np.abs(zk[:, i]) ** 2, 1e-300)
-            rigid_coef, _ = _fit(zo[:, i], wo[:, i], one, fo[:, i])
+            rigid_coef, _ = fit_response(zo[:, i], wo[:, i], one, fo[:, i])
             e_rigid = float(np.sum(rel * np.abs(zk[:, i] - _model(rigid_coef, one, fk[:, i])) ** 2))
             err_rigid[k] += e_rigid
             if there is None:  # no plausible mode on the other blocks: the rigid model stands
@@ -295,10 +296,10 @@ def detect(q: np.ndarray, tau: np.ndarray, dt: float, blocks: int = 8) -> Mode |
             err_mode[k] += float(np.sum(rel * np.abs(zk[:, i] - _model(there[3][i], gk, fk[:, i])) ** 2))
     # the models as the measured response sees them (with the torque's floor)
     mag = lambda i, cols, coef: 1 / np.maximum(np.abs(_model(coef, cols, floor[:, i])), 1e-300)
-    rigid = np.stack([mag(i, one, _fit(z[:, i], w[:, i], one, floor[:, i])[0]) for i in range(n)], 1)
+    rigid = np.stack([mag(i, one, fit_response(z[:, i], w[:, i], one, floor[:, i])[0]) for i in range(n)], 1)
     fitted = np.stack([mag(i, g, fitted_coef[i]) for i in range(n)], 1)
     f_mode = float(fz / np.sqrt(r))
-    return Mode(f_mode, float(zeta), r, joint, _peaks(f, np.abs(h[:, joint]), f_mode, hi), err_rigid, err_mode,
+    return Mode(f_mode, float(zeta), r, joint, peaks_at(f, np.abs(h[:, joint]), f_mode, hi), err_rigid, err_mode,
                 f, np.abs(h), rigid, fitted, coherent)
 
 
@@ -312,7 +313,7 @@ def coherent_only(coherent_hz: float, fs: float) -> str:
             "resolution or noise on the torque swamps the motion)")
 
 
-def _peaks(f, mag, f_mode, top) -> bool:
+def peaks_at(f, mag, f_mode, top) -> bool:
     """A peak at f_mode: above the falling flank (1.3–1.6 f), and above the rise into it (0.6–0.8
     f, where the bins reach): the motor passes the anti-resonance below a resonance, so every
     physical mode (ζ ≤ 0.2, r ≤ 0.9) stands at least 1.23 times above that level, while a response

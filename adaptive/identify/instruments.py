@@ -18,12 +18,16 @@ drift (or a closed loop that is not modelled) does not decorrelate the instrumen
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from manus.adaptive import fit as fitting
+from manus.adaptive.identify.columns import Columns
+from manus.adaptive.identify.prepare import Data
+from manus.adaptive.identify.result import Fit, fit_rows
 from manus.plants.effects import Model
 from manus.plants.simulator import Simulator
 
@@ -62,7 +66,7 @@ def _windows(sim: Simulator, q0, qd0, taus):
     return jax.vmap(one)(q0, qd0, taus)
 
 
-def simulate(data: fitting.Data, model: Model, params: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+def simulate(data: Data, model: Model, params: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """(q, q̇, q̈) of the model driven by the recorded command, in windows restarted from the
     measured state; None when it cannot be simulated (unphysical inertia, divergence)."""
     if not any(e.inertial for e in model.effects):
@@ -87,53 +91,50 @@ def simulate(data: fitting.Data, model: Model, params: dict) -> tuple[np.ndarray
     return q, qd, qdd
 
 
-def instruments(data: fitting.Data, f: fitting.Fit) -> fitting.Columns | None:
+def instruments(data: Data, f: Fit) -> Columns | None:
     """The instruments' columns for the model of `f` at its parameters (None: no simulation)."""
     kin = simulate(data, f.model, f.params)
-    return None if kin is None else fitting.Columns(data, kinematics=kin)
+    return None if kin is None else Columns(data, kinematics=kin)
 
 
-def iv_fit(data: fitting.Data, cols: fitting.Columns, ls: fitting.Fit, fixed: set, method: str) -> fitting.Fit:
+def iv_fit(data: Data, cols: Columns, ls: Fit, method: str) -> Fit:
     """IDIM-IV from the LS fit `ls` (ITERATIONS rounds); `method="auto"` keeps the one the
-    evidence favours (see `fitting`) and says why."""
+    evidence favours (`choose`) and says why."""
     current, iv, icols = ls, None, None
     for _ in range(ITERATIONS):
         icols = instruments(data, current)
         if icols is None:
             break
-        iv = fitting._solve(data, cols, ls.model, ls.search, icols)
+        iv = fit_rows(data, cols, ls.model, ls.search, icols)
         current = iv
     if iv is None:
         why = ("it has no inertia to simulate" if not any(e.inertial for e in ls.model.effects)
                else "; ".join(ls.violations()) or "the simulation diverged")
-        ls.why = f"IV unavailable: the model cannot be simulated from the recorded command ({why}); least squares kept"
-        return ls
+        return replace(ls, why=f"IV unavailable: the model cannot be simulated from the recorded command ({why}); "
+                               "least squares kept")
     if method == "iv":
-        iv.why = "instrumental variables (asked for)"
-        return iv
+        return replace(iv, why="instrumental variables (asked for)")
     return choose(ls, iv)
 
 
-def choose(ls: fitting.Fit, iv: fitting.Fit) -> fitting.Fit:
+def choose(ls: Fit, iv: Fit) -> Fit:
     """LS unless the evidence says it is biased: LS breaks physics where IV does not, or the
-    two disagree beyond `Z_DISAGREE` combined standard deviations on some parameter."""
+    two disagree beyond `Z_DISAGREE` combined standard deviations on some parameter; the one
+    kept says why (`Fit.why`)."""
     bad_ls, bad_iv = ls.violations(), iv.violations()
     if not iv.rel_error < min(1.0, IV_WORSE * ls.rel_error):
-        ls.why = (f"IV explains the torque far worse than LS ({100 * iv.rel_error:.1f} % against "
-                  f"{100 * ls.rel_error:.1f} %): the model is too far from the data for its simulation to serve as "
-                  "instruments; least squares kept")
-        return ls
+        return replace(ls, why=f"IV explains the torque far worse than LS ({100 * iv.rel_error:.1f} % against "
+                               f"{100 * ls.rel_error:.1f} %): the model is too far from the data for its simulation to "
+                               "serve as instruments; least squares kept")
     sd = np.sqrt(np.nan_to_num(ls.std, nan=np.inf) ** 2 + np.nan_to_num(iv.std, nan=np.inf) ** 2)
     z = np.where(sd > 0, np.abs(iv.theta - ls.theta) / np.where(sd > 0, sd, 1), 0.0)
     worst = int(np.argmax(z)) if z.size else 0
     if bad_ls and not bad_iv:
-        iv.why = f"least squares breaks physics ({bad_ls[0]}); instrumental variables do not"
-        return iv
+        return replace(iv, why=f"least squares breaks physics ({bad_ls[0]}); instrumental variables do not")
     if z.size and z[worst] > Z_DISAGREE and not bad_iv:
-        iv.why = (f"LS and IV disagree beyond their standard deviations ({ls.names[worst]}: LS {ls.theta[worst]:.4g}, "
-                  f"IV {iv.theta[worst]:.4g}, {z[worst]:.1f} std apart): noise in the differentiated regressor "
-                  "biases least squares")
-        return iv
-    ls.why = (f"LS and IV agree within {max(float(z.max(initial=0)), 0):.1f} combined std: least squares, "
-              "the more efficient" if not bad_iv else f"instrumental variables break physics ({bad_iv[0]}): least squares kept")
-    return ls
+        return replace(iv, why=f"LS and IV disagree beyond their standard deviations ({ls.names[worst]}: LS "
+                               f"{ls.theta[worst]:.4g}, IV {iv.theta[worst]:.4g}, {z[worst]:.1f} std apart): noise in "
+                               "the differentiated regressor biases least squares")
+    return replace(ls, why=(f"LS and IV agree within {max(float(z.max(initial=0)), 0):.1f} combined std: least squares, "
+                            "the more efficient" if not bad_iv
+                            else f"instrumental variables break physics ({bad_iv[0]}): least squares kept"))

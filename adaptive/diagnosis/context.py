@@ -1,0 +1,58 @@
+"""The context one diagnosis step judges its candidates in (`Context`): the prepared recording,
+its columns, the model fitted, the held-out blocks and the levels."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from manus.adaptive.identify.columns import Columns
+from manus.adaptive.identify.lsq import Stats
+from manus.adaptive.identify.prepare import Data
+from manus.adaptive.identify.result import Fit, fit_rows
+from manus.adaptive.identify.search import delay_of
+from manus.plants.effects import Model, Span
+
+
+@dataclass(frozen=True, eq=False)
+class Context:
+    """What every candidate of one diagnosis step is judged in."""
+
+    data: Data
+    cols: Columns  # the effects' columns on `data`
+    icols: Columns | None  # the instruments' columns where the model is fitted by IV, else None
+    base: Fit  # the model, fitted on every row
+    base_sse: np.ndarray  # (blocks,) its held-out squared errors
+    starts: np.ndarray  # the first row of each segment of rows (`lsq.folds`)
+    folds: list[tuple[np.ndarray, np.ndarray]]  # per held-out block, (train, test) masks over the segments
+    span: Span  # what the effects' search spaces are derived from
+    alpha: float  # the level each candidate is judged at (the step's, shared among its candidates)
+    min_share: float  # the share of the recorded torque (RMS) a candidate must explain
+
+    @property
+    def whole(self) -> np.ndarray:
+        """Every segment (the fit on every row)."""
+        return np.ones(self.starts.size, bool)
+
+    @property
+    def train(self) -> np.ndarray:
+        """(blocks, segments): each block's training segments."""
+        return np.array([train for train, _ in self.folds])
+
+    @property
+    def test(self) -> np.ndarray:
+        """(blocks, segments): each block's own segments."""
+        return np.array([test for _, test in self.folds])
+
+    def fit(self, model: Model, held: tuple = ()) -> Fit:
+        """`model` fitted on every row as the base model is (LS, or IV with its instruments);
+        the parameters named in `held` held at 0."""
+        return fit_rows(self.data, self.cols, model, None, self.icols, held)
+
+    def stats(self, model: Model, delay: float | np.ndarray | None = None) -> Stats:
+        """The least-squares statistics of `model` over the segments (its instruments' too with
+        IV), the torque read `delay` late (default: the model's own, `delay_of`)."""
+        z = None if self.icols is None else self.icols.model(model)
+        return Stats.of(self.cols.model(model), self.data.tau(delay_of(model) if delay is None else delay),
+                        self.starts, z)

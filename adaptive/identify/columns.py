@@ -1,0 +1,138 @@
+"""Regressor columns of a model's effects on a prepared recording, computed once per effect.
+
+The model's regressor is the stack of its effects' columns (`manus.plants.effects`, ∂torque/∂θ),
+so candidate models share the columns computed once (`Columns`, cached by effect spec). Each
+column is evaluated on the kinematic band's q, q̇, q̈ at full rate, then low-passed at the cut-off
+like the torque (`Data.smoothed`) and read on the used rows. IDIM-IV's instruments are the same
+columns on the simulated motion (`Columns(data, kinematics=...)`).
+"""
+
+from __future__ import annotations
+
+import functools
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from manus.adaptive.identify.prepare import PREFETCH_BYTES, Data
+from manus.estimators.offline import lowpass
+from manus.plants.effects import Effect, Model
+from manus.plants.serial import Serial
+
+
+def identified(structure):
+    """The form of a structure that identification fits: a serial chain's base parameters, the
+    others as they are."""
+    return structure.base() if isinstance(structure, Serial) else structure
+
+
+@functools.lru_cache(maxsize=1)
+def _pool():
+    from concurrent.futures import ThreadPoolExecutor
+
+    return ThreadPoolExecutor(2, thread_name_prefix="manus-columns")
+
+
+SUBSAMPLES = 16  # points per sample period over which a friction column is averaged
+
+
+def _columns_of(effect: Effect, structure, q, qd, qdd, dt):
+    """One effect's columns at every sample. A friction effect switches with the sign of q̇, and
+    near a reversal it does so within a sample period: what the recorded motion integrates over
+    the period is the torque's average there, not its value at the sample (at 200 Hz a Stribeck
+    hump a few milliseconds wide falls between samples or on one). Its columns are averaged over
+    the period [t_k − T/2, t_k + T/2] along the motion q + q̇ s + q̈ s²/2 (`SUBSAMPLES` midpoints);
+    smooth effects' columns are their values at the samples."""
+    reg = jax.vmap(Model(structure, (effect,)).regressor)
+    if not effect.dry or not dt > 0:
+        return reg(q, qd, qdd)
+    offsets = ((jnp.arange(SUBSAMPLES) + 0.5) / SUBSAMPLES - 0.5) * dt
+
+    def add(total, s):
+        return total + reg(q + qd * s + 0.5 * qdd * s**2, qd + qdd * s, qdd), None
+
+    total, _ = jax.lax.scan(add, jnp.zeros(jax.eval_shape(reg, q, qd, qdd).shape), offsets)
+    return total / SUBSAMPLES
+
+
+effect_columns = eqx.filter_jit(_columns_of)
+
+
+@eqx.filter_jit
+def _batch_columns(effects: Effect, structure, q, qd, qdd, dt):
+    """`effect_columns` of a stack of one effect's values (array fields with a leading axis)."""
+    return jax.vmap(lambda e: _columns_of(e, structure, q, qd, qdd, dt))(effects)
+
+
+class Columns:
+    """Regressor columns of effects on prepared data, cached by effect spec. `kinematics` (q, q̇,
+    q̈ at full rate) replaces the measured ones: the instruments of IDIM-IV are the same columns
+    on the simulated motion."""
+
+    def __init__(self, data: Data, rows: np.ndarray | None = None, kinematics: tuple | None = None):
+        self.data = data
+        self.structure = identified(data.rec.structure)
+        self.rows = data.rows if rows is None else rows
+        self.mask = None if data.mask is None or rows is not None else data.mask[:, :, None]  # stuck joints' equations
+        # (other rows than the data's, rests included: the plain low-pass)
+        self.smoothed = data.smoothed if rows is None else (lambda x, at: lowpass(x, data.dt, data.cutoff_hz)[at])
+        self._cache: dict[str, np.ndarray] = {}
+        kin = kinematics if kinematics is not None else (data.q, data.qd, data.qdd)
+        self._kin = tuple(np.asarray(x) for x in kin)
+        self._args = tuple(jnp.asarray(x) for x in kin)
+
+    def effect(self, e: Effect) -> np.ndarray:
+        """(rows, n, p) columns of one linear effect, low-passed like the torque."""
+        if e.spec not in self._cache:
+            self._cache[e.spec] = self._filtered(np.asarray(effect_columns(e, self.structure, *self._args, self.data.dt))[None])[0]
+        return self._cache[e.spec]
+
+    def _filtered(self, full: np.ndarray) -> np.ndarray:
+        """Columns (V, T, n, p) at full rate -> low-passed on the used rows (V, rows, n, p); the
+        entries that are zero throughout (a joint's own parameter on another joint) not filtered."""
+        d = self.data
+        on = np.any(full, axis=(0, 1))  # (n, p)
+        out = np.zeros((full.shape[0], self.rows.size) + full.shape[2:])
+        if on.any():
+            low = self.smoothed(np.ascontiguousarray(np.moveaxis(full[:, :, on], 0, 1)), self.rows)  # (rows, V, m)
+            out[:, :, on] = np.moveaxis(low, 1, 0)
+        return out if self.mask is None else out * self.mask
+
+    def prefetch(self, effects, batch: int = 32) -> None:
+        """The columns of many values of one effect (a search's grid: the same effect with other
+        non-linear parameters, array fields) computed together: one compiled call and one
+        filter pass per `batch` of them, fewer on a long recording (their full-rate columns held
+        at once stay under `PREFETCH_BYTES`: a 20-minute recording is no reason to run out of memory)."""
+        todo = list({e.spec: e for e in effects if e.spec not in self._cache}.values())
+        if todo:
+            per_value = len(self.data.q) * self.data.n_joints * max(len(todo[0].names(self.structure)), 1) * 8
+            batch = int(np.clip(PREFETCH_BYTES // (2 * per_value), 1, batch))  # (two held at once)
+            batch = min(batch, -(-len(todo) // 2))  # (at least two batches: two threads)
+
+        def one(part):
+            if len(part) == 1:
+                return [self.effect(part[0])]
+            stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *part)
+            return self._filtered(np.asarray(_batch_columns(stacked, self.structure, *self._args, self.data.dt)))
+
+        parts = [todo[i:i + batch] for i in range(0, len(todo), batch)]
+        # two batches at a time on two threads (JAX and the filter's loop release the GIL; each
+        # value's columns are computed alone, so the result does not depend on the order)
+        for part, low in zip(parts, _pool().map(one, parts) if len(parts) > 1 else map(one, parts)):
+            for j, e in enumerate(part):
+                self._cache[e.spec] = low[j]
+
+    def screen(self, e: Effect) -> np.ndarray:
+        """The columns of `e` on the used rows without the low-pass: a cheap stand-in to rank
+        the many values of a grid search before the best few are evaluated exactly."""
+        args = tuple(jnp.asarray(x[self.rows]) for x in self._kin)
+        out = np.asarray(effect_columns(e, self.structure, *args, self.data.dt))
+        return out if self.mask is None else out * self.mask
+
+    def model(self, model: Model) -> np.ndarray:
+        """(rows, n, P): the model's regressor, its effects' columns side by side."""
+        blocks = [self.effect(e) for e in model.effects if e.linear]
+        n = self.data.n_joints
+        return np.concatenate(blocks, axis=2) if blocks else np.zeros((self.rows.size, n, 0))

@@ -1,0 +1,77 @@
+"""Inverse-dynamics identification of a model from a recording (`manus fit`).
+
+The recording is prepared once (`manus.adaptive.identify.prepare`: band, kinematics, rows), the
+model's regressor is the stack of its effects' columns (`manus.adaptive.identify.columns`),
+non-linear parameters (the cogging order, the Stribeck velocity, the delay) are found by search
+over the space each effect derives from the recording (`manus.adaptive.identify.search`) when
+the model does not fix them, and the linear ones by the least-squares core
+(`manus.adaptive.identify.lsq`, `result.fit_rows`).
+
+Two estimators share that core: inverse-dynamics least squares (IDIM-LS) and instrumental
+variables (IDIM-IV, Janot, Gautier et al.: instruments are the regressor evaluated on the motion
+simulated by the current model from the recorded command, `manus.adaptive.identify.instruments`,
+iterated). `method="auto"` fits both and keeps IV where the two disagree beyond their standard
+deviations (noise in the differentiated regressor has biased least squares), LS otherwise; the
+report says which and why.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from manus.adaptive.identify.columns import Columns, identified
+from manus.adaptive.identify.instruments import iv_fit
+from manus.adaptive.identify.prepare import Data, prepare
+from manus.adaptive.identify.result import Fit, check_motion, check_rows, fit_rows
+from manus.adaptive.identify.search import search_all
+from manus.plants.effects import Model
+from manus.plants.errors import ModelError
+from manus.plants.recording import Recording
+
+METHODS = ("auto", "ls", "iv")
+
+
+def model_from(model: Model | str, structure) -> tuple[Model, set[str]]:
+    """The model in the form identification fits (`identified`: a serial chain's base
+    parameters), and the names of the effects whose non-linear parameters it fixes: a model given
+    as text fixes those written with an argument (cogging:39), a `Model` none."""
+    if isinstance(model, Model):
+        s = identified(model.structure)
+        return (model if s is model.structure else Model(s, model.effects)), set()
+    fixed = {t.split(":")[0].strip().lower() for t in model.split(",") if ":" in t}
+    return Model(identified(structure), model), fixed
+
+
+def fit(rec: Recording | Data, model: Model | str, cutoff_hz: float | None = None,
+        fixed: set[str] | None = None, columns: Columns | None = None, method: str = "auto") -> Fit:
+    """Identify `model`'s parameters from `rec`. Non-linear parameters of effects not in
+    `fixed` are searched (a model given as text fixes those written with an argument).
+    `method`: "ls" (IDIM-LS), "iv" (IDIM-IV) or "auto" (IV where LS is biased, see the module
+    docstring). `columns`: the columns of this data computed already (a loop over one recording)."""
+    if method not in METHODS:
+        raise ModelError(f"unknown method {method!r}: expected one of {', '.join(METHODS)}")
+    data = rec if isinstance(rec, Data) else prepare(rec, cutoff_hz)
+    model, fixed_text = model_from(model, data.rec.structure)
+    fixed = fixed_text | (fixed or set())
+    if model.n_joints != data.n_joints:
+        raise ModelError(f"the model has {model.n_joints} joints, the recording {data.n_joints}")
+    for e in model.effects:
+        if e.modal:
+            raise ModelError(f"{e.name} is a structural mode above the identification bandwidth: "
+                             "`manus diagnose` detects it from the spectrum; it has no inverse-dynamics columns")
+        why = e.applies(model.structure, data.rec.prismatic)
+        if why:
+            raise ModelError(f"{e.name}: {why}")
+    if not np.any(data.rec.tau):
+        raise ModelError(f"{data.rec.path}: the recorded torque is zero throughout: no model of it can be identified "
+                         "(is the torque column filled?)")
+    cols = columns or Columns(data)
+    check_rows(data, model)
+    check_motion(data, model)
+    model, search = search_all(data, cols, model, fixed)
+    ls = fit_rows(data, cols, model, search)
+    if method == "ls":
+        return replace(ls, why="least squares (asked for)")
+    return iv_fit(data, cols, ls, method)

@@ -1,0 +1,178 @@
+"""The fitted result of identification (`Fit`), and the fit of a model on every prepared row
+(`fit_rows`: the least-squares core's `solve` on the model's columns, IV with instruments).
+
+The least-squares solution names redundant parameters (a column that the earlier ones already
+explain) instead of failing, and reports each parameter's standard deviation from a
+heteroscedasticity- and autocorrelation-consistent (Newey–West) covariance. A serial chain from a
+URDF (`structure: urdf`) is fitted in its base parameters (`manus.plants.serial.SerialBase`),
+and the report writes each one out (`base_parameters`). `check_rows` and `check_motion` refuse a
+recording that cannot identify a model, naming what it lacks.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from manus.adaptive.identify import lsq
+from manus.adaptive.identify.columns import Columns
+from manus.adaptive.identify.prepare import MIN_ROWS, Data, prepare
+from manus.adaptive.identify.search import delay_of
+from manus.estimators.offline import edge
+from manus.plants.effects import Model
+from manus.plants.errors import ModelError
+from manus.plants.recording import Recording
+
+
+@dataclass
+class Fit:
+    """A model's parameters identified from a prepared recording, with what its report needs."""
+
+    model: Model  # with its non-linear parameters as found
+    names: list[str]
+    theta: np.ndarray
+    std: np.ndarray
+    redundant: list[str]
+    rel_error: float
+    residual: np.ndarray  # (rows, n)
+    data: Data
+    delay: float | np.ndarray  # the command delay the model assumes [s] (`delay_of`)
+    search: dict = field(default_factory=dict)  # the search curves: name -> (grid values, rel_errors)
+    method: str = "ls"  # "ls" or "iv"
+    why: str = ""  # why that method
+    instruments: Columns | None = None  # the IV instruments' columns (method "iv")
+
+    @property
+    def params(self) -> dict[str, float]:
+        """Parameter name -> value."""
+        return dict(zip(self.names, self.theta.tolist()))
+
+    @property
+    def stds(self) -> dict[str, float]:
+        """Parameter name -> standard deviation (nan where redundant or held)."""
+        return dict(zip(self.names, self.std.tolist()))
+
+    def predicted(self) -> np.ndarray:
+        """The model's torque on the used rows (filtered like the recorded one)."""
+        return self.data.tau(self.delay) - self.residual
+
+    def violations(self) -> list[str]:
+        """The physical rules the fitted parameters break (each effect's own rules)."""
+        out = self.model.violations(self.params, self.stds)
+        if len(out) > 1 and not self.model.violations({k: -v for k, v in self.params.items()}, self.stds):
+            out.append("every rule holds with the torque's sign reversed: the recorded torque is probably "
+                       "positive against the positions' direction (record it positive where it drives q up)")
+        return out
+
+    def report(self) -> dict:
+        """The JSON contract of `manus fit` (docs/cli.md)."""
+        params = {k: {"value": float(v), "std": None if not np.isfinite(s) else float(s)}
+                  for k, v, s in zip(self.names, self.theta, self.std)}
+        nonlinear = {k: v for e in self.model.effects for k, v in e.describe().items()}
+        out = {"model": self.model.effect_names, "spec": self.model.spec, "params": params,
+               "rel_error": self.rel_error, "samples": int(self.data.rows.size),
+               "cutoff_hz": self.data.cutoff_hz, "cutoff_note": self.data.cutoff_note,
+               "standstill_excluded": self.data.standstill, "hold": self.data.hold,
+               "method": self.method, "method_why": self.why}
+        if nonlinear:
+            out["nonlinear"] = nonlinear
+        if self.data.lost:
+            out["gaps"] = self.data.lost
+        combos = getattr(self.model.structure, "combinations", None)
+        if combos is not None:  # a serial chain: what each base parameter is, and its value in the URDF
+            s = self.model.structure
+            out["base_parameters"] = dict(zip(s.rigid_names, combos))
+            out["urdf_values"] = {k: float(v) for k, v in zip(s.rigid_names, s.rigid_defaults)}
+        if self.redundant:
+            out["redundant"] = self.redundant
+        bad = self.violations()
+        if bad:
+            out["violations"] = bad
+        return out
+
+    def evaluate(self, rec: Recording | Data) -> Fit:
+        """These parameters, unchanged, applied to another recording (validation: the EMPS
+        reference's 5.98 % on the PULSES file). The recording is prepared at this fit's cut-off
+        (the band the parameters were identified in); the result is a `Fit` whose `residual`,
+        `rel_error` and `data` are the other recording's, with `theta`/`std` as identified here."""
+        data = rec if isinstance(rec, Data) else prepare(rec, self.data.cutoff_hz)
+        if data.n_joints != self.model.n_joints:
+            raise ModelError(f"{data.rec.path}: the fitted model has {self.model.n_joints} joints, the recording "
+                             f"{data.n_joints}")
+        if data.rec.structure_name != self.data.rec.structure_name:
+            raise ModelError(f"{data.rec.path}: structure {data.rec.structure_name!r}, but the model was fitted on "
+                             f"a {self.data.rec.structure_name!r} recording")
+        check_rows(data, self.model)
+        tau = data.tau(self.delay)
+        resid = tau - Columns(data).model(self.model) @ self.theta
+        denom = np.linalg.norm(tau)
+        rel = float(np.linalg.norm(resid) / denom) if denom else np.inf
+        return Fit(self.model, list(self.names), self.theta, self.std, list(self.redundant), rel, resid, data,
+                   self.delay, {}, self.method, self.why)
+
+    def rel_error_on(self, rec: Recording | Data) -> float:
+        """`rel_error` of these parameters on another recording (see `evaluate`)."""
+        return self.evaluate(rec).rel_error
+
+
+def fit_rows(data: Data, cols: Columns, model: Model, search: dict | None = None, icols: Columns | None = None,
+             held: tuple = ()) -> Fit:
+    """The fit of `model` (its non-linear parameters as they are) on every used row of `data`,
+    its columns from `cols`: least squares, or instrumental variables with the instruments'
+    columns `icols`. Parameters named in `held` are held at 0 (their bound). `search`: the
+    search curves that found the model's values, kept in the result."""
+    delay = delay_of(model)
+    names = list(model.names)
+    out = [j for j, k in enumerate(names) if k in held]
+    Y = cols.model(model)
+    Z = None if icols is None else icols.model(model)
+    if out:
+        Y = np.delete(Y, out, axis=2)
+        Z = None if Z is None else np.delete(Z, out, axis=2)
+    sol = lsq.solve(Y, data.tau(delay), Z)
+    kept = [k for k in names if k not in held]
+    theta, std = np.zeros(len(names)), np.full(len(names), np.nan)
+    idx = [names.index(k) for k in kept]
+    theta[idx], std[idx] = sol.theta, sol.std
+    return Fit(model, names, theta, std, [kept[j] for j in sol.redundant], sol.rel_error,
+               sol.residual, data, delay, {} if search is None else search, "ls" if icols is None else "iv", "",
+               icols)
+
+
+def check_rows(data: Data, model: Model) -> None:
+    """Refuse a recording that leaves fewer than `MIN_ROWS` usable rows, naming the parameters
+    that are not identifiable: those outside the rank of the model's regressor over every sample
+    inside the filter's start-up edges (standstill included: at rest q̇ = q̈ = 0, so inertia and
+    friction columns vanish there; a recording shorter than its two edges has no row at all)."""
+    if data.rows.size >= MIN_ROWS:
+        return
+    window = data.window if data.window is not None else np.zeros(0, int)
+    lin = Model(model.structure, tuple(e for e in model.effects if e.linear))
+    names = list(lin.names)
+    if window.size:
+        Y = Columns(data, rows=window).model(lin)
+        lost = [names[j] for j in lsq.unidentifiable(Y)]
+    else:
+        lost = names
+    rec = data.rec
+    why = (f"{len(rec)} samples ({len(rec) * data.dt:.3g} s) leave {data.rows.size} usable rows "
+           f"(at least {MIN_ROWS} needed) once the filter's start-up ({edge(data.dt, data.cutoff_hz)} samples at "
+           f"each end, {data.cutoff_hz:.3g} Hz cut-off) and standstill are left out")
+    what = (f"parameters {', '.join(lost)} are not identifiable (the regressor has rank {len(names) - len(lost)} "
+            f"of {len(names)})" if lost else "too few rows to identify the parameters reliably")
+    raise ModelError(f"{rec.path}: recording too short or without motion: {why}; {what}; record longer, "
+                     "with the joints moving (e.g. a multi-sine reference)")
+
+
+def check_motion(data: Data, model: Model) -> None:
+    """A joint that does not move identifies none of its velocity- or inertia-driven terms."""
+    still = [i for i, f in enumerate(data.moving()) if f < 0.02]
+    if not still:
+        return
+    lost = [k for e in model.effects if e.evidence in ("velocity", "acceleration")
+            for k in e.names(model.structure)
+            if any(k.endswith(str(i + 1)) for i in still) or (e.inertial and model.n_joints == 2)]
+    joints = ", ".join(f"joint {i + 1}" for i in still)
+    raise ModelError(f"{data.rec.path}: no motion on {joints}: parameters {', '.join(lost)} are not "
+                     "identifiable (record the joints moving, e.g. a multi-sine reference)")
