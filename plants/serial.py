@@ -42,13 +42,14 @@ against the RNEA and pinocchio.
 - `base_parameters`: the identifiable combinations of the standard parameters (Gautier's
   numerical method: QR with column pivoting of a regressor stacked over random states), and
   `SerialBase`, the chain in those parameters: the structure `manus fit` identifies.
+- `SerialPseudo`: the chain in pseudo-inertia coordinates (`manus.plants.pseudo_inertia`), the
+  structure adaptive control adapts (`Serial.adaptive_form`).
+
+The URDF file itself is read by `manus.plants.urdf`.
 """
 
 from __future__ import annotations
 
-import math
-import pathlib
-import xml.etree.ElementTree as ET
 from typing import ClassVar, NamedTuple
 
 import numpy as np
@@ -58,110 +59,16 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
+from manus.plants import urdf
 from manus.plants.errors import ModelError
+from manus.plants.pseudo_inertia import ENTRIES, OFF_DIAGONAL, entries_of, standard_of
 from manus.plants.serial_friction import Dense
-from manus.plants.structures import Structure
+from manus.plants.structures import Admissible, Structure
 
 LINK_PARAMETERS = ("m", "mx", "my", "mz", "Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz")
 GRAVITY = (0.0, 0.0, -9.81)  # m/s², the world's z axis up
 GRAVITY_IN_RIGID = ("a serial chain's gravity is part of rigid (the links' masses and first moments in the "
                     "world's gravity): a cos/sin of each relative joint angle is not a physical effect there")
-
-
-# -- URDF parsing (numpy) -------------------------------------------------------------------------
-
-def _rpy(rpy) -> np.ndarray:
-    """The URDF rotation Rz(yaw) Ry(pitch) Rx(roll)."""
-    r, p, y = rpy
-    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
-    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-                     [-sp, cp * sr, cp * cr]])
-
-
-def _floats(element, attribute: str, default: str) -> np.ndarray:
-    text = default if element is None else element.get(attribute, default)
-    return np.array([float(v) for v in text.split()])
-
-
-def _origin(element) -> tuple[np.ndarray, np.ndarray]:
-    """(R, p) of an `<origin>` child: the child frame's rotation and position in the parent's."""
-    origin = element.find("origin")
-    return _rpy(_floats(origin, "rpy", "0 0 0")), _floats(origin, "xyz", "0 0 0")
-
-
-def _skew(v) -> np.ndarray:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-
-
-def _link_inertial(link) -> np.ndarray:
-    """A link's ten standard parameters in its own frame (zeros without `<inertial>`)."""
-    inertial = link.find("inertial")
-    if inertial is None:
-        return np.zeros(10)
-    R, c = _origin(inertial)
-    m = float(inertial.find("mass").get("value"))
-    e = inertial.find("inertia")
-    get = lambda k: float(e.get(k, "0"))  # noqa: E731
-    I_c = np.array([[get("ixx"), get("ixy"), get("ixz")],
-                    [get("ixy"), get("iyy"), get("iyz")],
-                    [get("ixz"), get("iyz"), get("izz")]])
-    return _ten(m, m * c, R @ I_c @ R.T + m * _skew(c).T @ _skew(c))
-
-
-def _ten(m: float, h: np.ndarray, I_o: np.ndarray) -> np.ndarray:
-    return np.array([m, *h, I_o[0, 0], I_o[0, 1], I_o[0, 2], I_o[1, 1], I_o[1, 2], I_o[2, 2]])
-
-
-def _moved(theta: np.ndarray, R: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """Ten parameters given in a frame placed at (R, p), expressed in the outer frame instead."""
-    m, h = theta[0], theta[1:4]
-    Ixx, Ixy, Ixz, Iyy, Iyz, Izz = theta[4:]
-    I_o = R @ np.array([[Ixx, Ixy, Ixz], [Ixy, Iyy, Iyz], [Ixz, Iyz, Izz]]) @ R.T
-    Rh = R @ h
-    # parallel axis about the new origin: I + S(p)ᵀS(Rh) + S(Rh)ᵀS(p) + m S(p)ᵀS(p) (S: cross product)
-    I_new = I_o + _skew(p).T @ _skew(Rh) + _skew(Rh).T @ _skew(p) + m * _skew(p).T @ _skew(p)
-    return _ten(m, Rh + m * p, I_new)
-
-
-class _Joint(NamedTuple):
-    name: str
-    kind: str
-    parent: str
-    child: str
-    R: np.ndarray
-    p: np.ndarray
-    axis: np.ndarray
-    armature: float
-    mimic: bool
-    damping: float = 0.0  # <dynamics damping> [N·m·s/rad or N·s/m]
-    friction: float = 0.0  # <dynamics friction> [N·m or N]
-
-
-def _read(path) -> tuple[dict, dict]:
-    """The URDF's links (name → element) and joints (name → `_Joint`)."""
-    path = pathlib.Path(path)
-    if not path.is_file():
-        raise ModelError(f"{path}: no such URDF file")
-    try:
-        root = ET.parse(path).getroot()
-    except (OSError, ET.ParseError) as e:
-        raise ModelError(f"{path}: not a readable URDF ({e})") from e
-    if root.tag != "robot":
-        raise ModelError(f"{path}: not a URDF (root element <{root.tag}>, expected <robot>)")
-    links = {link.get("name"): link for link in root.findall("link")}
-    joints = {}
-    for j in root.findall("joint"):
-        R, p = _origin(j)
-        axis = _floats(j.find("axis"), "xyz", "1 0 0")
-        dynamics = j.find("dynamics")
-        joints[j.get("name")] = _Joint(
-            j.get("name"), j.get("type"), j.find("parent").get("link"), j.find("child").get("link"), R, p,
-            axis / np.linalg.norm(axis), float(dynamics.get("armature", "0")) if dynamics is not None else 0.0,
-            j.find("mimic") is not None,
-            *((float(dynamics.get("damping", "0")), float(dynamics.get("friction", "0"))) if dynamics is not None
-              else (0.0, 0.0)))
-    return links, joints
 
 
 # -- the structure ----------------------------------------------------------------------------------
@@ -221,8 +128,12 @@ def _mass_matrices(serial, q, theta):
 
 
 class _Configuration(Structure):
-    """The simulator's joint-tuple form of a chain whose pose is its configuration itself (H and
-    C are computed from q each time); its mass matrix is dense (`serial_friction.Dense`)."""
+    """A serial chain, in any of its parametrizations: the simulator's joint-tuple form of a chain
+    whose pose is its configuration itself (H and C are computed from q each time); its mass matrix
+    is dense (`serial_friction.Dense`). Gravity is part of its rigid effect (`rigid_gravity`)."""
+
+    name: ClassVar[str] = "urdf"
+    rigid_gravity: ClassVar[str] = GRAVITY_IN_RIGID
 
     def pose(self, q):
         return tuple(q)
@@ -245,8 +156,6 @@ class Serial(_Configuration):
     `Serial.from_urdf`.
     """
 
-    name: ClassVar[str] = "urdf"
-    rigid_gravity: ClassVar[str] = GRAVITY_IN_RIGID  # why the per-joint `gravity` effect does not apply
     n_joints: int = eqx.field(static=True)
     joint_names: tuple[str, ...] = eqx.field(static=True)
     prismatic: tuple[bool, ...] = eqx.field(static=True)
@@ -280,7 +189,7 @@ class Serial(_Configuration):
 
     @classmethod
     def _from_urdf(cls, path, tip, armature, gravity) -> "Serial":
-        links, joints = _read(path)
+        links, joints = urdf.read(path)
         children = {name: [] for name in links}
         for j in joints.values():
             if j.kind not in ("revolute", "continuous", "prismatic", "fixed"):
@@ -299,7 +208,7 @@ class Serial(_Configuration):
         def reaches(link: str) -> bool:
             return link == tip or any(reaches(j.child) for j in children[link])
 
-        def movable_below(link: str) -> list[_Joint]:
+        def movable_below(link: str) -> list[urdf.Joint]:
             """The movable joints reached from `link` through fixed joints only."""
             out = []
             for j in children[link]:
@@ -321,13 +230,13 @@ class Serial(_Configuration):
 
         def collect(link: str, R: np.ndarray, p: np.ndarray, stop: set) -> np.ndarray:
             """The ten parameters of `link` and everything rigidly attached (joints in `stop` end it)."""
-            theta = _moved(_link_inertial(links[link]), R, p)
+            theta = urdf.moved(urdf.link_inertial(links[link]), R, p)
             for j in children[link]:
                 if j.name not in stop:  # fixed, or a locked branch (zero position: its origin alone)
                     theta = theta + collect(j.child, R @ j.R, R @ j.p + p, stop)
             return theta
 
-        def placement(joint: _Joint) -> tuple[np.ndarray, np.ndarray]:
+        def placement(joint: urdf.Joint) -> tuple[np.ndarray, np.ndarray]:
             """The joint's frame in the frame of the previous chain joint's child (or the root)."""
             start = chain[chain.index(joint) - 1].child if chain.index(joint) else next(iter(roots))
             R, p, link = joint.R, joint.p, joint.parent
@@ -546,17 +455,32 @@ class Serial(_Configuration):
     def _closed_form(self, H):
         return Dense(H)
 
+    # -- what the rest of manus asks of a structure ---------------------------------------------
+    @property
+    def urdf_file(self):
+        return self.source
+
+    def nominal(self, effect):
+        """The joints' `<dynamics>`: damping for `viscous`, friction for `coulomb`."""
+        return {"viscous": self.damping, "coulomb": self.friction}.get(effect, ())
+
+    def nominal_joint_inertias(self):
+        H = np.asarray(self.mass_matrix(jnp.zeros(self.n_joints), jnp.asarray(self.defaults)))
+        return np.diag(H)
+
     # -- identification --------------------------------------------------------------------
     def base(self) -> "SerialBase":
         """This chain in its base parameters (`base_parameters`), the form identification uses."""
         return _base_of(self)
 
-    def pseudo(self):
-        """This chain in pseudo-inertia coordinates (`manus.plants.serial_pseudo`), the form adaptive
+    def pseudo(self) -> "SerialPseudo":
+        """This chain in pseudo-inertia coordinates (`manus.plants.pseudo_inertia`), the form adaptive
         control uses: its links are consistent exactly when each pseudo-inertia is PSD."""
-        from manus.plants.serial_pseudo import SerialPseudo
-
         return SerialPseudo(self)
+
+    def adaptive_form(self):
+        """In pseudo-inertia coordinates (`pseudo`), where the projection keeps every link consistent."""
+        return self.pseudo()
 
 
 # -- base parameters -----------------------------------------------------------------------------------
@@ -619,18 +543,18 @@ _BASES: dict[tuple, BaseParameters] = {}
 def _base_of(serial: Serial) -> "SerialBase":
     """`SerialBase` of a chain; its base parameters computed once per geometry (they do not depend
     on the parameter values)."""
-    key = (serial.joint_names, serial.prismatic, *(np.asarray(getattr(serial, k), float).tobytes()
-                                                  for k in ("rotation", "translation", "axis", "gravity")))
+    key = (serial.joint_names, serial.prismatic, *(np.asarray(x, float).tobytes()
+                                                  for x in (serial.rotation, serial.translation, serial.axis, serial.gravity)))
     if key not in _BASES:
         _BASES[key] = base_parameters(serial)
     b = _BASES[key]
     standard = serial.rigid_names
     names = tuple(standard[c] + ("R" if " " in label else "") for c, label in zip(b.columns, b.names))
     return SerialBase(serial=serial, n_joints=serial.n_joints, columns=tuple(int(c) for c in b.columns),
-                      base_names=names, combinations=b.names, K=b.K)
+                      base_names=names, written=b.names, K=b.K)
 
 
-class _Reparametrized(_Configuration):
+class Reparametrized(_Configuration):
     """A chain in other rigid parameters than the standard ones (base parameters, pseudo-inertia
     entries): `self.serial` and `self.standard(p)`, the standard vector of its parameters, give
     H, C and the simulator's joint-tuple form."""
@@ -653,6 +577,20 @@ class _Reparametrized(_Configuration):
     def joint_names(self) -> tuple[str, ...]:
         return self.serial.joint_names
 
+    @property
+    def standard_form(self):
+        return self.serial
+
+    @property
+    def urdf_file(self):
+        return self.serial.source
+
+    def nominal(self, effect):
+        return self.serial.nominal(effect)
+
+    def nominal_joint_inertias(self):
+        return self.serial.nominal_joint_inertias()
+
     # -- the simulator's joint-tuple form (see `Serial`) -----------------------------------------
     def mass(self, pose, p):
         return Dense(self.serial.mass_matrix(jnp.stack(pose), self.standard(p)))
@@ -666,26 +604,24 @@ class _Reparametrized(_Configuration):
         return Dense(H)
 
 
-class SerialBase(_Reparametrized):
+class SerialBase(Reparametrized):
     """A serial chain in its base parameters: what inverse-dynamics identification can know.
 
     Its rigid parameters are θ_b = K θ (`BaseParameters`, Gautier's numerical QR), each named
     after the standard parameter it keeps, with `R` appended when others are regrouped into it
-    (Khalil and Gautier's convention: `Izz2R` = Izz2 + 0.1·m3 + ...); `combinations` writes each
-    one out. The rigid torque is the base regressor (the kept columns of `Serial.regressor`) times
+    (Khalil and Gautier's convention: `Izz2R` = Izz2 + 0.1·m3 + ...); `combinations` (the field
+    `written`) writes each one out. The rigid torque is the base regressor (the kept columns of `Serial.regressor`) times
     θ_b. H(q), C(q, q̇), g(q) and the simulator's joint-tuple form take the standard parameters with
     θ_b in the kept places and zeros elsewhere: every standard θ with the same K θ gives the same
     torque in every state, so they are the base parameters' own (which is also why a fitted set can
     be simulated: the instruments of IDIM-IV).
     """
 
-    name: ClassVar[str] = "urdf"
-    rigid_gravity: ClassVar[str] = GRAVITY_IN_RIGID
     serial: Serial
     n_joints: int = eqx.field(static=True)
     columns: tuple[int, ...] = eqx.field(static=True)
     base_names: tuple[str, ...] = eqx.field(static=True)
-    combinations: tuple[str, ...] = eqx.field(static=True)
+    written: tuple[str, ...] = eqx.field(static=True)  # each base parameter written out (`combinations`)
     K: np.ndarray
     CHECK_STATES: ClassVar[int] = 64  # random configurations on which `violations` checks H(q) > 0
 
@@ -694,12 +630,21 @@ class SerialBase(_Reparametrized):
         return self.base_names
 
     @property
+    def combinations(self):
+        return self.written
+
+    @property
     def rigid_defaults(self):
         return tuple(float(v) for v in self.K @ np.asarray(self.serial.defaults))
 
     def values(self, theta) -> np.ndarray:
         """The base parameters (r,) of standard parameters θ (11 n,)."""
         return self.K @ np.asarray(theta, float)
+
+    def coordinates_of(self, standard):
+        """The base parameters K θ."""
+        theta = np.array([float(standard[k]) for k in self.serial.rigid_names])
+        return dict(zip(self.base_names, self.values(theta).tolist()))
 
     def standard(self, p: dict) -> Array:
         """A standard parameter vector with these base parameters: θ_b in the kept places, zeros elsewhere."""
@@ -730,3 +675,73 @@ class SerialBase(_Reparametrized):
             return []
         return [f"the base parameters give an inertia matrix H(q) that is not positive definite (in {bad} of "
                 f"{len(q)} random configurations, smallest eigenvalue {low.min():.3g}): no physical robot has them"]
+
+
+class SerialPseudo(Reparametrized):
+    """A serial chain in pseudo-inertia coordinates (`manus.plants.pseudo_inertia`): the form adaptive
+    control uses (`Serial.pseudo()`), its links consistent exactly when each pseudo-inertia is PSD."""
+
+    serial: Serial
+    n_joints: int = eqx.field(static=True)
+    scale: tuple[float, ...] = eqx.field(static=True)  # each link's radius of gyration ℓ [m] (1 for a massless link)
+
+    def __init__(self, serial: Serial):
+        self.serial = serial
+        self.n_joints = serial.n_joints
+        d = np.asarray(serial.defaults, float)
+        scale = []
+        for i in range(serial.n_joints):
+            e = entries_of(d[10 * i:10 * i + 10])
+            scale.append(float(np.sqrt(max(e[4] + e[5] + e[6], 0.0) / e[0])) if e[0] > 0 else 1.0)
+        self.scale = tuple(x if x > 0 else 1.0 for x in scale)
+
+    @property
+    def rigid_names(self):
+        links = tuple(f"J{i + 1}{e}" for i in range(self.n_joints) for e in ENTRIES)
+        return links + tuple(f"Ia{i + 1}" for i in range(self.n_joints))
+
+    @property
+    def rigid_defaults(self):
+        d = np.asarray(self.serial.defaults, float)
+        n = self.n_joints
+        links = [entries_of(d[10 * i:10 * i + 10]) for i in range(n)]
+        return tuple(float(x) for x in np.concatenate([*links, d[10 * n:]]))
+
+    def rigid_gains(self, gain: float) -> dict[str, float]:
+        """Adaptation gains for which the Γ⁻¹ metric on a link's entries is the Frobenius norm of
+        its scaled pseudo-inertia (times ℓ²/`gain`): gain/ℓ² on m, gain/2 on h, gain ℓ² on Σ's
+        diagonal and gain ℓ²/2 off it (`gain` where the first moments are); `gain` on the armatures."""
+        out = {}
+        for i, l in enumerate(self.scale):
+            for e in ENTRIES:
+                power = -2 if e == "m" else (0 if e.startswith("h") else 2)
+                out[f"J{i + 1}{e}"] = gain * l**power * (0.5 if e in OFF_DIAGONAL else 1.0)
+            out[f"Ia{i + 1}"] = gain
+        return out
+
+    def admissible(self):
+        """Each link's scaled pseudo-inertia positive semidefinite, each armature ≥ 0."""
+        n = self.n_joints
+        return Admissible(nonnegative=tuple(f"Ia{i + 1}" for i in range(n)),
+                          links=tuple((tuple(f"J{i + 1}{e}" for e in ENTRIES), self.scale[i]) for i in range(n)))
+
+    def coordinates_of(self, standard):
+        """The pseudo-inertia entries and the armatures."""
+        s, n = self.serial, self.n_joints
+        phi = np.array([float(standard[k]) for k in s.rigid_names])
+        links = [entries_of(phi[10 * i:10 * i + 10]) for i in range(n)]
+        return dict(zip(self.rigid_names, np.concatenate([*links, phi[10 * n:]]).tolist()))
+
+    def standard(self, p: dict) -> jax.Array:
+        """The standard parameter vector (11 n,) of these parameters."""
+        n = self.n_joints
+        links = [standard_of(jnp.stack([jnp.asarray(p[f"J{i + 1}{e}"]) for e in ENTRIES])) for i in range(n)]
+        return jnp.concatenate([*links, jnp.stack([jnp.asarray(p[f"Ia{i + 1}"]) for i in range(n)])])
+
+    # -- matrix form ---------------------------------------------------------------------------
+    def rigid_torque(self, q, qd, qdd, p):
+        return self.serial.rnea(q, qd, qdd, self.standard(p))
+
+    def violations(self, p):
+        standard = np.asarray(self.standard({k: float(p[k]) for k in self.rigid_names}))
+        return self.serial.violations(dict(zip(self.serial.rigid_names, standard)))

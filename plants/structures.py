@@ -26,13 +26,12 @@ Two structures:
   M_i per joint and no coupling.
 """
 
-from __future__ import annotations
-
 import abc
 from typing import ClassVar, NamedTuple
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 from jax import Array
 
 from manus.plants import fastmath
@@ -128,11 +127,111 @@ class Diagonal(NamedTuple):
         return tuple(clip(a * x * (1.0 / dt), -l, u) for a, x, l, u in zip(self.d, v, lo, hi))
 
 
+class Admissible(NamedTuple):
+    """The physically admissible rigid parameters of a structure, by name, as the projection of
+    adaptive control keeps them (`manus.adaptive.projection`): each entry a set the estimates are
+    projected onto, every one convex."""
+
+    cone: tuple[str, str, str] | None = None  # (u, v, w): [[u, v], [v, w]] ⪰ ε I (MANUS-2's H(q) > 0 for every q)
+    positive: tuple[str, ...] = ()  # each ≥ ε (an axis's inertia)
+    nonnegative: tuple[str, ...] = ()  # each ≥ 0 (a motor's armature)
+    # per link: its ten pseudo-inertia entries and its radius of gyration ℓ [m]: the scaled J ⪰ 0
+    links: tuple[tuple[tuple[str, ...], float], ...] = ()
+
+
 class Structure(eqx.Module):
-    """Abstract joint structure. Arrays are per joint, shape `(n_joints,)`."""
+    """Abstract joint structure. Arrays are per joint, shape `(n_joints,)`.
+
+    Besides the dynamics, a structure says what the rest of manus asks of it, each with a default
+    that a concrete structure overrides where it has more to say: which joints are prismatic,
+    whether its rigid effect holds gravity (`rigid_gravity`), whether it is the thesis's arm
+    (`thesis_arm`), the file it was read from (`urdf_file`), its own nominal values of effects
+    (`nominal`) and joint inertias (`nominal_joint_inertias`), where a simulated run starts (`workspace_centre`), the closed forms adaptive
+    control may use (`slotine_li_columns`, `momentum_columns`), its admissible rigid parameters
+    (`admissible`) in the coordinates it adapts in (`adaptive_form`) and adaptation gains
+    (`rigid_gains`), and the standard form it is a reparametrization of (`standard_form`,
+    `combinations`, `coordinates_of`)."""
 
     name: ClassVar[str]
     n_joints: eqx.AbstractVar[int]
+    # Per joint: a linear axis (positions in metres), as far as the structure says; () when it
+    # does not (a single axis may be either: a recording's metadata says). (This module's
+    # annotations are not strings: equinox needs AbstractVar's evaluated.)
+    prismatic: eqx.AbstractVar[tuple[bool, ...]]
+    # Why the per-joint `gravity` effect does not apply, when the rigid effect holds gravity
+    # itself (a serial chain's links' masses in the world's gravity); "" when it does not.
+    rigid_gravity: ClassVar[str] = ""
+    # The thesis's MANUS-2 arm: the effects default to the values the thesis measured on it, and
+    # the thesis's benign and complex trajectories are written for it.
+    thesis_arm: ClassVar[bool] = False
+
+    @property
+    def urdf_file(self) -> str:
+        """The URDF file this structure was read from ("" when none)."""
+        return ""
+
+    @property
+    def standard_form(self) -> "Structure":
+        """This structure in its standard rigid parameters: itself, or for a serial chain in other
+        coordinates (base parameters, pseudo-inertia entries) the chain they are coordinates of."""
+        return self
+
+    def adaptive_form(self) -> "Structure":
+        """This structure in the coordinates adaptive control adapts its rigid parameters in (where
+        `admissible` knows their physical set): itself."""
+        return self
+
+    def coordinates_of(self, standard: dict) -> dict[str, float]:
+        """This structure's rigid parameters, by name, of the standard form's given by name
+        (`standard_form.rigid_names`: a simulated plant's truth); {} when this structure's
+        coordinates are the standard form's own."""
+        return {}
+
+    @property
+    def combinations(self) -> tuple[str, ...] | None:
+        """Each rigid parameter written out as the combination of the standard form's parameters it
+        is (a serial chain's base parameters: `Izz2R` is `Izz2 + 0.1·m3`), in `rigid_names` order;
+        None when the rigid parameters are not such combinations."""
+        return None
+
+    def nominal(self, effect: str) -> tuple[float, ...]:
+        """Per joint, the nominal coefficient of the effect named `effect` that the structure's own
+        description gives (a URDF's joint `<dynamics>`: damping for `viscous`, friction for
+        `coulomb`); () when it gives none."""
+        return ()
+
+    def nominal_joint_inertias(self) -> np.ndarray | None:
+        """Each joint's own inertia (n,) [kg m² or kg], the diagonal of H at q = 0 with the
+        nominal parameters of the robot's description (a URDF's); None when the structure has no
+        such description (a controller then takes the thesis's gains)."""
+        return None
+
+    @property
+    def workspace_centre(self) -> tuple[float, ...]:
+        """Where a simulated run starts unless told otherwise [rad or m]: zeros."""
+        return (0.0,) * self.n_joints
+
+    def rigid_gains(self, gain: float) -> dict[str, float]:
+        """Adaptation gains Γ of the rigid parameters, by name, where they differ from the rigid
+        effect's `gain` (every other rigid parameter takes `gain`); {} when none does."""
+        return {}
+
+    def admissible(self) -> Admissible | None:
+        """The rigid parameters that are physically admissible, for adaptive control's projection;
+        None when no convex set of them is known."""
+        return None
+
+    def slotine_li_columns(self, q: Array, qd: Array, qd_r: Array, qdd_r: Array) -> dict[str, Joints] | None:
+        """The rigid effect's regressor columns in the Slotine–Li form, H(q) q̈_r + C(q, q̇) q̇_r, written
+        out: {parameter: per-joint scalars}; None when the structure has no closed form (the
+        regressor then differentiates the torque)."""
+        return None
+
+    def momentum_columns(self, q: Array, qd: Array) -> tuple[dict[str, Joints], dict[str, Joints]] | None:
+        """Composite adaptation's rigid columns written out (`manus.adaptive.composite`): those of
+        Z₁ = H(q) q̇ and of Z₂ = −Ḣ(q, q̇) q̇ + C(q, q̇) q̇, {parameter: per-joint scalars} each; None
+        when the structure has no closed form (forward-mode differentiation then)."""
+        return None
 
     @property
     @abc.abstractmethod
@@ -206,7 +305,13 @@ class Manus2(Structure):
     """The MANUS-2 planar 2-link arm in absolute joint angles (thesis eqs. 3.2–3.4, C.1–C.5)."""
 
     name: ClassVar[str] = "manus2"
+    thesis_arm: ClassVar[bool] = True
+    RIGID_GAINS: ClassVar[tuple[float, float, float]] = (0.2, 0.2, 0.5)  # Γ for a1, a2, a3 (thesis App. C)
     n_joints: int = eqx.field(default=2, static=True)
+
+    @property
+    def prismatic(self):
+        return (False, False)
 
     @property
     def rigid_names(self):
@@ -215,6 +320,34 @@ class Manus2(Structure):
     @property
     def rigid_defaults(self):
         return (0.349, 0.241, 0.246)  # kg m², thesis §3.5.5 and eq. 3.13
+
+    @property
+    def workspace_centre(self):
+        """Thesis App. C: the centre of the workspace, q = (0.464, 2.409) rad."""
+        return (0.464, 2.409)
+
+    def rigid_gains(self, gain):
+        """The thesis's Γ for a1, a2, a3 (App. C), whatever the rigid effect's gain."""
+        return dict(zip(self.rigid_names, self.RIGID_GAINS))
+
+    def admissible(self):
+        """H(q) ⪰ ε I for every q: [[a1, a2], [a2, a3]] ⪰ ε I (the worst case is cos² = 1)."""
+        return Admissible(cone=self.rigid_names)
+
+    def slotine_li_columns(self, q, qd, qd_r, qdd_r):
+        """c = cos(q2 − q1), s = sin(q2 − q1): [[q̈r1, c q̈r2 − s q̇2 q̇r2, 0], [0, c q̈r1 + s q̇1 q̇r1, q̈r2]]."""
+        c, sn = self.pose(q)
+        zero = 0.0 * c
+        return {"a1": (qdd_r[0], zero), "a2": (c * qdd_r[1] - sn * qd[1] * qd_r[1], c * qdd_r[0] + sn * qd[0] * qd_r[0]),
+                "a3": (zero, qdd_r[1])}
+
+    def momentum_columns(self, q, qd):
+        """Z₁ = H q̇ per parameter; in Z₂, −Ḣ q̇ + C q̇ leaves ∓s q̇1 q̇2 in the a2 column."""
+        c, sn = self.pose(q)
+        zero, w = 0.0 * c, sn * qd[0] * qd[1]
+        z1 = {"a1": (qd[0], zero), "a2": (c * qd[1], c * qd[0]), "a3": (zero, qd[1])}
+        z2 = {"a1": (zero, zero), "a2": (-w, w), "a3": (zero, zero)}
+        return z1, z2
 
     def pose(self, q):
         s, c = fastmath.sincos(q[1] - q[0])
@@ -258,12 +391,21 @@ class Axis(Structure):
     n_joints: int = eqx.field(default=1, static=True)
 
     @property
+    def prismatic(self):
+        """(): a single axis may be rotary or linear; the recording's metadata says which."""
+        return ()
+
+    @property
     def rigid_names(self):
         return tuple(f"M{i + 1}" for i in range(self.n_joints))
 
     @property
     def rigid_defaults(self):
         return (1.0,) * self.n_joints  # thesis eq. 4.1: m = 1 kg near the workspace centre
+
+    def admissible(self):
+        """Each inertia M_i ≥ ε."""
+        return Admissible(positive=self.rigid_names)
 
     def pose(self, q):
         return ()
@@ -288,27 +430,3 @@ class Axis(Structure):
 
     def violations(self, p):
         return [f"{k} = {float(p[k]):.4g}: an inertia must be positive" for k in self.rigid_names if not float(p[k]) > 0]
-
-
-def structure_named(name: str, n_joints: int, robot=None) -> Structure:
-    """The structure called `name` with `n_joints` joints: "manus2", "axis", or "urdf" (a serial
-    chain read from the URDF file `robot`, `manus.plants.serial.Serial`; a URDF whose chain has
-    another number of joints is refused with a `ModelError`)."""
-    if name == "manus2":
-        if n_joints != 2:
-            raise ValueError(f"structure manus2 has 2 joints, not {n_joints}")
-        return Manus2()
-    if name == "axis":
-        return Axis(n_joints=n_joints)
-    if name == "urdf":
-        from manus.plants.errors import ModelError
-        from manus.plants.serial import Serial
-
-        if robot is None:
-            raise ModelError("structure urdf needs the robot's URDF file (a recording's '# robot: PATH', or --robot FILE.urdf)")
-        serial = Serial.from_urdf(robot)
-        if serial.n_joints != n_joints:
-            raise ModelError(f"{robot}: the URDF's chain has {serial.n_joints} joints ({', '.join(serial.joint_names)}), "
-                             f"not {n_joints}")
-        return serial
-    raise ValueError(f"unknown structure {name!r}: expected 'manus2', 'axis' or 'urdf'")

@@ -1,5 +1,5 @@
 """Slotine–Li adaptation on a serial chain in pseudo-inertia coordinates
-(manus.plants.serial_pseudo): the regressor against the chain's own Slotine–Li regressor (itself
+(manus.plants.pseudo_inertia): the regressor against the chain's own Slotine–Li regressor (itself
 checked against pinocchio in tests/plants/test_serial.py), the projection against cvxpy's
 semidefinite solution, and a closed loop whose estimates stay physically consistent."""
 
@@ -17,7 +17,7 @@ from manus.adaptive.regressors import Regressor
 from manus.adaptive.slotine_li import SlotineLi, rollout
 from manus.plants import Model, Serial, Simulator
 from manus.plants.references import MultiSine
-from manus.plants.serial_pseudo import ENTRIES, entries_of, matrix, standard_of
+from manus.plants.pseudo_inertia import ENTRIES, entries_of, matrix, standard_of
 
 URDF = pathlib.Path(__file__).resolve().parents[2] / "examples" / "dfki_double_pendulum" / "double_pendulum_a0.urdf"
 
