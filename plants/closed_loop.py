@@ -16,6 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from manus.plants.errors import ModelError
 from manus.plants.stepper import Controller, Plant, Reference
 
 
@@ -102,8 +103,6 @@ def _finite(traj: Trajectory, dt: float) -> Trajectory:
     rows = len(traj.t)
     bad = ~np.isfinite(np.c_[traj.q_true.reshape(rows, -1), traj.tau.reshape(rows, -1)]).all(axis=1)
     if bad.any():
-        from manus.plants.errors import ModelError
-
         k = int(np.argmax(bad))
         peak = float(np.nanmax(np.abs(traj.tau[:k]))) if k else float("nan")
         raise ModelError(f"the closed loop diverged: positions or torques are not finite from t = {k * dt:.4g} s "

@@ -34,7 +34,8 @@ Each effect owns everything about itself (one definition, no tables keyed by eff
 elsewhere): its columns (`names`, `torque`), the search space of its non-linear parameter
 derived from the recording (`space`, from a `Span`), its physical rules (`lower_bounds`,
 `violations`), which joints it applies to (`applies`), what its evidence is plotted against
-(`evidence`) and its adaptation gain (`gain`).
+(`evidence`), its adaptation gain (`gain`) and the argument of its spec (`parse`). The vocabulary
+(`VOCABULARY`) is the effect classes registered with `in_vocabulary`, in their order of definition.
 
 Friction effects (coulomb, stribeck, asymmetry) are set-valued at q̇ = 0: the simulator treats
 them implicitly (stiction: a joint at rest stays at rest while the other torques stay inside the
@@ -61,7 +62,7 @@ from jax import Array
 
 from manus.plants import fastmath
 from manus.plants.errors import ModelError
-from manus.plants.structures import Manus2, Structure
+from manus.plants.structures import Structure
 
 
 def sign(v: Array, boundary: float = 0.0) -> Array:
@@ -184,16 +185,55 @@ class Effect(eqx.Module):
 
     rule: ClassVar[str] = ""  # what the lower bounds mean, for `violations`
 
+    @classmethod
+    def parse(cls, arg: str) -> "Effect":
+        """This effect from the argument of its spec, `name:arg` ("" : none, the defaults); an
+        effect with no argument of its own refuses any."""
+        if arg:
+            raise ModelError(f"effect {cls.name!r} takes no argument (got {arg!r})")
+        return cls()
+
+
+VOCABULARY: dict[str, type[Effect]] = {}  # the vocabulary of physical effects by name, in its order
+
+
+def in_vocabulary(cls: type[Effect]) -> type[Effect]:
+    """Register the effect class `cls` in `VOCABULARY` under its name; the vocabulary's order is the
+    order of registration (each class below, as it is defined)."""
+    if cls.name in VOCABULARY:
+        raise ValueError(f"effect {cls.name!r} is in the vocabulary already")
+    VOCABULARY[cls.name] = cls
+    return cls
+
+
+def _number(text: str, what: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise ModelError(f"{what}: {text!r} is not a number") from None
+
+
+def _positive(text: str, what: str) -> float:
+    v = _number(text, what)
+    if not (v > 0 and math.isfinite(v)):
+        raise ModelError(f"{what}: {text!r} must be a positive number")
+    return v
+
+
+MAX_DELAY_S = 10.0  # a command delay longer than this is a mistake of units, not a plant's
+
 
 def _two(s: Structure, manus2: tuple[float, float], axis: float, own: str = "") -> tuple[float, ...]:
-    """Default values per joint: MANUS-2's, or the structure's `own` (a URDF's joints' <dynamics>)
-    where it gives any, else the axis's for every joint."""
-    if isinstance(s, Manus2):
+    """Default values per joint: the thesis's on its MANUS-2 arm (`Structure.thesis_arm`), or the
+    structure's own nominal values of the effect named `own` (a URDF's joints' <dynamics>:
+    `Structure.nominal`) where it gives any, else the axis's for every joint."""
+    if s.thesis_arm:
         return manus2
-    given = tuple(getattr(getattr(s, "serial", s), own, ())) if own else ()
+    given = tuple(s.nominal(own)) if own else ()
     return given if any(given) else (axis,) * s.n_joints
 
 
+@in_vocabulary
 class Rigid(Effect):
     """Inertia and Coriolis/centripetal torques of the structure."""
 
@@ -217,6 +257,7 @@ class Rigid(Effect):
         return s.violations(params)
 
 
+@in_vocabulary
 class Viscous(Effect):
     """Viscous friction b_i q̇_i [N·m·s/rad]; thesis §3.5: b = 0.222, 0.181."""
 
@@ -229,7 +270,7 @@ class Viscous(Effect):
     rule: ClassVar[str] = "friction dissipates: b ≥ 0"
 
     def defaults(self, s):
-        return _two(s, (0.222, 0.181), 1.5, "damping")  # a URDF: its damping; axis: b = 1.5 N·s/m, thesis eq. 4.1
+        return _two(s, (0.222, 0.181), 1.5, self.name)  # a URDF: its damping; axis: b = 1.5 N·s/m, thesis eq. 4.1
 
     def lower_bounds(self, s):
         return (0.0,) * s.n_joints
@@ -238,6 +279,7 @@ class Viscous(Effect):
         return stack(p, self.names(s)) * qd
 
 
+@in_vocabulary
 class Coulomb(Effect):
     """Coulomb friction Fc_i sgn(q̇_i) [N·m]; thesis §3.5: Fc = 0.099, 0.139."""
 
@@ -251,7 +293,7 @@ class Coulomb(Effect):
     rule: ClassVar[str] = "friction opposes motion: Fc ≥ 0"
 
     def defaults(self, s):
-        return _two(s, (0.099, 0.139), 0.5, "friction")  # a URDF: its friction
+        return _two(s, (0.099, 0.139), 0.5, self.name)  # a URDF: its friction
 
     def lower_bounds(self, s):
         return (0.0,) * s.n_joints
@@ -260,6 +302,7 @@ class Coulomb(Effect):
         return stack(p, self.names(s)) * sign(qd, boundary)
 
 
+@in_vocabulary
 class Stribeck(Effect):
     """Static friction above the Coulomb level, fading with speed: dFs_i exp(−(q̇_i/vs)²) sgn(q̇_i).
 
@@ -302,10 +345,16 @@ class Stribeck(Effect):
     def spec(self):
         return f"stribeck:{float(self.vs):.4g}"
 
+    @classmethod
+    def parse(cls, arg):
+        """`stribeck:VS`, the Stribeck velocity [rad/s or m/s]."""
+        return cls(vs=_positive(arg, "Stribeck velocity")) if arg else cls()
+
     def describe(self):
         return {"vs": float(self.vs)}
 
 
+@in_vocabulary
 class Asymmetry(Effect):
     """A viscous coefficient that differs by direction: db_i |q̇_i| (b⁺ = b + db, b⁻ = b − db).
 
@@ -326,6 +375,7 @@ class Asymmetry(Effect):
         return stack(p, self.names(s)) * jnp.abs(qd)
 
 
+@in_vocabulary
 class Offset(Effect):
     """A constant torque off_i (amplifier or sensor bias; illustrative defaults)."""
 
@@ -343,6 +393,7 @@ class Offset(Effect):
         return stack(p, self.names(s)) + 0 * qd
 
 
+@in_vocabulary
 class Gravity(Effect):
     """A tilted work plane: gc_i cos(q_i) + gs_i sin(q_i) on each absolute angle.
 
@@ -367,13 +418,40 @@ class Gravity(Effect):
         return th[:n] * fastmath.cos(q) + th[n:] * fastmath.sin(q)
 
     def applies(self, s, prismatic=()):
-        if getattr(s, "rigid_gravity", ""):  # a structure whose rigid effect holds gravity says why
+        if s.rigid_gravity:  # a structure whose rigid effect holds gravity says why
             return s.rigid_gravity
         if any(prismatic):
             return "gravity is a cos/sin of a joint angle: it does not apply to a prismatic axis (a constant load there is an offset)"
         return None
 
 
+@in_vocabulary
+class Spring(Effect):
+    """A spring: k_i q_i (a return spring, a cable, a gravity compensator). Its preload is a
+    constant torque, `offset`'s column, so a spring brings `offset` with it. k ≥ 0: it pulls
+    back toward its rest position. Illustrative defaults."""
+
+    name: ClassVar[str] = "spring"
+    apart: ClassVar[str] = "a wider swing"
+    side: ClassVar[str] = "link"
+    brings: ClassVar[tuple[str, ...]] = ("offset",)
+    evidence: ClassVar[str] = "position"
+    rule: ClassVar[str] = "a spring pulls back toward its rest position: k ≥ 0"
+
+    def names(self, s):
+        return per_joint("k", s)
+
+    def defaults(self, s):
+        return _two(s, (0.2, 0.15), 20.0)
+
+    def lower_bounds(self, s):
+        return (0.0,) * s.n_joints
+
+    def torque(self, s, q, qd, qdd, p, boundary=0.0):
+        return stack(p, self.names(s)) * q
+
+
+@in_vocabulary
 class Cogging(Effect):
     """Position-periodic torque Σ_N A_i sin(N q_i) + B_i cos(N q_i), N cycles per revolution
     (for a prismatic axis N is in radians per metre: the period is 2π/N metres).
@@ -421,6 +499,14 @@ class Cogging(Effect):
     @property
     def spec(self):
         return "cogging:" + "+".join(f"{float(N):.6g}" for N in self.orders)
+
+    @classmethod
+    def parse(cls, arg):
+        """`cogging:N`, or several orders at once `cogging:39+6` [cycles/rev, or rad/m]."""
+        if not arg:
+            return cls()
+        orders = [_positive(x, "cogging order") for x in arg.split("+")]
+        return cls(order=orders[0], more=tuple(orders[1:]))
 
     def describe(self):
         out = {"order": float(self.order)}
@@ -472,6 +558,7 @@ class Cogging(Effect):
         return None
 
 
+@in_vocabulary
 class Delay(Effect):
     """The commanded torque arrives `seconds` late (thesis §3.2: the amplifier's 1 ms): one
     delay for every joint, or one per joint (a tuple: joints driven by different amplifiers or
@@ -496,6 +583,25 @@ class Delay(Effect):
         if isinstance(self.seconds, tuple):
             return "delay:" + "/".join(f"{d * 1e3:.4g}ms" for d in self.seconds)
         return f"delay:{self.seconds * 1e3:.4g}ms"
+
+    @classmethod
+    def parse(cls, arg):
+        """`delay:2ms` or `delay:0.002` [s], or one per joint `delay:1ms/3ms`; at most `MAX_DELAY_S`."""
+        if not arg:
+            return cls()
+        values = []
+        for part in arg.split("/"):  # one delay, or one per joint: delay:1ms/3ms
+            m = re.fullmatch(r"\s*([0-9.eE+-]+)\s*(ms|s)?\s*", part)
+            if not m:
+                raise ModelError(f"delay: {part!r} is not a duration such as 1ms or 0.001 (per joint: 1ms/3ms)")
+            value = _number(m.group(1), "delay")
+            values.append(value * 1e-3 if m.group(2) == "ms" else value)
+        if any(v < 0 for v in values):
+            raise ModelError(f"delay: {arg!r}: a delay cannot be negative")
+        if not all(v <= MAX_DELAY_S for v in values):
+            raise ModelError(f"delay: {arg!r}: longer than {MAX_DELAY_S:g} s, no amplifier's or bus's delay "
+                             "(a delay in milliseconds is written 2ms)")
+        return cls(seconds=values[0] if len(values) == 1 else tuple(values))
 
     def describe(self):
         if isinstance(self.seconds, tuple):
@@ -531,31 +637,7 @@ class Delay(Effect):
         return None
 
 
-class Spring(Effect):
-    """A spring: k_i q_i (a return spring, a cable, a gravity compensator). Its preload is a
-    constant torque, `offset`'s column, so a spring brings `offset` with it. k ≥ 0: it pulls
-    back toward its rest position. Illustrative defaults."""
-
-    name: ClassVar[str] = "spring"
-    apart: ClassVar[str] = "a wider swing"
-    side: ClassVar[str] = "link"
-    brings: ClassVar[tuple[str, ...]] = ("offset",)
-    evidence: ClassVar[str] = "position"
-    rule: ClassVar[str] = "a spring pulls back toward its rest position: k ≥ 0"
-
-    def names(self, s):
-        return per_joint("k", s)
-
-    def defaults(self, s):
-        return _two(s, (0.2, 0.15), 20.0)
-
-    def lower_bounds(self, s):
-        return (0.0,) * s.n_joints
-
-    def torque(self, s, q, qd, qdd, p, boundary=0.0):
-        return stack(p, self.names(s)) * q
-
-
+@in_vocabulary
 class Compliance(Effect):
     """A structural mode: the motor drives the link through a shaft spring and damper.
 
@@ -584,6 +666,11 @@ class Compliance(Effect):
     def spec(self):
         return f"compliance:{float(self.f_hz):g}"
 
+    @classmethod
+    def parse(cls, arg):
+        """`compliance:F`, the mode's frequency [Hz] (`218.7` or `218.7hz`)."""
+        return cls(f_hz=_positive(arg.lower().removesuffix("hz"), "compliance frequency")) if arg else cls()
+
     def describe(self):
         return {"f_hz": float(self.f_hz), "zeta": float(self.zeta), "motor_fraction": self.motor_fraction}
 
@@ -598,62 +685,18 @@ def is_load(e: Effect) -> bool:
     return e.linear and not (e.inertial or e.dry)
 
 
-VOCABULARY: dict[str, type[Effect]] = {
-    cls.name: cls
-    for cls in (Rigid, Viscous, Coulomb, Stribeck, Asymmetry, Offset, Gravity, Spring, Cogging, Delay, Compliance)
-}
-ORDER = tuple(VOCABULARY)
-
-
-def _number(text: str, what: str) -> float:
-    try:
-        return float(text)
-    except ValueError:
-        raise ModelError(f"{what}: {text!r} is not a number") from None
-
-
-def _positive(text: str, what: str) -> float:
-    v = _number(text, what)
-    if not (v > 0 and math.isfinite(v)):
-        raise ModelError(f"{what}: {text!r} must be a positive number")
-    return v
-
-
-MAX_DELAY_S = 10.0  # a command delay longer than this is a mistake of units, not a plant's
+ORDER = tuple(VOCABULARY)  # rigid, viscous, coulomb, stribeck, asymmetry, offset, gravity, spring, cogging, delay, compliance
 
 
 def parse_effect(text: str) -> Effect:
     """One effect from its spec: `name` or `name:value` (cogging:39, stribeck:0.02,
-    delay:2ms or delay:0.002, one delay per joint delay:1ms/3ms, compliance:218.7)."""
+    delay:2ms or delay:0.002, one delay per joint delay:1ms/3ms, compliance:218.7); each effect
+    parses its own value (`Effect.parse`)."""
     name, _, arg = text.strip().partition(":")
     name = name.strip().lower()
     if name not in VOCABULARY:
         raise ModelError(f"unknown effect {name!r}: the vocabulary is {', '.join(ORDER)}")
-    cls = VOCABULARY[name]
-    if not arg:
-        return cls()
-    if cls is Cogging:
-        orders = [_positive(x, "cogging order") for x in arg.split("+")]
-        return Cogging(order=orders[0], more=tuple(orders[1:]))
-    if cls is Stribeck:
-        return Stribeck(vs=_positive(arg, "Stribeck velocity"))
-    if cls is Compliance:
-        return Compliance(f_hz=_positive(arg.lower().removesuffix("hz"), "compliance frequency"))
-    if cls is Delay:
-        values = []
-        for part in arg.split("/"):  # one delay, or one per joint: delay:1ms/3ms
-            m = re.fullmatch(r"\s*([0-9.eE+-]+)\s*(ms|s)?\s*", part)
-            if not m:
-                raise ModelError(f"delay: {part!r} is not a duration such as 1ms or 0.001 (per joint: 1ms/3ms)")
-            value = _number(m.group(1), "delay")
-            values.append(value * 1e-3 if m.group(2) == "ms" else value)
-        if any(v < 0 for v in values):
-            raise ModelError(f"delay: {arg!r}: a delay cannot be negative")
-        if not all(v <= MAX_DELAY_S for v in values):
-            raise ModelError(f"delay: {arg!r}: longer than {MAX_DELAY_S:g} s, no amplifier's or bus's delay "
-                             "(a delay in milliseconds is written 2ms)")
-        return Delay(seconds=values[0] if len(values) == 1 else tuple(values))
-    raise ModelError(f"effect {name!r} takes no argument (got {arg!r})")
+    return VOCABULARY[name].parse(arg)
 
 
 def parse_effects(text: str | list[str] | tuple) -> tuple[Effect, ...]:

@@ -27,6 +27,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from manus.plants.closed_loop import simulate
+from manus.plants.recording import from_trajectory
 from manus.plants.references import PositionReference
 from manus.plants.stepper import Controller, RefSample
 
@@ -70,9 +72,6 @@ def record(simulator, reference, seconds: float, controller: Controller | None =
     """The closed loop of `simulator` (a serial chain's) tracking `reference` for `seconds`, as a
     recording (`structure: urdf`, true velocities, the reference in `qref*`). `controller`:
     default `Feedforward` on the URDF's parameters."""
-    from manus.plants.closed_loop import simulate
-    from manus.plants.recording import from_trajectory
-
     structure = simulator.model.structure
     controller = controller or Feedforward(structure, simulator.dt)
     traj = simulate(simulator, controller, reference, seconds, key=key)

@@ -35,7 +35,7 @@ from jax import Array
 from manus.plants.effects import Compliance, Delay, Model, is_dry, is_load
 from manus.plants.errors import ModelError
 from manus.plants.stepper import Plant
-from manus.plants.structures import Diagonal, Joints, Manus2, greater, joints
+from manus.plants.structures import Diagonal, Joints, greater, joints
 
 TINY_SPEED = 1e-12  # evaluates friction levels "at rest" on the right side of the sign
 
@@ -91,10 +91,9 @@ class SimState(NamedTuple):
 
 
 def workspace_centre(model: Model) -> Array:
-    """Thesis App. C: the centre of the workspace, q = (0.464, 2.409) rad; zeros for axes."""
-    if isinstance(model.structure, Manus2):
-        return jnp.array([0.464, 2.409])
-    return jnp.zeros(model.n_joints)
+    """Where a simulated run starts unless told otherwise: the structure's `workspace_centre`
+    (MANUS-2: thesis App. C's q = (0.464, 2.409) rad; zeros elsewhere)."""
+    return jnp.array(model.structure.workspace_centre, float)
 
 
 def white_noise(key: Array, tick: Array, n: int) -> Array:
