@@ -39,7 +39,7 @@ from manus.plants import protocol as P
 from manus.plants.device import Device
 from manus.plants.errors import ManusError
 from manus.plants.recording import RecordingWriter
-from manus.plants.stepper import Controller, Reference
+from manus.plants.stepper import Controller, Plant, Reference
 
 STOPS = ("end", "watchdog", "fault", "user")
 FIRST_SAMPLE_TIMEOUT = 0.5  # s: after HELLO, the device's first sample
@@ -62,7 +62,8 @@ class CompiledTick:
 
     `step(k, counts) -> (tau (n,), extras (m,), ok)`: the command [N·m] (zero unless ok), the
     values named by `extras` (reference positions, the velocity estimate when the controller
-    keeps one), and whether every number was finite."""
+    keeps one: `Controller.velocity`), and whether every number was finite and the controller
+    has not stopped itself (`Controller.stopped`)."""
 
     def __init__(self, controller: Controller, reference: Reference, dt: float, counts_per_rev: float,
                  n_joints: int, torque_limit: float):
@@ -77,7 +78,8 @@ class CompiledTick:
         probe = controller.init(jnp.asarray(reference(0.0).q, float))
         flat0, unravel = ravel_pytree(probe)
         self.size = int(flat0.size)
-        has_v = hasattr(probe, "qd") and np.shape(getattr(probe, "qd")) == (n_joints,)
+        velocity = controller.velocity(probe)
+        has_v = velocity is not None and np.shape(velocity) == (n_joints,)
         self.extras = [f"qref{i + 1}" for i in range(n_joints)] + ([f"vhat{i + 1}" for i in range(n_joints)] if has_v else [])
 
         def finite(tree):
@@ -90,9 +92,9 @@ class CompiledTick:
             ref = reference(k * dt)
             state, tau = controller.step(state, q, ref)
             ok = finite(state) & jnp.all(jnp.isfinite(tau)) & jnp.all(jnp.isfinite(ref.q))
-            ok = ok & ~jnp.any(jnp.asarray(getattr(state, "stopped", False)))  # a latched controller stop
+            ok = ok & ~jnp.any(jnp.asarray(controller.stopped(state)))  # a latched controller stop
             tau = jnp.where(ok, jnp.clip(tau, -limit, limit), 0.0)
-            extra = [ref.q] + ([state.qd] if has_v else [])
+            extra = [ref.q] + ([controller.velocity(state)] if has_v else [])
             return jnp.concatenate([ravel_pytree(state)[0], tau, *extra, ok[None].astype(flat.dtype)])
 
         def init(counts):
@@ -146,12 +148,20 @@ class Result:
         return dict(self.__dict__)
 
 
-class HardwarePlant:
-    """The rig as a plant (docs/architecture.md: `reset(key) -> (state, q)`, `step(state, command) ->
-    (state, q)`), for code written against that interface: an imperative wrapper (brax's
-    pattern), not a pure one, so it runs in Python, never inside `jit` or `scan`. The state is
-    the last sample; `step` sends the command answering it (clamped to the limits; a non-finite
-    one stops the device and raises) and waits for the next. `close()` ends at zero torque."""
+class HardwarePlant(Plant):
+    """The rig as a `Plant` (`reset(key) -> (state, q)`, `step(state, command) -> (state, q)`), for
+    code written against that interface: an imperative wrapper (brax's pattern), not a pure one, so
+    it runs in Python, never inside `jit` or `scan`. The state is the last sample; `step` sends the
+    command answering it (clamped to the limits; a non-finite one stops the device and raises) and
+    waits for the next. `close()` ends at zero torque. The rig's truth is its encoder: `truth`
+    gives the measured position and no velocity (NaN), and its parameters are unknown (`params` {})."""
+
+    device: Device
+    watchdog: float
+    info: P.Info
+    limit: float
+    dt: float
+    q_step: float
 
     def __init__(self, device: Device, torque_limit: float | None = None, watchdog: float = 0.02):
         self.device, self.watchdog = device, float(watchdog)
@@ -160,14 +170,20 @@ class HardwarePlant:
         self.dt = 1.0 / self.info.rate_hz
         self.q_step = 2 * math.pi / self.info.counts_per_rev
 
+    @property
+    def params(self) -> dict:
+        return {}
+
     def _next(self, timeout: float) -> P.Sensor:
         sample = self.device.receive(time.perf_counter_ns() + int(timeout * 1e9))
         if sample is None:
             self.close()
-            raise ManusError(f"{getattr(self.device, 'url', 'device')}: no sample for {timeout * 1e3:g} ms (zero torque sent)")
+            raise ManusError(f"{self.device.url}: no sample for {timeout * 1e3:g} ms (zero torque sent)")
         return sample
 
-    def reset(self, key=None):
+    def reset(self, key=None, q0=None, qd0=None):
+        """Open the session and wait for the first sample. The rig starts where it stands: `key`,
+        `q0` and `qd0` are not the host's to choose (ignored)."""
         self.device.connect()
         sample = self._next(FIRST_SAMPLE_TIMEOUT)
         return sample, sample.counts * self.q_step
@@ -182,6 +198,11 @@ class HardwarePlant:
         self.device.send(state.seq, volts, P.CMD_VOLTS)
         sample = self._next(self.watchdog)
         return sample, sample.counts * self.q_step
+
+    def truth(self, state: P.Sensor):
+        """The measured position of the sample, and NaN velocities: the rig has no other truth."""
+        q = state.counts * self.q_step
+        return q, np.full(np.shape(q), np.nan)
 
     def close(self) -> None:
         self.device.stop()
@@ -221,9 +242,9 @@ def columns(n: int, extras: list[str]) -> list[str]:
             + ["compute_us", "period_us", "latency_us", "late", "flags", "seq"])
 
 
-def run_loop(device: Device, stepper, seconds: float, record: str | Path | None = None, watchdog: float = 0.02,
+def run_loop(device: Device, stepper: CompiledTick, seconds: float, record: str | Path | None = None, watchdog: float = 0.02,
              torque_limit: float | None = None, volts: bool = True, meta: dict | None = None) -> Result:
-    """Run `stepper` (a `CompiledTick` or anything with n, dt, q_step, extras, start, step) against
+    """Run `stepper` (a `CompiledTick`: n, dt, q_step, extras, start, step, keep_warm) against
     `device` for `seconds`; see the module docstring. Connects the device itself."""
     if not seconds > 0:
         raise ManusError(f"seconds must be positive, got {seconds}")
@@ -306,8 +327,7 @@ def run_loop(device: Device, stepper, seconds: float, record: str | Path | None 
                     break
                 if k >= ticks - 1 or i > ticks:
                     break
-                sample = device.receive(t0 + int(watchdog * 1e9), expect_ns=t0 + period,
-                                        idle=getattr(stepper, "keep_warm", None))
+                sample = device.receive(t0 + int(watchdog * 1e9), expect_ns=t0 + period, idle=stepper.keep_warm)
                 if sample is None:
                     result.stopped_by = "watchdog"
                     result.reason = f"no sample from the device for {watchdog * 1e3:g} ms"
@@ -323,7 +343,7 @@ def run_loop(device: Device, stepper, seconds: float, record: str | Path | None 
 
 
 def _check(device, info, stepper) -> None:
-    where = getattr(device, "url", "device")
+    where = device.url
     if info.n_joints != stepper.n:
         device.stop()
         raise ManusError(f"{where}: the device has {info.n_joints} joint(s), the controller {stepper.n}")

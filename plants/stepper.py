@@ -6,8 +6,6 @@ runs inside `jax.lax.scan` (simulation, recorded arrays) and, jitted once, in a 
 real-time loop.
 """
 
-from __future__ import annotations
-
 import abc
 from typing import Any, NamedTuple
 
@@ -41,17 +39,39 @@ class Controller(eqx.Module):
     def step(self, state: Any, q: Array, ref: RefSample) -> tuple[Any, Array]:
         """One control tick: the measured position q (n,) -> (state, torque command (n,))."""
 
+    def velocity(self, state: Any) -> Array | None:
+        """The velocity estimate (n,) the controller keeps in `state`, for logs; None when it keeps none."""
+        return None
+
+    def stopped(self, state: Any) -> Array | bool:
+        """Whether the controller has stopped itself for good in `state` (a latched stop: zero
+        torque from then on); False for a controller that never does."""
+        return False
+
 
 class Plant(eqx.Module):
     """A world that takes torque commands and returns measured positions, one tick at a time.
 
-    Backends: the JAX simulator (`manus.plants.simulator.Simulator`) and the hardware loop.
+    Backends: the JAX simulator (`manus.plants.simulator.Simulator`), a simulated plant with a
+    disturbance (`manus.plants.disturbed.Disturbed`) and the rig itself
+    (`manus.plants.hardware.HardwarePlant`, imperative: outside `jit`). Closed loops
+    (`manus.plants.closed_loop`, `manus.adaptive.slotine_li`) use exactly what is declared here.
     """
 
+    dt: eqx.AbstractVar[float]  # the control period [s]
+    # The true values of the plant's parameters by name (a simulated plant's truth); {} when
+    # they are unknown (the rig).
+    params: eqx.AbstractVar[dict]
+
     @abc.abstractmethod
-    def reset(self, key: Array | None = None) -> tuple[Any, Array]:
-        """-> (state, first measured position (n,))."""
+    def reset(self, key: Array | None = None, q0: Array | None = None, qd0: Array | None = None) -> tuple[Any, Array]:
+        """-> (state, first measured position (n,)), starting at rest at q0 (or where the plant
+        starts by default) with velocity qd0 (default zero), with the noise key `key`."""
 
     @abc.abstractmethod
     def step(self, state: Any, command: Array) -> tuple[Any, Array]:
         """Hold `command` (n,) for one control period -> (state, next measured position)."""
+
+    @abc.abstractmethod
+    def truth(self, state: Any) -> tuple[Array, Array]:
+        """The true position and velocity (n,) of the measured coordinate in `state`."""
