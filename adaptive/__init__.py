@@ -17,6 +17,31 @@ from manus.adaptive.projection import Projection
 from manus.adaptive.regressors import Regressor
 from manus.adaptive.slotine_li import SlotineLi, replay, rollout
 
-__all__ = ["ALPHA", "BLOCKS", "CONTROLLERS", "METHODS", "MIN_SHARE", "Candidate", "Columns", "Composite", "Consistency",
-           "Data", "Diagnosis", "Discovery", "Fit", "Impedance", "Projection", "Regressor", "SlotineLi", "Step",
-           "consistent", "diagnose", "discover", "fit", "make_controller", "prepare", "replay", "rollout"]
+__all__ = [
+    "ALPHA",
+    "BLOCKS",
+    "CONTROLLERS",
+    "METHODS",
+    "MIN_SHARE",
+    "Candidate",
+    "Columns",
+    "Composite",
+    "Consistency",
+    "Data",
+    "Diagnosis",
+    "Discovery",
+    "Fit",
+    "Impedance",
+    "Projection",
+    "Regressor",
+    "SlotineLi",
+    "Step",
+    "consistent",
+    "diagnose",
+    "discover",
+    "fit",
+    "make_controller",
+    "prepare",
+    "replay",
+    "rollout",
+]

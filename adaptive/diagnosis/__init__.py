@@ -27,12 +27,13 @@ contiguous blocks of the recording, honestly:
   merged until each spans `SPAN` correlation times (`significance.score_blocks`). And the
   *held-out errors*: for each block, the candidate's non-linear parameter searched and the model
   fitted on the other blocks only, the block predicted, the per-block log ratio of squared
-  errors t-tested over the blocks. The score test has the power where the model is nearly right and the torque noisy; the held-out
-  errors where the model is far from the data (several large effects missing: what is left is
-  no noise, and a better prediction of every block still shows). A delay moves the torque and
-  has no columns: the held-out errors alone. Each candidate is judged at `alpha` divided by the
-  number of candidates of the step (Bonferroni); it must also predict the held-out blocks
-  better than the model without it (`cv_error_reduction`, which also ranks the candidates);
+  errors t-tested over the blocks. The score test has the power where the model is nearly right
+  and the torque noisy; the held-out errors where the model is far from the data (several large
+  effects missing: what is left is no noise, and a better prediction of every block still
+  shows). A delay moves the torque and has no columns: the held-out errors alone. Each
+  candidate is judged at `alpha` divided by the number of candidates of the step (Bonferroni);
+  it must also predict the held-out blocks better than the model without it
+  (`cv_error_reduction`, which also ranks the candidates);
 - relevance: a candidate must explain at least `min_share` of the recorded torque (RMS: the
   torque it accounts for, √(e_before² − e_after²) in rel_error units), or remove at least half of
   the current error. A share of the torque, not only of the current error: on a noisy recording
@@ -73,4 +74,3 @@ Modules, each importing only those before it: `scores` (the score test), `signif
 `context` (what a step judges in), `candidates` (each candidate judged), `leftover` (what no
 effect explains), `verdict` (`diagnose`: the step's verdict), `discover` (the loop).
 """
-

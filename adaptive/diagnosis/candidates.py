@@ -84,9 +84,14 @@ class Measured:
     def report(self) -> dict:
         """The candidate's `detail` in the JSON."""
         m = self.mode
-        return {"f_hz": round(m.f_hz, 1), "zeta": m.zeta, "motor_fraction": round(m.motor_fraction, 3),
-                "measured_in": "frequency response {:g}-{:g} Hz".format(*self.band_hz),
-                "resonance_peak": m.resonant, "coherent_to_hz": round(m.coherent_hz, 1)}
+        return {
+            "f_hz": round(m.f_hz, 1),
+            "zeta": m.zeta,
+            "motor_fraction": round(m.motor_fraction, 3),
+            "measured_in": "frequency response {:g}-{:g} Hz".format(*self.band_hz),
+            "resonance_peak": m.resonant,
+            "coherent_to_hz": round(m.coherent_hz, 1),
+        }
 
 
 @dataclass
@@ -135,10 +140,17 @@ class Candidate:
 
     def report(self) -> dict:
         """The candidate in `manus diagnose`'s JSON."""
-        out = {"effect": self.effect, "spec": self.spec, "joint": self.joint,
-               "error_reduction": round(self.error_reduction, 4), "significant": self.significant,
-               "detail": self.detail, "cv_error_reduction": round(self.cv_error_reduction, 4),
-               "p_value": float(f"{self.p_value:.3g}"), "n_params": self.n_params}
+        out = {
+            "effect": self.effect,
+            "spec": self.spec,
+            "joint": self.joint,
+            "error_reduction": round(self.error_reduction, 4),
+            "significant": self.significant,
+            "detail": self.detail,
+            "cv_error_reduction": round(self.cv_error_reduction, 4),
+            "p_value": float(f"{self.p_value:.3g}"),
+            "n_params": self.n_params,
+        }
         if self.problems:
             out["not_proposed"] = self.problems
         if self.aliases:
@@ -180,7 +192,9 @@ def offered(model: Model, span: Span, prismatic) -> tuple[list[Offer], list[str]
         else:
             values = e0.space(span) if not e0.modal else ()
             if not (e0.modal or e0.timing) and not values and type(e0).space is not Effect.space:
-                notes.append(f"{name}: the recording spans too little to search its parameter (travel or speed too small)")
+                notes.append(
+                    f"{name}: the recording spans too little to search its parameter (travel or speed too small)"
+                )
                 continue
             values = values or (e0,)
         why = e0.applies(s, prismatic)
@@ -189,8 +203,10 @@ def offered(model: Model, span: Span, prismatic) -> tuple[list[Offer], list[str]
             continue
         lacking = [r for r in e0.requires if not model.has(r)]
         if lacking:
-            notes.append(f"{name}: offered only on top of {', '.join(lacking)} (otherwise it would be "
-                         f"{', '.join(lacking)} under another name)")
+            notes.append(
+                f"{name}: offered only on top of {', '.join(lacking)} (otherwise it would be "
+                f"{', '.join(lacking)} under another name)"
+            )
             continue
         brought = tuple(VOCABULARY[b]() for b in e0.brings if not model.has(b))
         out.append(Offer(e0, tuple(values), brought))
@@ -250,8 +266,8 @@ def judge(ctx: Context, offer: Offer) -> Candidate:
         free = g.free(ctx.whole)
         scores = [block_scores(g.exact(i), tested, groups) for i in range(len(g.values))]
         signed = np.isfinite(g.lower)[tested]  # (its columns whose physics fixes their sign: a one-sided test)
-        tests["score"], _, how = score_p([x for x, ok in zip(scores, free) if ok], ctx.alpha / len(SIGNIFICANCE),
-                                         signed=signed)
+        judged = [x for x, ok in zip(scores, free, strict=True) if ok]
+        tests["score"], _, how = score_p(judged, ctx.alpha / len(SIGNIFICANCE), signed=signed)
         score_test = f"{how}, {groups.shape[0]} blocks"
         # the share of the torque it would have to explain to be found (80 %), and to count
         share = detectable(scores, ctx.alpha / len(SIGNIFICANCE)) / max(float(g.exact(0).yy.sum()), 1e-300)
@@ -261,11 +277,22 @@ def judge(ctx: Context, offer: Offer) -> Candidate:
     names = [n for e in own for n in e.names(s) if n not in held]
     n_params = len(names) + (1 if len(values) > 1 else 0)
     base_joint = np.sum(base.residual**2, axis=0)
-    per_joint = [round(1 - float(np.sqrt(np.sum(f.residual[:, i] ** 2) / base_joint[i])), 4) if base_joint[i] > 0
-                 else 0.0 for i in range(data.n_joints)]
+    per_joint = [
+        round(1 - float(np.sqrt(np.sum(f.residual[:, i] ** 2) / base_joint[i])), 4) if base_joint[i] > 0 else 0.0
+        for i in range(data.n_joints)
+    ]
     explained = float(np.sqrt(max(base.rel_error**2 - f.rel_error**2, 0.0)))
-    evidence = Judged({k: v for k, v in f.params.items() if k in names}, chosen.describe(), per_joint,
-                      tuple(b.name for b in brought), held, explained, tests, score_test, limit)
+    evidence = Judged(
+        {k: v for k, v in f.params.items() if k in names},
+        chosen.describe(),
+        per_joint,
+        tuple(b.name for b in brought),
+        held,
+        explained,
+        tests,
+        score_test,
+        limit,
+    )
     significant = bool(p < ctx.alpha and (explained >= ctx.min_share or reduction >= MOST) and cv_red > 0)
     problems = [v for e in own for v in e.violations(s, f.params, f.stds)]
     edge = chosen.edge(ctx.span) if len(values) > 1 else None
@@ -273,15 +300,36 @@ def judge(ctx: Context, offer: Offer) -> Candidate:
         problems.append(edge)
     lost = [n for n in names if n in f.redundant]
     if lost:
-        problems.append(f"not identifiable from this recording: {', '.join(lost)} "
-                        f"{'is' if len(lost) == 1 else 'are'} explained by the model's own columns on these rows")
+        problems.append(
+            f"not identifiable from this recording: {', '.join(lost)} "
+            f"{'is' if len(lost) == 1 else 'are'} explained by the model's own columns on these rows"
+        )
     spec = ",".join(e.spec for e in (*brought, chosen))
-    note = (f"{', '.join(held)} held at {'its' if len(held) == 1 else 'their'} physical bound (fitted free, "
-            f"{'it breaks' if len(held) == 1 else 'they break'} the effect's rule)") if held else ""
+    note = (
+        (
+            f"{', '.join(held)} held at {'its' if len(held) == 1 else 'their'} physical bound (fitted free, "
+            f"{'it breaks' if len(held) == 1 else 'they break'} the effect's rule)"
+        )
+        if held
+        else ""
+    )
     joint = _own_joint(cols, f, own, data.n_joints)
     joint = int(np.argmax(per_joint)) if joint is None else joint
-    return Candidate(e0.name, chosen.spec if not brought else spec, reduction, cv_red, p, significant,
-                     joint + 1, evidence, n_params, sse, fit=f, problems=problems, note=note)
+    return Candidate(
+        e0.name,
+        chosen.spec if not brought else spec,
+        reduction,
+        cv_red,
+        p,
+        significant,
+        joint + 1,
+        evidence,
+        n_params,
+        sse,
+        fit=f,
+        problems=problems,
+        note=note,
+    )
 
 
 def _own_joint(cols: Columns, f: Fit, own: list[Effect], n: int) -> int | None:
@@ -320,6 +368,18 @@ def compliance(ctx: Context) -> Candidate | str:
     if short:
         note += f"; the response is {short}: a mode above that cannot show"
     problems = [why for why in (mode.edge(),) if why]
-    return Candidate(mode.effect().name, mode.effect().spec, mode.reduction, mode.reduction, p, significant,
-                     mode.joint + 1, Measured(mode, modes.band(1 / data.dt)), 2, mode.err_mode, mode=mode, note=note,
-                     problems=problems)
+    return Candidate(
+        mode.effect().name,
+        mode.effect().spec,
+        mode.reduction,
+        mode.reduction,
+        p,
+        significant,
+        mode.joint + 1,
+        Measured(mode, modes.band(1 / data.dt)),
+        2,
+        mode.err_mode,
+        mode=mode,
+        note=note,
+        problems=problems,
+    )

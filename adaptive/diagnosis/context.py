@@ -54,5 +54,6 @@ class Context:
         """The least-squares statistics of `model` over the segments (its instruments' too with
         IV), the torque read `delay` late (default: the model's own, `delay_of`)."""
         z = None if self.icols is None else self.icols.model(model)
-        return Stats.of(self.cols.model(model), self.data.tau(delay_of(model) if delay is None else delay),
-                        self.starts, z)
+        return Stats.of(
+            self.cols.model(model), self.data.tau(delay_of(model) if delay is None else delay), self.starts, z
+        )

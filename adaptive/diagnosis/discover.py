@@ -16,8 +16,8 @@ rows, so the errors of successive steps are comparable.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 from manus.adaptive.diagnosis.candidates import Candidate
 from manus.adaptive.diagnosis.verdict import Diagnosis, diagnose
@@ -54,10 +54,18 @@ class Step:
 
     def report(self) -> dict:
         """The step in `manus discover`'s JSON."""
-        out = {"step": self.index, "effect": self.effect, "spec": self.spec, "params": self.params,
-               "rel_error_before": self.rel_error_before, "rel_error": self.rel_error, "model": self.model,
-               "error_reduction": self.verdict.error_reduction, "p_value": self.verdict.p_value,
-               "candidates": [c.report() for c in self.diagnosis.candidates]}
+        out = {
+            "step": self.index,
+            "effect": self.effect,
+            "spec": self.spec,
+            "params": self.params,
+            "rel_error_before": self.rel_error_before,
+            "rel_error": self.rel_error,
+            "model": self.model,
+            "error_reduction": self.verdict.error_reduction,
+            "p_value": self.verdict.p_value,
+            "candidates": [c.report() for c in self.diagnosis.candidates],
+        }
         if self.note:
             out["note"] = self.note
         return out
@@ -97,13 +105,22 @@ class Discovery:
 
     def report(self) -> dict:
         """The JSON contract of `manus discover` (docs/cli.md)."""
-        return {"start": {"model": self.start.model.spec, "rel_error": self.start.rel_error},
-                "steps": [s.report() for s in self.steps], "model": self.model, "rel_error": self.rel_error,
-                "stopped": self.stopped, "samples": int(self.start.data.rows.size),
-                "cutoff_hz": self.start.data.cutoff_hz, "hold": self.start.data.hold,
-                "method": self.final_fit.method, "method_why": self.final_fit.why,
-                "params": self.final_fit.report()["params"], "unexplained": self.unexplained,
-                "detection_limits": self.final.detection_limits if self.final is not None else {}, "notes": self.notes}
+        return {
+            "start": {"model": self.start.model.spec, "rel_error": self.start.rel_error},
+            "steps": [s.report() for s in self.steps],
+            "model": self.model,
+            "rel_error": self.rel_error,
+            "stopped": self.stopped,
+            "samples": int(self.start.data.rows.size),
+            "cutoff_hz": self.start.data.cutoff_hz,
+            "hold": self.start.data.hold,
+            "method": self.final_fit.method,
+            "method_why": self.final_fit.why,
+            "params": self.final_fit.report()["params"],
+            "unexplained": self.unexplained,
+            "detection_limits": self.final.detection_limits if self.final is not None else {},
+            "notes": self.notes,
+        }
 
 
 def effect_params(f: Fit, effect: str) -> dict:
@@ -138,9 +155,15 @@ def _refine(data: Data, cols: Columns, current: Fit, given: set[str], method: st
     return again, ", ".join(f"{a.spec} -> {b.spec}" for a, b in changed)
 
 
-def discover(rec: Recording | Data, model: str, cutoff_hz: float | None = None,
-             max_steps: int = MAX_STEPS, progress: Callable[[str], None] | None = None, method: str = "auto",
-             **diagnose_options) -> Discovery:
+def discover(
+    rec: Recording | Data,
+    model: str,
+    cutoff_hz: float | None = None,
+    max_steps: int = MAX_STEPS,
+    progress: Callable[[str], None] | None = None,
+    method: str = "auto",
+    **diagnose_options,
+) -> Discovery:
     """Run the loop from `model` (text, e.g. "rigid,viscous,coulomb"). `progress` receives a line
     per step; `diagnose_options` go to `diagnose` (blocks, alpha, min_share)."""
     if max_steps < 1:
@@ -174,16 +197,39 @@ def discover(rec: Recording | Data, model: str, cutoff_hz: float | None = None,
         before = current.rel_error
         if v.mode is not None:  # a structural mode: measured in its own band, no columns
             params = dict(v.detail)
-            steps.append(Step(len(steps) + 1, v.effect, v.spec, params, before, before, f"{spec},{v.spec}", d, None,
-                              "a structural mode found in the frequency response above the identification band; "
-                              "it has no inverse-dynamics columns, so the torque error is unchanged"))
+            steps.append(
+                Step(
+                    len(steps) + 1,
+                    v.effect,
+                    v.spec,
+                    params,
+                    before,
+                    before,
+                    f"{spec},{v.spec}",
+                    d,
+                    None,
+                    "a structural mode found in the frequency response above the identification band; "
+                    "it has no inverse-dynamics columns, so the torque error is unchanged",
+                )
+            )
             say(f"step {len(steps)}: + {v.spec} (frequency response; not refitted)")
             return Discovery(start, steps, None, "compliance (not refitted)", notes)
         spec = v.fit.model.spec  # the model with the verdict's effect as found (its search fixed)
         current = fit(data, spec, columns=cols, method=method)
         current, moved = _refine(data, cols, current, given, method)
         spec = current.model.spec
-        steps.append(Step(len(steps) + 1, v.effect, v.spec, effect_params(current, v.effect), before,
-                          current.rel_error, spec, d, current,
-                          f"searched again with {v.effect} in the model: {moved}" if moved else ""))
+        steps.append(
+            Step(
+                len(steps) + 1,
+                v.effect,
+                v.spec,
+                effect_params(current, v.effect),
+                before,
+                current.rel_error,
+                spec,
+                d,
+                current,
+                f"searched again with {v.effect} in the model: {moved}" if moved else "",
+            )
+        )
         say(f"step {len(steps)}: + {v.spec}, rel_error {100 * before:.2f} % -> {100 * current.rel_error:.2f} %")

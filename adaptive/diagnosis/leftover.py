@@ -16,6 +16,8 @@ a tenth of what is left is a quantizer's pattern, not a missing effect).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from manus.adaptive.diagnosis.context import Context
@@ -70,6 +72,32 @@ def _bases(data: Data, fitted: np.ndarray) -> dict:
     return out
 
 
+@dataclass(frozen=True)
+class Tested:
+    """One smooth function of one variable, fitted to one joint's residual on the training
+    blocks and judged on the held-out ones (values as reported: `fraction` to 4 places, `share`
+    to 5)."""
+
+    joint: int  # 1-based: the joint whose residual it is fitted to
+    variable: str  # "position", "velocity", ..., "time", "frequency"
+    of_joint: int | None  # 1-based: the joint whose variable it is (None: time, frequency)
+    fraction: float  # the share of the remaining error it removes held out
+    p_value: float
+    share: float  # the share of the recorded torque (RMS) it accounts for
+
+    @property
+    def against(self) -> str:
+        """The variable, naming its joint where that is another than the residual's."""
+        if self.of_joint is None or self.of_joint == self.joint:
+            return self.variable
+        return f"{self.variable} of joint {self.of_joint}"
+
+    def counts(self, level: float, min_share: float) -> bool:
+        """Significant at `level`, and relevant: it removes `UNEXPLAINED_MIN` of the error and
+        accounts for `min_share` of the torque."""
+        return bool(self.p_value < level and self.fraction >= UNEXPLAINED_MIN and self.share >= min_share)
+
+
 def residual_structure(ctx: Context, f: Fit, alpha: float) -> dict:
     """Structure left in the residual of `f` that a smooth function of one variable removes on
     the held-out blocks of `ctx` (see the module docstring), judged at `alpha` and relevant at
@@ -83,12 +111,12 @@ def residual_structure(ctx: Context, f: Fit, alpha: float) -> dict:
     for train, test in folds:
         theta = st.theta(st.coef(train))
         resid.append((tau - Y @ theta, train[seg_of_row], test[seg_of_row]))
-    tests = []
+    tests: list[Tested] = []
     torque = float(np.sum(tau**2)) or 1.0
     bases = _bases(data, f.predicted())
     t = data.rec.t[data.rows]
     for j in range(data.n_joints):
-        for (what, i), B in list(bases.items()) + [(("frequency", None), None)]:
+        for (what, i), B in [*bases.items(), (("frequency", None), None)]:
             with_, without = np.zeros(len(folds)), np.zeros(len(folds))
             for k, (r, tr, te) in enumerate(resid):
                 Bk = B if B is not None else _sinusoid(t, r[tr, j], tr)
@@ -100,26 +128,42 @@ def residual_structure(ctx: Context, f: Fit, alpha: float) -> dict:
             if not without.sum() > 0:
                 continue
             frac = 1 - float(np.sqrt(with_.sum() / without.sum()))
-            tests.append({"joint": j + 1, "against": what if i is None or i == j else f"{what} of joint {i + 1}",
-                          "variable": what, "of_joint": None if i is None else i + 1,
-                          "fraction": round(frac, 4), "p_value": one_sided_p(without, with_),
-                          "share": round(float(np.sqrt(max(without.sum() - with_.sum(), 0.0) / torque)), 5)})
+            tests.append(
+                Tested(
+                    j + 1,
+                    what,
+                    None if i is None else i + 1,
+                    round(frac, 4),
+                    one_sided_p(without, with_),
+                    round(float(np.sqrt(max(without.sum() - with_.sum(), 0.0) / torque)), 5),
+                )
+            )
     if not tests:
         return {"significant": False, "joint": None, "against": None, "fraction": 0.0, "p_value": 1.0}
     m = len(tests)
-    for x in tests:
-        x["significant"] = bool(x["p_value"] < alpha / m and x["fraction"] >= UNEXPLAINED_MIN
-                                and x["share"] >= min_share)
-    best = max(tests, key=lambda x: (x["significant"], x["fraction"]))
-    out = {"significant": best["significant"], "joint": best["joint"], "against": best["against"],
-           "fraction": best["fraction"], "p_value": float(f"{best['p_value']:.3g}"), "tests": m,
-           "variable": best["variable"], "of_joint": best["of_joint"], "share": best["share"]}
-    if not best["significant"] and best["p_value"] < alpha / m:  # real, but too small to count
+    counts = [x.counts(alpha / m, min_share) for x in tests]
+    b = max(range(m), key=lambda k: (counts[k], tests[k].fraction))
+    best = tests[b]
+    out = {
+        "significant": counts[b],
+        "joint": best.joint,
+        "against": best.against,
+        "fraction": best.fraction,
+        "p_value": float(f"{best.p_value:.3g}"),
+        "tests": m,
+        "variable": best.variable,
+        "of_joint": best.of_joint,
+        "share": best.share,
+    }
+    if not counts[b] and best.p_value < alpha / m:  # real, but too small to count
         out["below_relevance"] = UNEXPLAINED_MIN
         out["min_share"] = min_share
-    sig = [x for x in tests if x["significant"]]
-    if sig:
-        out["also"] = [{k: x[k] for k in ("joint", "against", "fraction")} for x in sig if x is not best][:6]
+    if any(counts):
+        out["also"] = [
+            {"joint": x.joint, "against": x.against, "fraction": x.fraction}
+            for k, x in enumerate(tests)
+            if counts[k] and k != b
+        ][:6]
     return out
 
 
@@ -128,8 +172,10 @@ def what_removes(u: dict) -> str:
     if u.get("variable") == "frequency":
         return "a sinusoid at the residual's spectral peak"
     if u.get("variable") == RIPPLE:
-        return (f"joint {u.get('of_joint') or u.get('joint')}'s modelled torque times a smooth function of its "
-                "position (a torque ripple)")
+        return (
+            f"joint {u.get('of_joint') or u.get('joint')}'s modelled torque times a smooth function of its "
+            "position (a torque ripple)"
+        )
     return f"a smooth function of {u.get('against')}"
 
 

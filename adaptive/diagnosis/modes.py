@@ -39,6 +39,7 @@ candidate is (rightly) not significant.
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -106,8 +107,10 @@ class Mode:
         lo, hi = SHARE
         if lo * (1 + EDGE) < self.motor_fraction < hi * (1 - EDGE):
             return ""
-        return (f"its motor share {self.motor_fraction:.3g} lies on the edge of its search range ({lo:g} to "
-                f"{hi:g}): the response asks for a share of the inertia no motor and link have")
+        return (
+            f"its motor share {self.motor_fraction:.3g} lies on the edge of its search range ({lo:g} to "
+            f"{hi:g}): the response asks for a share of the inertia no motor and link have"
+        )
 
     def effect(self) -> Compliance:
         return Compliance(f_hz=self.f_hz, zeta=self.zeta)
@@ -126,7 +129,7 @@ def sampling(f: np.ndarray, fs: float) -> np.ndarray:
     w = 2 * np.pi * np.asarray(f) / fs
     z = np.exp(1j * w)
     with np.errstate(divide="ignore", invalid="ignore"):
-        k = -np.sin(w) ** 2 * (z + 1) / (2 * (z - 1) ** 2)
+        k = -(np.sin(w) ** 2) * (z + 1) / (2 * (z - 1) ** 2)
     return np.where(w > 0, k, 1.0 + 0j)
 
 
@@ -248,19 +251,21 @@ def detect(q: np.ndarray, tau: np.ndarray, dt: float, blocks: int = 8) -> Mode |
     T, n = q.shape
     nper = int(2 ** np.floor(np.log2(max(T / blocks / 4, 64))))
     lo, hi = band(fs)
-    if T < blocks * nper:
+    if blocks * nper > T:
         return f"too short: {blocks} blocks of {nper} samples are needed for its frequency response"
     acc = np.gradient(np.gradient(q, dt, axis=0), dt, axis=0)
     edges = np.linspace(0, T, blocks + 1).astype(int)
-    parts = [_spectra(tau[a:b], acc[a:b], fs, nper) for a, b in zip(edges[:-1], edges[1:])]
+    parts = [_spectra(tau[a:b], acc[a:b], fs, nper) for a, b in itertools.pairwise(edges)]
     f = parts[0][0]
     total = [sum(p[j] for p in parts) for j in (1, 2, 3)]
     h, z, coh = _frf(*total)
     w = _weights(f, coh, fs)
     if not np.any(w > 0):
-        return (f"no frequency in its band ({lo:.3g}-{hi:.3g} Hz) where the torque explains the measured "
-                f"acceleration (coherence below {MIN_COHERENCE:g} throughout: the encoder's resolution or noise "
-                "on the torque swamps the motion there)")
+        return (
+            f"no frequency in its band ({lo:.3g}-{hi:.3g} Hz) where the torque explains the measured "
+            f"acceleration (coherence below {MIN_COHERENCE:g} throughout: the encoder's resolution or noise "
+            "on the torque swamps the motion there)"
+        )
     coherent = float(f[np.any(w > 0, axis=1)].max())
     floor = floor_column(total[0], total[1])
     pts, G = search_grid(f, fs)
@@ -268,7 +273,8 @@ def detect(q: np.ndarray, tau: np.ndarray, dt: float, blocks: int = 8) -> Mode |
     if found is None:
         short = coherent_only(coherent, fs)
         return "no mode of a plausible motor share of the inertia fits its frequency response" + (
-            f": the response is {short}" if short else "")
+            f": the response is {short}" if short else ""
+        )
     best, joint, r, fitted_coef = found
     fz, zeta = pts[best]
     one = np.ones((1, f.size), complex)
@@ -299,8 +305,20 @@ def detect(q: np.ndarray, tau: np.ndarray, dt: float, blocks: int = 8) -> Mode |
     rigid = np.stack([mag(i, one, fit_response(z[:, i], w[:, i], one, floor[:, i])[0]) for i in range(n)], 1)
     fitted = np.stack([mag(i, g, fitted_coef[i]) for i in range(n)], 1)
     f_mode = float(fz / np.sqrt(r))
-    return Mode(f_mode, float(zeta), r, joint, peaks_at(f, np.abs(h[:, joint]), f_mode, hi), err_rigid, err_mode,
-                f, np.abs(h), rigid, fitted, coherent)
+    return Mode(
+        f_mode,
+        float(zeta),
+        r,
+        joint,
+        peaks_at(f, np.abs(h[:, joint]), f_mode, hi),
+        err_rigid,
+        err_mode,
+        f,
+        np.abs(h),
+        rigid,
+        fitted,
+        coherent,
+    )
 
 
 def coherent_only(coherent_hz: float, fs: float) -> str:
@@ -309,8 +327,10 @@ def coherent_only(coherent_hz: float, fs: float) -> str:
     hi = band(fs)[1]
     if coherent_hz >= 0.75 * hi:
         return ""
-    return (f"coherent only up to {coherent_hz:.3g} Hz of its band's {hi:.3g} Hz (above, the encoder's "
-            "resolution or noise on the torque swamps the motion)")
+    return (
+        f"coherent only up to {coherent_hz:.3g} Hz of its band's {hi:.3g} Hz (above, the encoder's "
+        "resolution or noise on the torque swamps the motion)"
+    )
 
 
 def peaks_at(f, mag, f_mode, top) -> bool:

@@ -48,6 +48,7 @@ def block_scores(st: Stats, test: np.ndarray, blocks: np.ndarray) -> Scores:
     TA = (T.T[None] @ A[:, :, p:]).reshape(A.shape[0], k * k)  # (S, k·k): each segment's Z̃ᵀE
     return Scores(masks @ (u @ T), (masks @ TA).reshape(masks.shape[0], k, k))
 
+
 class Jackknife(NamedTuple):
     """One value's block scores reduced to the directions its columns identify (`jackknife`)."""
 
@@ -102,10 +103,9 @@ def jackknife(s: np.ndarray, Q: np.ndarray) -> Jackknife | None:
     return Jackknife(k, lam[keep], sr, Qr, Qi, L, dj, R)
 
 
-
-
-def score_p(scores: list[Scores], alpha: float = 0.05, seed: int = 0,
-            stop_above: float = 0.1, signed: np.ndarray | None = None) -> tuple[float, int, str]:
+def score_p(
+    scores: list[Scores], alpha: float = 0.05, seed: int = 0, stop_above: float = 0.1, signed: np.ndarray | None = None
+) -> tuple[float, int, str]:
     """p of 'the candidate's columns are missing from the model', from their block scores (one
     `block_scores` per value of the candidate's searched parameter; one: nothing searched).
 
@@ -146,7 +146,9 @@ def score_p(scores: list[Scores], alpha: float = 0.05, seed: int = 0,
         if j is None:
             continue
         omega = j.noise.T @ j.noise
-        m = physical(j.s.sum(0)[None, None], j.Q.sum(0)[None], j.Q_inv[None], j.R[None], omega[None, None], signed)[0, 0]
+        m = physical(j.s.sum(0)[None, None], j.Q.sum(0)[None], j.Q_inv[None], j.R[None], omega[None, None], signed)[
+            0, 0
+        ]
         observed[v] = m @ _solve_psd(omega[None], m[None])[0]
         lev = np.einsum("gij,ji->g", j.Q, j.Q_inv)  # each block's share of the information (Σ = k)
         effective = min(effective, j.k * j.k / max(float(np.sum(lev**2)), 1e-300))
@@ -204,8 +206,9 @@ def score_p(scores: list[Scores], alpha: float = 0.05, seed: int = 0,
     return (1 + exceed) / (1 + done), best, "wild" if wild else "exact"
 
 
-def physical(m: np.ndarray, Qs: np.ndarray, Qi: np.ndarray, R: np.ndarray, omega: np.ndarray,
-              signed: np.ndarray | None) -> np.ndarray:
+def physical(
+    m: np.ndarray, Qs: np.ndarray, Qi: np.ndarray, R: np.ndarray, omega: np.ndarray, signed: np.ndarray | None
+) -> np.ndarray:
     """The summed scores m (n, V, k), in the identified directions R (V, K, k) of each value's K
     tested columns (Qs = Σ_b Q_b there, Qi its inverse, omega (n, V, k, k) the scores' spread),
     reduced to what the physical sign explains (`score_p`): β̂ = Qi m projected on the
@@ -303,9 +306,8 @@ def correlation_time(x: np.ndarray, dt: float) -> float:
         f = np.fft.rfft(y, 2 * n)
         ac = np.fft.irfft(f * np.conj(f))[:n]
         ac = ac / ac[0]
-        taus = 1 + 2 * np.cumsum(ac[1:n // 4])  # the estimate summed up to each lag m = 1, 2, ...
+        taus = 1 + 2 * np.cumsum(ac[1 : n // 4])  # the estimate summed up to each lag m = 1, 2, ...
         window = np.flatnonzero(np.arange(1, taus.size + 1) >= 5 * taus)
         tau = taus[window[0]] if window.size else taus[-1]
         out = max(out, tau * dt)
     return out
-

@@ -19,7 +19,7 @@ MIN_TEST_BLOCKS = 10  # ... and at least this many (2⁹ sign patterns: a p belo
 
 def held_out(st: Stats, folds) -> np.ndarray:
     """Per block, the squared error of the fit on the other blocks."""
-    train, test = (np.array(m) for m in zip(*folds))
+    train, test = (np.array(m) for m in zip(*folds, strict=True))
     return st.sses(st.coefs(train), test)
 
 

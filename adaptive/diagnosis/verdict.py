@@ -34,9 +34,12 @@ from manus.plants.effects import ORDER, VOCABULARY, Model
 from manus.plants.errors import ModelError
 from manus.plants.recording import Recording
 
-BLOCKS = 40  # held-out blocks (calibrated: 20 -> 40 named 75 -> 79 % of hidden effects; a verdict on 0/200 -> 1/200 nulls)
+BLOCKS = 40  # held-out blocks (calibrated: 79 % of hidden effects named, a verdict on 1/200 nulls; 20 named 75 %)
 MIN_BLOCKS = 5
-ALPHA = 0.05  # family-wise, Bonferroni over a step's candidates, Simes over each one's two tests (calibrated, float64: `manus bench diagnose --calibrate`; seeds 0, 5, 23, 31 and 47: a verdict on 17/1000 recordings with nothing missing; seeds 0 and 5: 95.0 % of hidden effects named or a reading)
+# family-wise, Bonferroni over a step's candidates, Simes over each one's two tests (calibrated, float64:
+# `manus bench diagnose --calibrate`; seeds 0, 5, 23, 31 and 47: a verdict on 17/1000 recordings with nothing
+# missing; seeds 0 and 5: 95.0 % of hidden effects named or a reading)
+ALPHA = 0.05
 MIN_SHARE = 0.005  # a candidate must explain at least this share of the recorded torque (RMS)
 MIN_ROWS_PER_BLOCK = 10
 
@@ -56,15 +59,23 @@ class Diagnosis:
 
     def report(self) -> dict:
         """The JSON contract of `manus diagnose` (docs/cli.md)."""
-        return {"model": self.base.model.effect_names, "spec": self.base.model.spec,
-                "rel_error": self.base.rel_error, "cutoff_hz": self.base.data.cutoff_hz,
-                "cutoff_note": self.base.data.cutoff_note, "hold": self.base.data.hold,
-                "method": self.base.method, "method_why": self.base.why,
-                "candidates": [c.report() for c in self.candidates],
-                "verdict": self.verdict.effect if self.verdict else None,
-                "verdict_spec": self.verdict.spec if self.verdict else None,
-                "unexplained": self.unexplained, "detection_limits": self.detection_limits,
-                "violations": self.base.violations(), "notes": self.notes}
+        return {
+            "model": self.base.model.effect_names,
+            "spec": self.base.model.spec,
+            "rel_error": self.base.rel_error,
+            "cutoff_hz": self.base.data.cutoff_hz,
+            "cutoff_note": self.base.data.cutoff_note,
+            "hold": self.base.data.hold,
+            "method": self.base.method,
+            "method_why": self.base.why,
+            "candidates": [c.report() for c in self.candidates],
+            "verdict": self.verdict.effect if self.verdict else None,
+            "verdict_spec": self.verdict.spec if self.verdict else None,
+            "unexplained": self.unexplained,
+            "detection_limits": self.detection_limits,
+            "violations": self.base.violations(),
+            "notes": self.notes,
+        }
 
     @property
     def detection_limits(self) -> dict[str, float]:
@@ -81,18 +92,27 @@ def _blocks_for(data: Data, blocks: int) -> int:
         raise ModelError(f"blocks must be at least 3 for a held-out test (got {blocks})")
     fit_in = data.rows.size // MIN_ROWS_PER_BLOCK
     if fit_in < min(blocks, MIN_BLOCKS):
-        raise ModelError(f"{data.rec.path}: too short to diagnose: {data.rows.size} usable rows, where "
-                         f"{min(blocks, MIN_BLOCKS)} held-out blocks need at least "
-                         f"{MIN_ROWS_PER_BLOCK * min(blocks, MIN_BLOCKS)} "
-                         f"({len(data.rec) * data.dt:.3g} s recorded at a {data.cutoff_hz:.3g} Hz cut-off); "
-                         "no effect can be judged: record longer")
+        raise ModelError(
+            f"{data.rec.path}: too short to diagnose: {data.rows.size} usable rows, where "
+            f"{min(blocks, MIN_BLOCKS)} held-out blocks need at least "
+            f"{MIN_ROWS_PER_BLOCK * min(blocks, MIN_BLOCKS)} "
+            f"({len(data.rec) * data.dt:.3g} s recorded at a {data.cutoff_hz:.3g} Hz cut-off); "
+            "no effect can be judged: record longer"
+        )
     return min(blocks, fit_in)
 
 
-def diagnose(rec: Recording | Data, model: Model | str, cutoff_hz: float | None = None,
-             blocks: int = BLOCKS, alpha: float = ALPHA, min_share: float = MIN_SHARE,
-             columns: Columns | None = None, method: str = "auto",
-             fitted: Fit | None = None) -> Diagnosis:
+def diagnose(
+    rec: Recording | Data,
+    model: Model | str,
+    cutoff_hz: float | None = None,
+    blocks: int = BLOCKS,
+    alpha: float = ALPHA,
+    min_share: float = MIN_SHARE,
+    columns: Columns | None = None,
+    method: str = "auto",
+    fitted: Fit | None = None,
+) -> Diagnosis:
     """Fit `model` to the recording, then try every effect it lacks (`manus.adaptive.diagnosis`).
     A loop over one prepared recording can pass its `columns` (a `Columns` of the same data) so
     that each effect's columns are computed once for every step, and the model's fit on that
@@ -101,8 +121,9 @@ def diagnose(rec: Recording | Data, model: Model | str, cutoff_hz: float | None 
     structure = (rec.rec if isinstance(rec, Data) else rec).structure
     parsed = Model(structure, model) if isinstance(model, str) else model  # checked before any work
     if not [n for n in ORDER if not parsed.has(n)]:
-        raise ModelError(f"the model {parsed.spec} already holds every effect of the vocabulary: "
-                         "nothing is left to propose")
+        raise ModelError(
+            f"the model {parsed.spec} already holds every effect of the vocabulary: nothing is left to propose"
+        )
     data = rec if isinstance(rec, Data) else prepare(rec, cutoff_hz)
     if columns is not None and columns.data is not data:
         raise ModelError("diagnose: the columns given were computed on other data")
@@ -116,8 +137,9 @@ def diagnose(rec: Recording | Data, model: Model | str, cutoff_hz: float | None 
     starts, folds = lsq.folds(data.rows, k, guard)
     if any(not train.any() or not test.any() for train, test in folds):
         raise ModelError(f"{data.rec.path}: too short to diagnose: the held-out blocks leave nothing to train on")
-    base_st = lsq.Stats.of(cols.model(base.model), data.tau(base.delay), starts,
-                           None if icols is None else icols.model(base.model))
+    base_st = lsq.Stats.of(
+        cols.model(base.model), data.tau(base.delay), starts, None if icols is None else icols.model(base.model)
+    )
     base_sse = held_out(base_st, folds)
     notes: list[str] = [data.lost] if data.lost else []
     if base.violations():
@@ -159,7 +181,7 @@ def _aliases(ctx: Context, cands: list[Candidate]) -> None:
     cols, base = ctx.cols, ctx.base
     fitted = [c for c in cands if c.fit is not None and c.significant]
     for i, a in enumerate(fitted):
-        for b in fitted[i + 1:]:
+        for b in fitted[i + 1 :]:
             ea, eb = a.fit.model.get(a.effect), b.fit.model.get(b.effect)
             Ya, Yb, Y0 = cols.effect(ea), cols.effect(eb), cols.model(base.model)
             ab = lsq.unidentifiable(np.concatenate([Y0, Yb, Ya], 2), 1e-5)
@@ -185,10 +207,15 @@ def _choose(cands: list[Candidate], alpha: float, cutoff_hz: float = np.inf) -> 
     if modes_:
         mode = modes_[0]
         if ok:
-            where = (f"it rings at {mode.mode.f_hz:.3g} Hz, inside the identification band (cut-off {cutoff_hz:.3g} Hz)"
-                     if mode.mode.f_hz < cutoff_hz else "its resonance peak is evidence no other effect leaves")
-            mode.note = (f"{where}: the other significant candidates ({', '.join(c.spec for c in ok)}) may be fitted "
-                         "to what the mode leaves in the residual; the mode is proposed first")
+            where = (
+                f"it rings at {mode.mode.f_hz:.3g} Hz, inside the identification band (cut-off {cutoff_hz:.3g} Hz)"
+                if mode.mode.f_hz < cutoff_hz
+                else "its resonance peak is evidence no other effect leaves"
+            )
+            mode.note = (
+                f"{where}: the other significant candidates ({', '.join(c.spec for c in ok)}) may be fitted "
+                "to what the mode leaves in the residual; the mode is proposed first"
+            )
         return mode
     if not ok:
         return None
@@ -202,8 +229,10 @@ def _choose(cands: list[Candidate], alpha: float, cutoff_hz: float = np.inf) -> 
     for name in best.brings:
         alone = next((c for c in ok if c.effect == name), None)
         if alone is not None and one_sided_p(alone.cv_sse, best.cv_sse) >= alpha:
-            alone.note = (f"{best.effect} (which brings {name}) does not predict the held-out blocks significantly "
-                          f"better than {name} alone: {name} is proposed")
+            alone.note = (
+                f"{best.effect} (which brings {name}) does not predict the held-out blocks significantly "
+                f"better than {name} alone: {name} is proposed"
+            )
             best = alone
     if best.aliases:
         group = [best] + [c for c in ok if c.effect in best.aliases]
@@ -211,9 +240,11 @@ def _choose(cands: list[Candidate], alpha: float, cutoff_hz: float = np.inf) -> 
         pick = min(group, key=lambda c: (_bounded(c, s), c.n_params, c.cv_sse.sum()))
         others = [c.effect for c in group if c is not pick]
         how = _apart(c.effect for c in group)
-        pick.note = (f"this recording cannot tell {pick.effect} from {', '.join(others)} (their columns are the same "
-                     f"here): both readings fit alike; {pick.effect} is proposed, with fewer physical assumptions"
-                     + (f". {how}" if how else ""))
+        pick.note = (
+            f"this recording cannot tell {pick.effect} from {', '.join(others)} (their columns are the same "
+            f"here): both readings fit alike; {pick.effect} is proposed, with fewer physical assumptions"
+            + (f". {how}" if how else "")
+        )
         best = pick
     return best
 
@@ -230,8 +261,18 @@ def _encompassing(ctx: Context, verdict: Candidate, cands: list[Candidate]) -> C
     decide which holds the other.)"""
     if verdict.fit is None or verdict.mode is not None:
         return verdict
-    rivals = sorted((c for c in cands if c is not verdict and c.proposable and c.mode is None and c.fit is not None
-                     and c.effect not in verdict.aliases), key=lambda c: c.cv_sse.sum())
+    rivals = sorted(
+        (
+            c
+            for c in cands
+            if c is not verdict
+            and c.proposable
+            and c.mode is None
+            and c.fit is not None
+            and c.effect not in verdict.aliases
+        ),
+        key=lambda c: c.cv_sse.sum(),
+    )
     for c in rivals:
         if verdict.fit.model.has(c.effect):
             continue
@@ -247,7 +288,8 @@ def _encompassing(ctx: Context, verdict: Candidate, cands: list[Candidate]) -> C
             c.note = ((c.note + "; ") if c.note else "") + (
                 f"it accounts for what {verdict.spec} explains and more: on top of {verdict.spec} it adds "
                 f"{100 * extra:.2f}% of the torque, significantly, while {verdict.spec} adds nothing significant on "
-                f"top of it; {c.spec} is proposed in its place")
+                f"top of it; {c.spec} is proposed in its place"
+            )
             return c
     return verdict
 
@@ -277,9 +319,11 @@ def _mark_overlaps(ctx: Context, verdict: Candidate, cands: list[Candidate]) -> 
             c.overlaps = verdict.effect
             gap = 100 * abs(1 - np.sqrt(verdict.cv_sse.sum() / c.cv_sse.sum())) if c.cv_sse.sum() > 0 else 0.0
             better = verdict.effect if verdict.cv_sse.sum() <= c.cv_sse.sum() else c.effect
-            c.note = (f"explains the same as {verdict.effect}: with {verdict.effect} in the model it accounts for "
-                      f"{100 * extra:.2f}% more of the torque, which is not significantly there; {better} fits "
-                      f"better held out ({gap:.1f}%)")
+            c.note = (
+                f"explains the same as {verdict.effect}: with {verdict.effect} in the model it accounts for "
+                f"{100 * extra:.2f}% more of the torque, which is not significantly there; {better} fits "
+                f"better held out ({gap:.1f}%)"
+            )
             if better == c.effect:
                 c.note += f", within one standard error, so the simpler {verdict.effect} is proposed"
     if same:
@@ -289,7 +333,8 @@ def _mark_overlaps(ctx: Context, verdict: Candidate, cands: list[Candidate]) -> 
             f"share of the torque (at least {100 * ctx.min_share:g} %) that is significantly there "
             f"(e.g. a small swing, where a tilted plane, a spring with its preload and an offset are nearly "
             f"one function of position); {verdict.spec} fits best held out, or is the simplest within one standard "
-            "error. " + (_apart(names) or "A wider motion would tell them apart"))
+            "error. " + (_apart(names) or "A wider motion would tell them apart")
+        )
 
 
 def _apart(effects: Iterable[str]) -> str:
@@ -313,7 +358,7 @@ def _on_top(ctx: Context, model: Model, fitted: Fit, both: Fit) -> bool:
     tests = {"held_out": one_sided_p(held_out(fst, ctx.folds), held_out(st, ctx.folds))}
     if np.array_equal(np.atleast_1d(delay_of(model)), np.atleast_1d(delay_of(fitted.model))):
         test = np.array([k not in fitted.model.names for k in model.names])
-        tests["score"] = score_p([block_scores(st, test, score_blocks(ctx.folds, ctx.data, both.residual))],
-                                 ctx.alpha / len(SIGNIFICANCE))[0]
+        tests["score"] = score_p(
+            [block_scores(st, test, score_blocks(ctx.folds, ctx.data, both.residual))], ctx.alpha / len(SIGNIFICANCE)
+        )[0]
     return combined(tests) < ctx.alpha
-

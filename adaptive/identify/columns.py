@@ -86,13 +86,13 @@ class Columns:
     def effect(self, e: Effect) -> np.ndarray:
         """(rows, n, p) columns of one linear effect, low-passed like the torque."""
         if e.spec not in self._cache:
-            self._cache[e.spec] = self._filtered(np.asarray(effect_columns(e, self.structure, *self._args, self.data.dt))[None])[0]
+            full = np.asarray(effect_columns(e, self.structure, *self._args, self.data.dt))
+            self._cache[e.spec] = self._filtered(full[None])[0]
         return self._cache[e.spec]
 
     def _filtered(self, full: np.ndarray) -> np.ndarray:
         """Columns (V, T, n, p) at full rate -> low-passed on the used rows (V, rows, n, p); the
         entries that are zero throughout (a joint's own parameter on another joint) not filtered."""
-        d = self.data
         on = np.any(full, axis=(0, 1))  # (n, p)
         out = np.zeros((full.shape[0], self.rows.size) + full.shape[2:])
         if on.any():
@@ -117,10 +117,10 @@ class Columns:
             stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *part)
             return self._filtered(np.asarray(_batch_columns(stacked, self.structure, *self._args, self.data.dt)))
 
-        parts = [todo[i:i + batch] for i in range(0, len(todo), batch)]
+        parts = [todo[i : i + batch] for i in range(0, len(todo), batch)]
         # two batches at a time on two threads (JAX and the filter's loop release the GIL; each
         # value's columns are computed alone, so the result does not depend on the order)
-        for part, low in zip(parts, _pool().map(one, parts) if len(parts) > 1 else map(one, parts)):
+        for part, low in zip(parts, _pool().map(one, parts) if len(parts) > 1 else map(one, parts), strict=True):
             for j, e in enumerate(part):
                 self._cache[e.spec] = low[j]
 

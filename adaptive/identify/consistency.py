@@ -41,10 +41,7 @@ def pseudo_inertia(p) -> np.ndarray:
     when `p` is a cvxpy vector: then a list of rows for `cvxpy.bmat`)."""
     m, mx, my, mz, ixx, ixy, ixz, iyy, iyz, izz = (p[k] for k in range(LINK))
     half = 0.5 * (ixx + iyy + izz)
-    rows = [[half - ixx, -ixy, -ixz, mx],
-            [-ixy, half - iyy, -iyz, my],
-            [-ixz, -iyz, half - izz, mz],
-            [mx, my, mz, m]]
+    rows = [[half - ixx, -ixy, -ixz, mx], [-ixy, half - iyy, -iyz, my], [-ixz, -iyz, half - izz, mz], [mx, my, mz, m]]
     return np.array(rows, float) if isinstance(p, np.ndarray) else rows
 
 
@@ -63,17 +60,26 @@ class Consistency:
         """The `consistent` block of `manus fit`'s JSON (serial chains)."""
         f = self.fit
         names = f.names
-        moved = {k: float((self.theta[j] - f.theta[j]) / f.std[j]) for j, k in enumerate(names)
-                 if np.isfinite(f.std[j]) and f.std[j] > 0}
+        moved = {
+            k: float((self.theta[j] - f.theta[j]) / f.std[j])
+            for j, k in enumerate(names)
+            if np.isfinite(f.std[j]) and f.std[j] > 0
+        }
         serial = f.model.structure.serial
-        links = [{"mass": float(self.standard[LINK * i]),
-                  "min_eigenvalue": float(np.linalg.eigvalsh(pseudo_inertia(self.standard[LINK * i:LINK * (i + 1)]))[0])}
-                 for i in range(serial.n_joints)]
-        return {"already": self.already, "status": self.status, "rel_error": self.rel_error,
-                "rel_error_of_fit": f.rel_error,
-                "params": dict(zip(names, self.theta.tolist())),
-                "moved_std": {k: round(v, 3) for k, v in moved.items()},
-                "links": links, "armature": self.standard[LINK * serial.n_joints:].tolist()}
+        per_link = [self.standard[LINK * i : LINK * (i + 1)] for i in range(serial.n_joints)]
+        links = [
+            {"mass": float(p[0]), "min_eigenvalue": float(np.linalg.eigvalsh(pseudo_inertia(p))[0])} for p in per_link
+        ]
+        return {
+            "already": self.already,
+            "status": self.status,
+            "rel_error": self.rel_error,
+            "rel_error_of_fit": f.rel_error,
+            "params": dict(zip(names, self.theta.tolist(), strict=True)),
+            "moved_std": {k: round(v, 3) for k, v in moved.items()},
+            "links": links,
+            "armature": self.standard[LINK * serial.n_joints :].tolist(),
+        }
 
 
 def consistent(f: Fit) -> Consistency:
@@ -83,8 +89,10 @@ def consistent(f: Fit) -> Consistency:
 
     s = f.model.structure
     if not hasattr(s, "K"):
-        raise ModelError("physically consistent parameters are a serial chain's (structure urdf): "
-                         f"{type(s).__name__} has no standard inertial parameters")
+        raise ModelError(
+            "physically consistent parameters are a serial chain's (structure urdf): "
+            f"{type(s).__name__} has no standard inertial parameters"
+        )
     serial, K = s.serial, np.asarray(s.K, float)
     n = serial.n_joints
     names = f.names
@@ -99,7 +107,7 @@ def consistent(f: Fit) -> Consistency:
     lower = np.full(len(names), -np.inf)
     for e in f.model.effects:
         if e.linear and e.name != "rigid":
-            for k, lb in zip(e.names(s), e.lower_bounds(s)):
+            for k, lb in zip(e.names(s), e.lower_bounds(s), strict=True):
                 lower[names.index(k)] = lb
 
     prior = np.asarray(serial.defaults, float)
@@ -108,8 +116,8 @@ def consistent(f: Fit) -> Consistency:
     def problem(extra):
         """(x, φ, the constraints of consistency plus `extra`(x, φ))."""
         x, phi = cp.Variable(len(names)), cp.Variable(len(prior))
-        cons = [x[rigid] == K @ phi, phi[LINK * n:] >= 0]
-        cons += [cp.bmat(pseudo_inertia(phi[LINK * i:LINK * (i + 1)])) >> 0 for i in range(n)]
+        cons = [x[rigid] == K @ phi, phi[LINK * n :] >= 0]
+        cons += [cp.bmat(pseudo_inertia(phi[LINK * i : LINK * (i + 1)])) >> 0 for i in range(n)]
         bounded = np.flatnonzero(np.isfinite(lower))
         if bounded.size:
             cons.append(x[bounded] >= lower[bounded])

@@ -44,8 +44,14 @@ def model_from(model: Model | str, structure) -> tuple[Model, set[str]]:
     return Model(identified(structure), model), fixed
 
 
-def fit(rec: Recording | Data, model: Model | str, cutoff_hz: float | None = None,
-        fixed: set[str] | None = None, columns: Columns | None = None, method: str = "auto") -> Fit:
+def fit(
+    rec: Recording | Data,
+    model: Model | str,
+    cutoff_hz: float | None = None,
+    fixed: set[str] | None = None,
+    columns: Columns | None = None,
+    method: str = "auto",
+) -> Fit:
     """Identify `model`'s parameters from `rec`. Non-linear parameters of effects not in
     `fixed` are searched (a model given as text fixes those written with an argument).
     `method`: "ls" (IDIM-LS), "iv" (IDIM-IV) or "auto" (IV where LS is biased, see the module
@@ -59,14 +65,18 @@ def fit(rec: Recording | Data, model: Model | str, cutoff_hz: float | None = Non
         raise ModelError(f"the model has {model.n_joints} joints, the recording {data.n_joints}")
     for e in model.effects:
         if e.modal:
-            raise ModelError(f"{e.name} is a structural mode above the identification bandwidth: "
-                             "`manus diagnose` detects it from the spectrum; it has no inverse-dynamics columns")
+            raise ModelError(
+                f"{e.name} is a structural mode above the identification bandwidth: "
+                "`manus diagnose` detects it from the spectrum; it has no inverse-dynamics columns"
+            )
         why = e.applies(model.structure, data.rec.prismatic)
         if why:
             raise ModelError(f"{e.name}: {why}")
     if not np.any(data.rec.tau):
-        raise ModelError(f"{data.rec.path}: the recorded torque is zero throughout: no model of it can be identified "
-                         "(is the torque column filled?)")
+        raise ModelError(
+            f"{data.rec.path}: the recorded torque is zero throughout: no model of it can be identified "
+            "(is the torque column filled?)"
+        )
     cols = columns or Columns(data)
     check_rows(data, model)
     check_motion(data, model)

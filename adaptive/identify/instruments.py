@@ -43,7 +43,7 @@ def _physical(model: Model, params: dict) -> dict | None:
     s = model.structure
     out = dict(params)
     for e in model.effects:
-        for k, lo in zip(e.names(s), e.lower_bounds(s)):
+        for k, lo in zip(e.names(s), e.lower_bounds(s), strict=True):
             out[k] = max(out[k], lo)
     rigid = [e for e in model.effects if e.inertial]
     if rigid and rigid[0].violations(s, out):
@@ -86,8 +86,9 @@ def simulate(data: Data, model: Model, params: dict) -> tuple[np.ndarray, np.nda
     q, qd = np.asarray(q).reshape(-1, n)[:T], np.asarray(qd).reshape(-1, n)[:T]
     if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
         return None
-    qdd = np.gradient(qd.reshape(-1, W, n) if pad == 0 else np.pad(qd, ((0, pad), (0, 0))).reshape(-1, W, n),
-                      dt, axis=1).reshape(-1, n)[:T]
+    qdd = np.gradient(
+        qd.reshape(-1, W, n) if pad == 0 else np.pad(qd, ((0, pad), (0, 0))).reshape(-1, W, n), dt, axis=1
+    ).reshape(-1, n)[:T]
     return q, qd, qdd
 
 
@@ -108,10 +109,15 @@ def iv_fit(data: Data, cols: Columns, ls: Fit, method: str) -> Fit:
         iv = fit_rows(data, cols, ls.model, ls.search, icols)
         current = iv
     if iv is None:
-        why = ("it has no inertia to simulate" if not any(e.inertial for e in ls.model.effects)
-               else "; ".join(ls.violations()) or "the simulation diverged")
-        return replace(ls, why=f"IV unavailable: the model cannot be simulated from the recorded command ({why}); "
-                               "least squares kept")
+        why = (
+            "it has no inertia to simulate"
+            if not any(e.inertial for e in ls.model.effects)
+            else "; ".join(ls.violations()) or "the simulation diverged"
+        )
+        return replace(
+            ls,
+            why=f"IV unavailable: the model cannot be simulated from the recorded command ({why}); least squares kept",
+        )
     if method == "iv":
         return replace(iv, why="instrumental variables (asked for)")
     return choose(ls, iv)
@@ -123,18 +129,28 @@ def choose(ls: Fit, iv: Fit) -> Fit:
     kept says why (`Fit.why`)."""
     bad_ls, bad_iv = ls.violations(), iv.violations()
     if not iv.rel_error < min(1.0, IV_WORSE * ls.rel_error):
-        return replace(ls, why=f"IV explains the torque far worse than LS ({100 * iv.rel_error:.1f} % against "
-                               f"{100 * ls.rel_error:.1f} %): the model is too far from the data for its simulation to "
-                               "serve as instruments; least squares kept")
+        return replace(
+            ls,
+            why=f"IV explains the torque far worse than LS ({100 * iv.rel_error:.1f} % against "
+            f"{100 * ls.rel_error:.1f} %): the model is too far from the data for its simulation to "
+            "serve as instruments; least squares kept",
+        )
     sd = np.sqrt(np.nan_to_num(ls.std, nan=np.inf) ** 2 + np.nan_to_num(iv.std, nan=np.inf) ** 2)
     z = np.where(sd > 0, np.abs(iv.theta - ls.theta) / np.where(sd > 0, sd, 1), 0.0)
     worst = int(np.argmax(z)) if z.size else 0
     if bad_ls and not bad_iv:
         return replace(iv, why=f"least squares breaks physics ({bad_ls[0]}); instrumental variables do not")
     if z.size and z[worst] > Z_DISAGREE and not bad_iv:
-        return replace(iv, why=f"LS and IV disagree beyond their standard deviations ({ls.names[worst]}: LS "
-                               f"{ls.theta[worst]:.4g}, IV {iv.theta[worst]:.4g}, {z[worst]:.1f} std apart): noise in "
-                               "the differentiated regressor biases least squares")
-    return replace(ls, why=(f"LS and IV agree within {max(float(z.max(initial=0)), 0):.1f} combined std: least squares, "
-                            "the more efficient" if not bad_iv
-                            else f"instrumental variables break physics ({bad_iv[0]}): least squares kept"))
+        return replace(
+            iv,
+            why=f"LS and IV disagree beyond their standard deviations ({ls.names[worst]}: LS "
+            f"{ls.theta[worst]:.4g}, IV {iv.theta[worst]:.4g}, {z[worst]:.1f} std apart): noise in "
+            "the differentiated regressor biases least squares",
+        )
+    agree = max(float(z.max(initial=0)), 0)
+    why = (
+        f"LS and IV agree within {agree:.1f} combined std: least squares, the more efficient"
+        if not bad_iv
+        else f"instrumental variables break physics ({bad_iv[0]}): least squares kept"
+    )
+    return replace(ls, why=why)

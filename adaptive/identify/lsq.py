@@ -16,6 +16,7 @@ from a heteroscedasticity- and autocorrelation-consistent (Newey–West) covaria
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -85,8 +86,10 @@ class Stats:
             rows, k = np.shape(E[0])[0], np.shape(E[0])[-1]
             step = int(max(1, budget // max(rows * (self.X.shape[2] + k) * k, 1)))
             if isinstance(E, (list, tuple)) or len(E) > step:
-                parts = [self.extend(np.stack(E[i:i + step]), None if Ez is None else np.stack(Ez[i:i + step]), budget)
-                         for i in range(0, len(E), step)]
+                parts = [
+                    self.extend(np.stack(E[i : i + step]), None if Ez is None else np.stack(Ez[i : i + step]), budget)
+                    for i in range(0, len(E), step)
+                ]
                 return parts[0] if len(parts) == 1 else _stacked(parts)
         E = np.asarray(E)
         ax = E.ndim - 3  # the rows' axis
@@ -97,24 +100,41 @@ class Stats:
         XE = _segments(np.einsum("rnp,...rnq->...rpq", self.X, Es), self.starts, ax)
         EE = _segments(np.einsum("...rnp,...rnq->...rpq", Es, Es), self.starts, ax)
         G = _blocks(self.G, XE, np.swapaxes(XE, -1, -2), EE)
-        g = np.concatenate([np.broadcast_to(self.g, lead + self.g.shape),
-                            _segments(np.einsum("...rnp,rn->...rp", Es, self.tau), self.starts, ax)], -1)
+        g = np.concatenate(
+            [
+                np.broadcast_to(self.g, lead + self.g.shape),
+                _segments(np.einsum("...rnp,rn->...rp", Es, self.tau), self.starts, ax),
+            ],
+            -1,
+        )
         H = h = None
         if self.iv and Ez is not None:
             Ez = np.asarray(Ez)
             Zs = Ez / (np.sqrt(np.mean(Ez**2, axis=(-3, -2))) + 1e-300)[..., None, None, :]
-            ZE = _segments(np.einsum("rnp,...rnq->...rpq", self.Z, Es), self.starts, ax)  # old instruments × new columns
-            EX = _segments(np.einsum("...rnp,rnq->...rpq", Zs, self.X), self.starts, ax)  # new instruments × old columns
+            # old instruments × new columns, new instruments × old columns, new × new
+            ZE = _segments(np.einsum("rnp,...rnq->...rpq", self.Z, Es), self.starts, ax)
+            EX = _segments(np.einsum("...rnp,rnq->...rpq", Zs, self.X), self.starts, ax)
             EEz = _segments(np.einsum("...rnp,...rnq->...rpq", Zs, Es), self.starts, ax)
             H = _blocks(self.H, ZE, EX, EEz)
-            h = np.concatenate([np.broadcast_to(self.h, lead + self.h.shape),
-                                _segments(np.einsum("...rnp,rn->...rp", Zs, self.tau), self.starts, ax)], -1)
+            h = np.concatenate(
+                [
+                    np.broadcast_to(self.h, lead + self.h.shape),
+                    _segments(np.einsum("...rnp,rn->...rp", Zs, self.tau), self.starts, ax),
+                ],
+                -1,
+            )
         return Stats(self.starts, scale, G, g, self.yy, H, h)
 
     def one(self, i: int) -> Stats:
         """Value i's statistics of an `extend`ed batch (V sets of columns)."""
-        return replace(self, G=self.G[i], g=self.g[i], scale=self.scale[i],
-                       H=None if self.H is None else self.H[i], h=None if self.h is None else self.h[i])
+        return replace(
+            self,
+            G=self.G[i],
+            g=self.g[i],
+            scale=self.scale[i],
+            H=None if self.H is None else self.H[i],
+            h=None if self.h is None else self.h[i],
+        )
 
     def coef(self, use: np.ndarray) -> np.ndarray:
         """Scaled coefficients fitted on the segments `use` (bool mask): minimum-norm least
@@ -141,7 +161,7 @@ class Stats:
         low = np.where(np.isfinite(lower), lower * self.scale, -np.inf)[..., None, :]  # in the scaled units of C
         held = np.zeros(C.shape, bool)
         for _ in range(C.shape[-1]):
-            more = (C < low) & ~held
+            more = (low > C) & ~held
             if not more.any():
                 break
             held |= more
@@ -191,10 +211,14 @@ def _blocks(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray) -> np.nd
 def _stacked(parts: list[Stats]) -> Stats:
     """Batches of `Stats.extend` (leading axis V) joined into one."""
     first = parts[0]
-    return replace(first, G=np.concatenate([p.G for p in parts]), g=np.concatenate([p.g for p in parts]),
-                   scale=np.concatenate([p.scale for p in parts]),
-                   H=None if first.H is None else np.concatenate([p.H for p in parts]),
-                   h=None if first.h is None else np.concatenate([p.h for p in parts]))
+    return replace(
+        first,
+        G=np.concatenate([p.G for p in parts]),
+        g=np.concatenate([p.g for p in parts]),
+        scale=np.concatenate([p.scale for p in parts]),
+        H=None if first.H is None else np.concatenate([p.H for p in parts]),
+        h=None if first.h is None else np.concatenate([p.h for p in parts]),
+    )
 
 
 def folds(rows: np.ndarray, k: int, guard: int) -> tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray]]]:
@@ -205,7 +229,7 @@ def folds(rows: np.ndarray, k: int, guard: int) -> tuple[np.ndarray, list[tuple[
     per block, (train, test) masks over the segments."""
     first = np.linspace(0, rows.size, k + 1).round().astype(int)  # row positions where blocks start
     cuts = []
-    for a, b in zip(first[:-1], first[1:]):
+    for a, b in itertools.pairwise(first):
         if b <= a:
             continue
         t0, t1 = rows[a], rows[b - 1] + 1
@@ -254,8 +278,9 @@ def unidentifiable(Y: np.ndarray, rtol: float = 1e-7) -> list[int]:
     return sorted(out)
 
 
-def solve(Y: np.ndarray, tau: np.ndarray, Z: np.ndarray | None = None, rtol: float = 1e-7,
-          hac_lags: int = 5) -> Solution:
+def solve(
+    Y: np.ndarray, tau: np.ndarray, Z: np.ndarray | None = None, rtol: float = 1e-7, hac_lags: int = 5
+) -> Solution:
     """τ ≈ Y θ over all rows and joints: least squares, or instrumental variables with Z (same
     shape as Y). Y (rows, n, P), tau (rows, n)."""
     rows, n, P = Y.shape
@@ -287,7 +312,6 @@ def _newey_west(A: np.ndarray, W: np.ndarray, e: np.ndarray, n: int, lags: int) 
     meat = g.T @ g
     for lag in range(1, lags + 1):
         w = 1 - lag / (lags + 1)
-        a, b = g[lag * n:], g[:-lag * n]  # the same joint, `lag` rows apart
+        a, b = g[lag * n :], g[: -lag * n]  # the same joint, `lag` rows apart
         meat += w * (a.T @ b + b.T @ a)
     return A_inv @ meat @ A_inv.T
-

@@ -70,7 +70,7 @@ class Data:
     rows: np.ndarray  # indices of the samples used (edges cut, standstill left out, decimated)
     step: float  # the encoder grid (estimated when the file does not say)
     standstill: float  # fraction of the samples left out around standstill
-    window: np.ndarray | None = None  # the samples inside the filter's start-up edges (before standstill and decimation)
+    window: np.ndarray | None = None  # the samples inside the filter's start-up edges (standstill in, decimated)
     cutoff_note: str = ""  # how the cut-off was chosen (and what limited it)
     # serial chains: which joints' equations each used row keeps (rows, n) (the others stick there); None: all
     mask: np.ndarray | None = None
@@ -86,9 +86,17 @@ class Data:
         """What the effects' search spaces are derived from (see `manus.plants.effects.Span`)."""
         q = self.q[self.rows] if self.rows.size else self.q
         qd = self.qd[self.rows] if self.rows.size else self.qd
-        return Span(self.dt, len(self.rec) * self.dt, np.ptp(q, axis=0), self.step,
-                    np.percentile(np.abs(qd), 95, axis=0), self.rec.prismatic, self.step * self.cutoff_hz,
-                    self.cutoff_hz, np.median(np.abs(qd), axis=0))
+        return Span(
+            self.dt,
+            len(self.rec) * self.dt,
+            np.ptp(q, axis=0),
+            self.step,
+            np.percentile(np.abs(qd), 95, axis=0),
+            self.rec.prismatic,
+            self.step * self.cutoff_hz,
+            self.cutoff_hz,
+            np.median(np.abs(qd), axis=0),
+        )
 
     @property
     def dt(self) -> float:
@@ -112,7 +120,8 @@ class Data:
         if self.rest is None or not self.rest.any():
             return pick(lowpass(x, self.dt, self.cutoff_hz))
         m = (~self.rest).astype(float).reshape((-1,) + (1,) * (np.ndim(x) - 1))
-        return pick(lowpass(np.asarray(x) * m, self.dt, self.cutoff_hz)) / np.maximum(pick(self.weight()).reshape((-1,) + m.shape[1:]), 1e-12)
+        weight = pick(self.weight()).reshape((-1,) + m.shape[1:])
+        return pick(lowpass(np.asarray(x) * m, self.dt, self.cutoff_hz)) / np.maximum(weight, 1e-12)
 
     def weight(self) -> np.ndarray:
         """(T,) `moving_weight` of the rests (computed by `prepare`, kept here)."""
@@ -163,8 +172,6 @@ class Data:
         return np.mean(np.abs(self.qd[self.rows]) > v_min, axis=0)
 
 
-
-
 def moving_weight(rest: np.ndarray, dt: float, cutoff_hz: float) -> np.ndarray:
     """(T,) the cut-off's low-pass of the moving samples' indicator: 1 far from a rest, 0 inside
     one (the denominator of `Data.smoothed`)."""
@@ -194,7 +201,7 @@ def _long_runs(mask: np.ndarray, longer_than: int) -> np.ndarray:
     edges = np.diff(np.r_[0, mask.astype(np.int8), 0])
     starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
     out = np.zeros_like(mask)
-    for a, b in zip(starts, stops):
+    for a, b in zip(starts, stops, strict=True):
         if b - a > longer_than:
             out[a:b] = True
     return out
@@ -213,7 +220,6 @@ def auto_cutoff(rec: Recording, step: float | None = None) -> tuple[float, str]:
     from scipy import signal
 
     dt, n = rec.dt, len(rec)
-    nyq = 0.5 / dt
     step = encoder_step(rec) if step is None else step
     v = np.diff(rec.q, axis=0) / dt
     v = v - v.mean(axis=0)
@@ -234,13 +240,16 @@ def auto_cutoff(rec: Recording, step: float | None = None) -> tuple[float, str]:
     cut = min(want, top, max(cap, MIN_CUTOFF_HZ))
     note = f"motion band {f_m:.3g} Hz (99 % of the velocity's power)"
     if cut < min(want, top) - 1e-9:
-        note += (f"; limited to {cut:.3g} Hz (not {min(want, top):.3g}) by the encoder's quantization noise in the "
-                 f"acceleration (step {step:.3g})")
+        note += (
+            f"; limited to {cut:.3g} Hz (not {min(want, top):.3g}) by the encoder's quantization noise in the "
+            f"acceleration (step {step:.3g})"
+        )
     return float(cut), note
 
 
-def prepare(rec: Recording, cutoff_hz: float | None = None, decimate: int | None = None,
-            exclude_standstill: bool = True) -> Data:
+def prepare(
+    rec: Recording, cutoff_hz: float | None = None, decimate: int | None = None, exclude_standstill: bool = True
+) -> Data:
     """Filter, differentiate and choose the rows. With `exclude_standstill`, the samples where a
     joint is at rest are left out: a joint at rest holds whatever friction the other torques ask
     of it (stiction), which no function of the velocity predicts. A joint is at rest when its
@@ -278,8 +287,10 @@ def prepare(rec: Recording, cutoff_hz: float | None = None, decimate: int | None
     refuses it, naming the parameters the remaining samples cannot identify (the model is not
     known here)."""
     if len(rec) < MIN_SAMPLES:
-        raise ModelError(f"{rec.path}: recording too short: {len(rec)} samples (at least {MIN_SAMPLES} are needed "
-                         "to differentiate the positions; no parameter is identifiable)")
+        raise ModelError(
+            f"{rec.path}: recording too short: {len(rec)} samples (at least {MIN_SAMPLES} are needed "
+            "to differentiate the positions; no parameter is identifiable)"
+        )
     recorded, (rec, filled) = rec, on_grid(rec)  # lost samples filled, to be left out (`spoiled`)
     dt = rec.dt
     step = encoder_step(rec)
@@ -294,14 +305,17 @@ def prepare(rec: Recording, cutoff_hz: float | None = None, decimate: int | None
     q, qd, qdd = differentiate(rec.q, dt, band)
     cut = edge(dt, cutoff_hz)
     keep = np.zeros(len(rec), bool)
-    keep[cut:len(rec) - cut] = True
+    keep[cut : len(rec) - cut] = True
     lost = ""
     if filled.any():
         bad = spoiled(filled, qdd, dt, step, cut)
         keep &= ~bad
-        lost = (f"{gaps(recorded).describe(recorded)}: filled for the filters (positions by a cubic spline); "
-                f"{int(bad.sum())} sample{'s' if bad.sum() != 1 else ''} left out (the filled ones, and the filter's settling, "
-                f"{1e3 * cut * dt:.3g} ms, either side of a gap the fill may miss by more than an encoder step)")
+        lost = (
+            f"{gaps(recorded).describe(recorded)}: filled for the filters (positions by a cubic spline); "
+            f"{int(bad.sum())} sample{'s' if bad.sum() != 1 else ''} left out (the filled ones, and the filter's "
+            f"settling, "
+            f"{1e3 * cut * dt:.3g} ms, either side of a gap the fill may miss by more than an encoder step)"
+        )
     keep_edges, usable = keep.copy(), keep.sum()
     per_joint = rec.structure_name == "urdf"
     equations = np.repeat(keep[:, None], rec.n_joints, 1)
@@ -315,13 +329,13 @@ def prepare(rec: Recording, cutoff_hz: float | None = None, decimate: int | None
             w = int(np.ceil(JOINT_GUARD / (cutoff_hz * dt)))
             for j in range(rec.n_joints):
                 still = _long_runs(slow[:, j], int(round(JOINT_STANDSTILL_S / dt)))
-                equations[:, j] &= ~(np.convolve(still.astype(float), np.ones(2 * w + 1))[w:w + len(rec)] > 0)
+                equations[:, j] &= ~(np.convolve(still.astype(float), np.ones(2 * w + 1))[w : w + len(rec)] > 0)
             keep &= equations.any(1)
         else:
             still = np.any([_long_runs(slow[:, j], int(round(STANDSTILL_S / dt))) for j in range(rec.n_joints)], axis=0)
             rest = still
             w = int(np.ceil(REST_GUARD / (band * dt)))  # the kinematic band's filter still spreads a rest
-            near = np.convolve(still.astype(float), np.ones(2 * w + 1))[w:w + len(rec)] > 0  # dilated by w
+            near = np.convolve(still.astype(float), np.ones(2 * w + 1))[w : w + len(rec)] > 0  # dilated by w
             weight = moving_weight(still, dt, cutoff_hz)
             keep &= ~near & (weight >= MIN_WEIGHT)
     if decimate is None:
@@ -330,8 +344,21 @@ def prepare(rec: Recording, cutoff_hz: float | None = None, decimate: int | None
     window = np.flatnonzero(keep_edges)[::decimate]
     if per_joint:
         left_out = float(1 - equations[keep].sum() / max(usable * rec.n_joints, 1))
-        return Data(rec, cutoff_hz, q, qd, qdd, rows, step, left_out, window, note, equations[rows].astype(float),
-                    lost=lost)
-    return Data(rec, cutoff_hz, q, qd, qdd, rows, step, float(1 - keep.sum() / max(usable, 1)), window, note, lost=lost,
-                rest=rest, _tau={} if rest is None else {"weight": weight})
-
+        return Data(
+            rec, cutoff_hz, q, qd, qdd, rows, step, left_out, window, note, equations[rows].astype(float), lost=lost
+        )
+    return Data(
+        rec,
+        cutoff_hz,
+        q,
+        qd,
+        qdd,
+        rows,
+        step,
+        float(1 - keep.sum() / max(usable, 1)),
+        window,
+        note,
+        lost=lost,
+        rest=rest,
+        _tau={} if rest is None else {"weight": weight},
+    )

@@ -46,12 +46,12 @@ class Fit:
     @property
     def params(self) -> dict[str, float]:
         """Parameter name -> value."""
-        return dict(zip(self.names, self.theta.tolist()))
+        return dict(zip(self.names, self.theta.tolist(), strict=True))
 
     @property
     def stds(self) -> dict[str, float]:
         """Parameter name -> standard deviation (nan where redundant or held)."""
-        return dict(zip(self.names, self.std.tolist()))
+        return dict(zip(self.names, self.std.tolist(), strict=True))
 
     def predicted(self) -> np.ndarray:
         """The model's torque on the used rows (filtered like the recorded one)."""
@@ -61,20 +61,32 @@ class Fit:
         """The physical rules the fitted parameters break (each effect's own rules)."""
         out = self.model.violations(self.params, self.stds)
         if len(out) > 1 and not self.model.violations({k: -v for k, v in self.params.items()}, self.stds):
-            out.append("every rule holds with the torque's sign reversed: the recorded torque is probably "
-                       "positive against the positions' direction (record it positive where it drives q up)")
+            out.append(
+                "every rule holds with the torque's sign reversed: the recorded torque is probably "
+                "positive against the positions' direction (record it positive where it drives q up)"
+            )
         return out
 
     def report(self) -> dict:
         """The JSON contract of `manus fit` (docs/cli.md)."""
-        params = {k: {"value": float(v), "std": None if not np.isfinite(s) else float(s)}
-                  for k, v, s in zip(self.names, self.theta, self.std)}
+        params = {
+            k: {"value": float(v), "std": None if not np.isfinite(s) else float(s)}
+            for k, v, s in zip(self.names, self.theta, self.std, strict=True)
+        }
         nonlinear = {k: v for e in self.model.effects for k, v in e.describe().items()}
-        out = {"model": self.model.effect_names, "spec": self.model.spec, "params": params,
-               "rel_error": self.rel_error, "samples": int(self.data.rows.size),
-               "cutoff_hz": self.data.cutoff_hz, "cutoff_note": self.data.cutoff_note,
-               "standstill_excluded": self.data.standstill, "hold": self.data.hold,
-               "method": self.method, "method_why": self.why}
+        out = {
+            "model": self.model.effect_names,
+            "spec": self.model.spec,
+            "params": params,
+            "rel_error": self.rel_error,
+            "samples": int(self.data.rows.size),
+            "cutoff_hz": self.data.cutoff_hz,
+            "cutoff_note": self.data.cutoff_note,
+            "standstill_excluded": self.data.standstill,
+            "hold": self.data.hold,
+            "method": self.method,
+            "method_why": self.why,
+        }
         if nonlinear:
             out["nonlinear"] = nonlinear
         if self.data.lost:
@@ -82,8 +94,8 @@ class Fit:
         combos = getattr(self.model.structure, "combinations", None)
         if combos is not None:  # a serial chain: what each base parameter is, and its value in the URDF
             s = self.model.structure
-            out["base_parameters"] = dict(zip(s.rigid_names, combos))
-            out["urdf_values"] = {k: float(v) for k, v in zip(s.rigid_names, s.rigid_defaults)}
+            out["base_parameters"] = dict(zip(s.rigid_names, combos, strict=True))
+            out["urdf_values"] = {k: float(v) for k, v in zip(s.rigid_names, s.rigid_defaults, strict=True)}
         if self.redundant:
             out["redundant"] = self.redundant
         bad = self.violations()
@@ -98,26 +110,42 @@ class Fit:
         `rel_error` and `data` are the other recording's, with `theta`/`std` as identified here."""
         data = rec if isinstance(rec, Data) else prepare(rec, self.data.cutoff_hz)
         if data.n_joints != self.model.n_joints:
-            raise ModelError(f"{data.rec.path}: the fitted model has {self.model.n_joints} joints, the recording "
-                             f"{data.n_joints}")
+            raise ModelError(
+                f"{data.rec.path}: the fitted model has {self.model.n_joints} joints, the recording {data.n_joints}"
+            )
         if data.rec.structure_name != self.data.rec.structure_name:
-            raise ModelError(f"{data.rec.path}: structure {data.rec.structure_name!r}, but the model was fitted on "
-                             f"a {self.data.rec.structure_name!r} recording")
+            raise ModelError(
+                f"{data.rec.path}: structure {data.rec.structure_name!r}, but the model was fitted on "
+                f"a {self.data.rec.structure_name!r} recording"
+            )
         check_rows(data, self.model)
         tau = data.tau(self.delay)
         resid = tau - Columns(data).model(self.model) @ self.theta
         denom = np.linalg.norm(tau)
         rel = float(np.linalg.norm(resid) / denom) if denom else np.inf
-        return Fit(self.model, list(self.names), self.theta, self.std, list(self.redundant), rel, resid, data,
-                   self.delay, {}, self.method, self.why)
+        return Fit(
+            self.model,
+            list(self.names),
+            self.theta,
+            self.std,
+            list(self.redundant),
+            rel,
+            resid,
+            data,
+            self.delay,
+            {},
+            self.method,
+            self.why,
+        )
 
     def rel_error_on(self, rec: Recording | Data) -> float:
         """`rel_error` of these parameters on another recording (see `evaluate`)."""
         return self.evaluate(rec).rel_error
 
 
-def fit_rows(data: Data, cols: Columns, model: Model, search: dict | None = None, icols: Columns | None = None,
-             held: tuple = ()) -> Fit:
+def fit_rows(
+    data: Data, cols: Columns, model: Model, search: dict | None = None, icols: Columns | None = None, held: tuple = ()
+) -> Fit:
     """The fit of `model` (its non-linear parameters as they are) on every used row of `data`,
     its columns from `cols`: least squares, or instrumental variables with the instruments'
     columns `icols`. Parameters named in `held` are held at 0 (their bound). `search`: the
@@ -135,9 +163,21 @@ def fit_rows(data: Data, cols: Columns, model: Model, search: dict | None = None
     theta, std = np.zeros(len(names)), np.full(len(names), np.nan)
     idx = [names.index(k) for k in kept]
     theta[idx], std[idx] = sol.theta, sol.std
-    return Fit(model, names, theta, std, [kept[j] for j in sol.redundant], sol.rel_error,
-               sol.residual, data, delay, {} if search is None else search, "ls" if icols is None else "iv", "",
-               icols)
+    return Fit(
+        model,
+        names,
+        theta,
+        std,
+        [kept[j] for j in sol.redundant],
+        sol.rel_error,
+        sol.residual,
+        data,
+        delay,
+        {} if search is None else search,
+        "ls" if icols is None else "iv",
+        "",
+        icols,
+    )
 
 
 def check_rows(data: Data, model: Model) -> None:
@@ -156,13 +196,21 @@ def check_rows(data: Data, model: Model) -> None:
     else:
         lost = names
     rec = data.rec
-    why = (f"{len(rec)} samples ({len(rec) * data.dt:.3g} s) leave {data.rows.size} usable rows "
-           f"(at least {MIN_ROWS} needed) once the filter's start-up ({edge(data.dt, data.cutoff_hz)} samples at "
-           f"each end, {data.cutoff_hz:.3g} Hz cut-off) and standstill are left out")
-    what = (f"parameters {', '.join(lost)} are not identifiable (the regressor has rank {len(names) - len(lost)} "
-            f"of {len(names)})" if lost else "too few rows to identify the parameters reliably")
-    raise ModelError(f"{rec.path}: recording too short or without motion: {why}; {what}; record longer, "
-                     "with the joints moving (e.g. a multi-sine reference)")
+    why = (
+        f"{len(rec)} samples ({len(rec) * data.dt:.3g} s) leave {data.rows.size} usable rows "
+        f"(at least {MIN_ROWS} needed) once the filter's start-up ({edge(data.dt, data.cutoff_hz)} samples at "
+        f"each end, {data.cutoff_hz:.3g} Hz cut-off) and standstill are left out"
+    )
+    what = (
+        f"parameters {', '.join(lost)} are not identifiable (the regressor has rank {len(names) - len(lost)} "
+        f"of {len(names)})"
+        if lost
+        else "too few rows to identify the parameters reliably"
+    )
+    raise ModelError(
+        f"{rec.path}: recording too short or without motion: {why}; {what}; record longer, "
+        "with the joints moving (e.g. a multi-sine reference)"
+    )
 
 
 def check_motion(data: Data, model: Model) -> None:
@@ -170,9 +218,15 @@ def check_motion(data: Data, model: Model) -> None:
     still = [i for i, f in enumerate(data.moving()) if f < 0.02]
     if not still:
         return
-    lost = [k for e in model.effects if e.evidence in ("velocity", "acceleration")
-            for k in e.names(model.structure)
-            if any(k.endswith(str(i + 1)) for i in still) or (e.inertial and model.n_joints == 2)]
+    lost = [
+        k
+        for e in model.effects
+        if e.evidence in ("velocity", "acceleration")
+        for k in e.names(model.structure)
+        if any(k.endswith(str(i + 1)) for i in still) or (e.inertial and model.n_joints == 2)
+    ]
     joints = ", ".join(f"joint {i + 1}" for i in still)
-    raise ModelError(f"{data.rec.path}: no motion on {joints}: parameters {', '.join(lost)} are not "
-                     "identifiable (record the joints moving, e.g. a multi-sine reference)")
+    raise ModelError(
+        f"{data.rec.path}: no motion on {joints}: parameters {', '.join(lost)} are not "
+        "identifiable (record the joints moving, e.g. a multi-sine reference)"
+    )

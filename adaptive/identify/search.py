@@ -85,8 +85,8 @@ class Grid:
         if self.lower is None or not np.isfinite(self.lower[self.own]).any():
             return np.ones(len(self.values), bool)
         if self.every is not None:
-            C = self.every.coefs(use[None], self.lower)[:, 0]
-            return np.any((C > self.lower * self.every.scale)[:, self.own], axis=1)
+            coefs = self.every.coefs(use[None], self.lower)[:, 0]
+            return np.any((coefs > self.lower * self.every.scale)[:, self.own], axis=1)
         out = np.zeros(len(self.values), bool)
         for i in range(len(self.values)):
             st = self.exact(i)
@@ -95,9 +95,17 @@ class Grid:
         return out
 
 
-def grid(data: Data, cols: Columns, rest: Model, effect: Effect, starts: np.ndarray,
-         values: tuple | None = None, icols: Columns | None = None, keep: np.ndarray | None = None,
-         exact: bool = False) -> Grid:
+def grid(
+    data: Data,
+    cols: Columns,
+    rest: Model,
+    effect: Effect,
+    starts: np.ndarray,
+    values: tuple | None = None,
+    icols: Columns | None = None,
+    keep: np.ndarray | None = None,
+    exact: bool = False,
+) -> Grid:
     """The grid search of `effect`'s non-linear parameter on top of `rest` (see `Grid`): a linear
     effect changes the columns, a timing effect the torque. `icols`: instruments (IV). `keep`: a
     mask over the effect's columns (the others held at 0, their physical bound). `exact`: every
@@ -121,8 +129,11 @@ def grid(data: Data, cols: Columns, rest: Model, effect: Effect, starts: np.ndar
         for c in (cols, icols):
             if c is not None:
                 c.prefetch(values)
-        every = base.extend([cols.effect(v) for v in values],
-                            None if icols is None else [icols.effect(v) for v in values]) if values else None
+        every = (
+            base.extend([cols.effect(v) for v in values], None if icols is None else [icols.effect(v) for v in values])
+            if values
+            else None
+        )
         return Grid(values, [None] * len(values), None, build, lower, mine, every)
     screen = None
     if len(values) > SCREEN_ABOVE:
@@ -156,8 +167,9 @@ class _Kept:
         self.cols.prefetch(effects)
 
 
-def search_all(data: Data, cols: Columns, model: Model, fixed: set[str],
-               icols: Columns | None = None) -> tuple[Model, dict]:
+def search_all(
+    data: Data, cols: Columns, model: Model, fixed: set[str], icols: Columns | None = None
+) -> tuple[Model, dict]:
     """Each effect's non-linear parameter not `fixed`, searched on all rows, the others held:
     the model with the values found, and the search curves (name -> (the values described,
     their rel_errors))."""
