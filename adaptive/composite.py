@@ -71,7 +71,6 @@ from jax import Array
 
 from manus.adaptive.regressors import Regressor
 from manus.plants.errors import ModelError
-from manus.plants.structures import Manus2
 
 
 def _upper(m: int) -> tuple[tuple[int, int], ...]:
@@ -142,8 +141,8 @@ class Composite(eqx.Module):
     forgetting: float = 0.0  # β₀ [1/s] of bounded-gain forgetting; 0: none
 
     def __check_init__(self):
-        for name, ok in (("bandwidth", lambda x: x > 0), ("weight", lambda x: x > 0), ("forgetting", lambda x: x >= 0)):
-            value = getattr(self, name)
+        for name, value, ok in (("bandwidth", self.bandwidth, lambda x: x > 0), ("weight", self.weight, lambda x: x > 0),
+                                ("forgetting", self.forgetting, lambda x: x >= 0)):
             if isinstance(value, (int, float)) and not (ok(value) and math.isfinite(value)):
                 raise ModelError(f"composite {name} must be {'>= 0' if name == 'forgetting' else 'positive'} "
                                  f"and finite, got {value}")
@@ -156,11 +155,11 @@ class Composite(eqx.Module):
         H, H_dot = jax.jvp(lambda x: s.inertia(x, p), (q,), (qd,))
         z1 = H @ qd
         z2 = -H_dot @ qd + s.coriolis(q, qd, p) @ qd
-        if getattr(s, "rigid_gravity", ""):  # a serial chain's rigid effect holds gravity, g(q)
+        if s.rigid_gravity:  # a serial chain's rigid effect holds gravity, g(q)
             zero = jnp.zeros_like(qd)
             z2 = z2 + s.rigid_torque(q, zero, zero, p)
         for e in model.effects:
-            if e.name != "rigid":
+            if not e.inertial:
                 z2 = z2 + e.torque(s, q, qd, jnp.zeros_like(qd), p, regressor.boundary)
         return z1, z2
 
@@ -168,26 +167,25 @@ class Composite(eqx.Module):
     def columns(cls, regressor: Regressor, q, qd) -> tuple[list, list]:
         """(Z₁, Z₂) = ∂(Z₁ θ)/∂θ, ∂(Z₂ θ)/∂θ as nested lists [joint][parameter] of scalars.
 
-        MANUS-2's rigid columns are written out (c = cos(q2 − q1), s = sin(q2 − q1): Z₁ = H q̇ per
-        parameter; in Z₂, −Ḣ q̇ + C q̇ leaves ∓s q̇1 q̇2 in the a2 column), the other effects' come
-        from forward-mode differentiation of their torques (elementwise in the joints). Other
-        structures: forward mode through `_z` (whose H q̇ products are tiny matrix products under
-        `vmap`)."""
+        The rigid columns of a structure that writes them out (`Structure.momentum_columns`:
+        MANUS-2's, c = cos(q2 − q1), s = sin(q2 − q1): Z₁ = H q̇ per parameter; in Z₂, −Ḣ q̇ + C q̇
+        leaves ∓s q̇1 q̇2 in the a2 column) are its own, the other effects' come from forward-mode
+        differentiation of their torques (elementwise in the joints). Other structures: forward
+        mode through `_z` (whose H q̇ products are tiny matrix products under `vmap`)."""
         model, names = regressor.model, regressor.names
         s, n = model.structure, regressor.n_joints
         theta0 = jnp.zeros(len(names), jnp.result_type(qd, float))
-        if not isinstance(s, Manus2):
+        written = s.momentum_columns(q, qd)
+        if written is None:
             z1, z2 = jax.jacfwd(lambda th: cls._z(regressor, q, qd, th))(theta0)
             return tuple([[z[a, k] for k in range(len(names))] for a in range(n)] for z in (z1, z2))
-        c, sn = s.pose(q)
-        zero, w = 0.0 * c, sn * qd[0] * qd[1]
-        z1 = {"a1": (qd[0], zero), "a2": (c * qd[1], c * qd[0]), "a3": (zero, qd[1])}
-        z2 = {"a1": (zero, zero), "a2": (-w, w), "a3": (zero, zero)}
-        if any(e.name != "rigid" for e in model.effects):
+        z1, z2 = written
+        zero = jnp.zeros_like(q[0])  # Z₁ of the other effects: they hold no momentum
+        if any(not e.inertial for e in model.effects):
             def rest(th):
                 p = model.unvector(th)
                 return sum(e.torque(s, q, qd, jnp.zeros_like(qd), p, regressor.boundary) for e in model.effects
-                           if e.name != "rigid")
+                           if not e.inertial)
 
             Zo = jax.jacfwd(rest)(theta0)
             z2.update({k: (Zo[0, i], Zo[1, i]) for i, k in enumerate(names) if k not in z2})

@@ -1,11 +1,13 @@
 """Parameter projection: keep the estimates physically admissible without breaking the proof.
 
-The admissible set Θ:
+The admissible set Θ (the structure says which of its rigid parameters are admissible,
+`Structure.admissible`):
 
 - the inertia matrix stays positive definite with a margin, H(q) ⪰ ε I for every q. For MANUS-2,
   H(q) = [[a1, a2 c], [a2 c, a3]] with |c| ≤ 1, this holds for all q exactly when the 2×2 matrix
   M = [[a1, a2], [a2, a3]] satisfies M ⪰ ε I (the worst case is c² = 1): a convex cone, shifted.
-  For single axes, M_i ≥ ε.
+  For single axes, M_i ≥ ε. For a serial chain in pseudo-inertia coordinates, each link's
+  pseudo-inertia positive semidefinite and each armature ≥ 0 (`_onto_pseudo_inertias`).
 - each effect's own lower bounds (`Effect.lower_bounds`): friction coefficients b (viscous), Fc
   (coulomb), dFs (stribeck) and a spring's k are non-negative; the other parameters (asymmetry,
   offset, gravity, cogging) are signed and left free.
@@ -53,8 +55,7 @@ from jax import Array
 
 from manus.plants.effects import Model
 from manus.plants.errors import ModelError
-from manus.plants.serial_pseudo import ENTRIES, SerialPseudo, entries_of_matrix, matrix
-from manus.plants.structures import Axis, Manus2
+from manus.plants.pseudo_inertia import entries_of_matrix, matrix
 
 NEWTON_STEPS = 10
 _SQRT_HALF = math.sqrt(0.5)
@@ -117,18 +118,15 @@ class Projection(eqx.Module):
         lower = np.full(len(names), -np.inf)
         bounds = [lo for e in model.effects if not e.inertial for lo in e.lower_bounds(s)]
         lower[[i for i, k in enumerate(names) if k not in s.rigid_names]] = bounds  # each effect's own rules
-        self.cone = None
-        self.links = ()
-        if isinstance(s, SerialPseudo):
-            self.links = tuple((tuple(names.index(f"J{i + 1}{e}") for e in ENTRIES), s.scale[i])
-                               for i in range(s.n_joints))
-            lower[[names.index(f"Ia{i + 1}") for i in range(s.n_joints)]] = 0.0
-        elif isinstance(s, Manus2):
-            self.cone = tuple(names.index(k) for k in s.rigid_names)
-        elif isinstance(s, Axis):
-            lower[[names.index(k) for k in s.rigid_names]] = min_inertia
-        else:
+        admissible = s.admissible()  # the structure's own rules for its rigid parameters
+        if admissible is None:
             raise ModelError(f"no admissible parameter set is known for structure {s.name!r}")
+        self.links = tuple((tuple(names.index(k) for k in entries), scale) for entries, scale in admissible.links)
+        if admissible.nonnegative:
+            lower[[names.index(k) for k in admissible.nonnegative]] = 0.0
+        if admissible.positive:
+            lower[[names.index(k) for k in admissible.positive]] = min_inertia
+        self.cone = None if admissible.cone is None else tuple(names.index(k) for k in admissible.cone)
         self.lower = jnp.asarray(lower)
         self.min_inertia = float(min_inertia)
 
@@ -169,7 +167,7 @@ def _onto_pseudo_inertias(theta: Array, links: tuple) -> Array:
     """θ with each link's pseudo-inertia J made positive semidefinite: the eigenvalues of its scaled
     J' = S J S (S = diag(1/ℓ, 1/ℓ, 1/ℓ, 1)) below 0 set to 0, the closest point in the Frobenius
     norm of J', which is the Γ⁻¹ metric for gains in `SerialPseudo.rigid_gains`' pattern
-    (`manus.plants.serial_pseudo`). A link already consistent comes back bit for bit."""
+    (`manus.plants.pseudo_inertia`). A link already consistent comes back bit for bit."""
     moved = {}
     for idx, scale in links:
         S = jnp.array([1 / scale, 1 / scale, 1 / scale, 1.0])

@@ -47,7 +47,6 @@ from jax import Array
 
 from manus.plants.effects import Model
 from manus.plants.errors import ModelError
-from manus.plants.structures import Manus2
 
 FORMS = ("slotine-li", "thesis")
 DEFAULT_BOUNDARY = 0.01  # φ [rad/s]: under 1 % of the complex trajectory's peak speed
@@ -96,7 +95,7 @@ class Regressor(eqx.Module):
         for e in self.model.effects:
             if e.inertial and self.form == "slotine-li":
                 total = total + s.inertia(q, p) @ qdd_r + s.coriolis(q, qd, p) @ qd_r
-                if getattr(s, "rigid_gravity", ""):  # a serial chain's rigid effect holds gravity, g(q)
+                if s.rigid_gravity:  # a serial chain's rigid effect holds gravity, g(q)
                     zero = jnp.zeros_like(qdd_r)
                     total = total + s.rigid_torque(q, zero, zero, p)
             else:
@@ -104,17 +103,15 @@ class Regressor(eqx.Module):
         return total
 
     def __call__(self, q, qd, qd_r, qdd_r) -> Array:
-        """Y, shape (n, P): ∂(Y θ)/∂θ, exact because every column is linear in θ. MANUS-2's rigid
-        columns in the Slotine–Li form are written out (the matrix in the module docstring: per-joint
-        scalars, no 2×2 products, which under `vmap` become a tiny matrix product per trial)."""
+        """Y, shape (n, P): ∂(Y θ)/∂θ, exact because every column is linear in θ. In the Slotine–Li
+        form the rigid columns of a structure that writes them out (`Structure.slotine_li_columns`:
+        MANUS-2's, the matrix in the module docstring) are its per-joint scalars, no 2×2 products,
+        which under `vmap` become a tiny matrix product per trial."""
         theta0 = jnp.zeros(len(self.names), jnp.result_type(qd_r, float))
         s = self.model.structure
-        if not (self.form == "slotine-li" and isinstance(s, Manus2)):
+        columns = s.slotine_li_columns(q, qd, qd_r, qdd_r) if self.form == "slotine-li" else None
+        if columns is None:
             return jax.jacfwd(lambda th: self.torque(q, qd, qd_r, qdd_r, th))(theta0)
-        c, sn = s.pose(q)
-        zero = 0.0 * c
-        columns = {"a1": (qdd_r[0], zero), "a2": (c * qdd_r[1] - sn * qd[1] * qd_r[1], c * qdd_r[0] + sn * qd[0] * qd_r[0]),
-                   "a3": (zero, qdd_r[1])}
         if len(self.model.effects) > 1:  # the other effects' columns (elementwise in the joints)
             def rest(th):
                 p = self.model.unvector(th)

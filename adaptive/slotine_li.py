@@ -67,9 +67,7 @@ from manus.estimators.base import Estimator, run
 from manus.plants.effects import Model
 from manus.plants.errors import ManusError
 from manus.plants.stepper import Controller, Plant, Reference, RefSample
-from manus.plants.structures import Manus2
 
-THESIS_RIGID_GAINS = (0.2, 0.2, 0.5)  # Γ1, Γ2, Γ3 for a1, a2, a3 (thesis App. C)
 LAMBDA, KD = 5.0, 5.0  # Λ [1/s], K_D [N·m·s/rad] (thesis App. C)
 DEFAULT_ESTIMATOR = "kalman_cv"  # see the module docstring
 LIMIT = 22.2  # N·m: the D/A and amplifier chain's largest torque (manus.plants.simulator.Actuator)
@@ -93,31 +91,25 @@ KD_BANDWIDTH = 14.0  # [rad/s] K_D/H of the thesis's gains on MANUS-2 (K_D = 5 o
 
 def default_kd(model: Model) -> list[float]:
     """K_D per joint: the thesis's 5 N·m·s/rad on MANUS-2 and single axes; on a serial chain
-    `KD_BANDWIDTH` times each joint's own inertia (the URDF's H(0) diagonal), since a fixed 5 on a
-    light link is a loop far faster than the sample rate allows (measured: the DFKI pendulum's
-    elbow, H = 0.027 kg m², diverged at 250 Hz with 5 and tracked within 1 mrad with 0.37)."""
-    s = model.structure
-    chain = getattr(s, "serial", None)
-    if chain is None:
+    `KD_BANDWIDTH` times each joint's own inertia (`Structure.nominal_joint_inertias`: the URDF's
+    H(0) diagonal), since a fixed 5 on a light link is a loop far faster than the sample rate allows
+    (measured: the DFKI pendulum's elbow, H = 0.027 kg m², diverged at 250 Hz with 5 and tracked
+    within 1 mrad with 0.37)."""
+    inertias = model.structure.nominal_joint_inertias()
+    if inertias is None:
         return [KD] * model.n_joints
-    import jax.numpy as jnp
-
-    H = np.asarray(chain.mass_matrix(jnp.zeros(chain.n_joints), jnp.asarray(chain.defaults)))
-    return (KD_BANDWIDTH * np.maximum(np.diag(H), 1e-9)).tolist()
+    return (KD_BANDWIDTH * np.maximum(inertias, 1e-9)).tolist()
 
 
 def default_gains(model: Model) -> np.ndarray:
-    """Γ (P,): the thesis's for MANUS-2's a1, a2, a3, a serial chain's in pseudo-inertia
-    coordinates in the pattern of its projection's metric (`SerialPseudo.rigid_gains`), each
-    effect's own `gain` otherwise [units of the parameter² per (N·m·rad)]."""
+    """Γ (P,): each effect's own `gain` [units of the parameter² per (N·m·rad)], and the rigid
+    parameters' where the structure has its own (`Structure.rigid_gains`: the thesis's for
+    MANUS-2's a1, a2, a3; a serial chain's in pseudo-inertia coordinates in the pattern of its
+    projection's metric)."""
     gamma = np.array([e.gain for e in model.effects for _ in e.names(model.structure)], float)
-    if isinstance(model.structure, Manus2) and model.has("rigid"):
-        for name, g in zip(model.structure.rigid_names, THESIS_RIGID_GAINS):
-            gamma[model.names.index(name)] = g
-    own = getattr(model.structure, "rigid_gains", None)  # a chain in pseudo-inertia coordinates: its metric's pattern
-    if own is not None and model.has("rigid"):
-        rigid = model.get("rigid")
-        for name, g in own(rigid.gain).items():
+    rigid = model.get("rigid")
+    if rigid is not None:
+        for name, g in model.structure.rigid_gains(rigid.gain).items():
             gamma[model.names.index(name)] = g
     return gamma
 
@@ -127,7 +119,7 @@ _run = eqx.filter_jit(run)  # compiled once per kind of estimator
 
 def _model_based(estimator: Estimator) -> bool:
     """Whether `estimator` predicts with a plant model whose parameters it takes (`with_params`)."""
-    return hasattr(estimator, "with_params") and getattr(estimator, "dynamics", None) is not None
+    return estimator.model is not None
 
 
 def measure_lag(estimator: Estimator, n_joints: int, seconds: float = 2.0) -> float:
@@ -233,6 +225,12 @@ class SlotineLi(Controller):
     def n_joints(self) -> int:
         return self.regressor.n_joints
 
+    def velocity(self, state: SlotineLiState) -> Array:
+        return state.qd
+
+    def stopped(self, state: SlotineLiState) -> Array:
+        return state.stopped
+
     def init(self, q0: Array) -> SlotineLiState:
         q0 = jnp.asarray(q0, float)
         n, P = self.n_joints, len(self.names)
@@ -249,9 +247,9 @@ class SlotineLi(Controller):
     def _feed(self, est_state, theta):
         """A model-based estimator gets the current estimates of the parameters its model shares
         with the controller's, every tick."""
-        if not _model_based(self.estimator):
+        model = self.estimator.model
+        if model is None:
             return est_state
-        model = self.estimator.dynamics.model
         shared = {k: theta[i] for i, k in enumerate(self.names) if k in model.names}
         return self.estimator.with_params(est_state, shared) if shared else est_state
 
@@ -338,19 +336,17 @@ def fusion_boundary(tree):
 
 def regressor_entries(regressor: Regressor, q, qd, qd_r, qdd_r) -> list[list]:
     """`regressor`(q, q̇, q̇_r, q̈_r) entry by entry: nested lists [joint][parameter] of scalars,
-    equal to the (n, P) array. MANUS-2's rigid columns in the Slotine–Li form are written out (as
-    `Regressor.__call__` writes them); every other effect's column is its torque with that
-    parameter 1 and the rest 0 (each effect is linear in its parameters: the column exactly,
-    what forward-mode differentiation computes); other structures and forms: the array's entries."""
+    equal to the (n, P) array. In the Slotine–Li form the rigid columns a structure writes out
+    (`Structure.slotine_li_columns`: MANUS-2's, as `Regressor.__call__` takes them) are its own;
+    every other effect's column is its torque with that parameter 1 and the rest 0 (each effect is
+    linear in its parameters: the column exactly, what forward-mode differentiation computes);
+    other structures and forms: the array's entries."""
     model, names = regressor.model, regressor.names
     s, n = model.structure, regressor.n_joints
-    if not (regressor.form == "slotine-li" and isinstance(s, Manus2)):
+    columns = s.slotine_li_columns(q, qd, qd_r, qdd_r) if regressor.form == "slotine-li" else None
+    if columns is None:
         Y = regressor(q, qd, qd_r, qdd_r)
         return [[Y[a, k] for k in range(len(names))] for a in range(n)]
-    c, sn = s.pose(q)
-    zero = 0.0 * c
-    columns = {"a1": (qdd_r[0], zero), "a2": (c * qdd_r[1] - sn * qd[1] * qd_r[1], c * qdd_r[0] + sn * qd[0] * qd_r[0]),
-               "a3": (zero, qdd_r[1])}
     for e in model.effects:
         if e.inertial:
             continue
@@ -520,7 +516,7 @@ def rollout_batch(plant: Plant, controller: SlotineLi, reference: Reference, per
     statistics (`BatchLog`) and every `record`-th tick's row."""
     _check(steps, every, record)
     if truth is None:
-        params = getattr(plant, "params", {})
+        params = plant.params
         truth = [float(params.get(k, 0.0)) for k in controller.names]
     out = _batch(plant, controller, reference, tuple(per_trial), keys, jnp.asarray(truth, float), int(steps),
                  int(every), int(record))
