@@ -15,6 +15,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jax import Array
+from jax.typing import ArrayLike
 
 
 class Estimate(NamedTuple):
@@ -35,7 +36,7 @@ class Estimator(eqx.Module):
     def step(self, state: Any, q: Array, tau: Array | None = None) -> tuple[Any, Estimate]: ...
 
 
-def run(estimator: Estimator, q: Array, tau: Array | None = None) -> Estimate:
+def run(estimator: Estimator, q: ArrayLike, tau: ArrayLike | None = None) -> Estimate:
     """Run `estimator` over a recorded array q (T, n) with `lax.scan`; tau (T, n) is the torque
     commanded at each sample (the estimator at sample k sees tau[k−1])."""
     q = jnp.asarray(q)

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -21,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from manus.estimators import offline, scoring
-from manus.estimators.base import Estimate, run
+from manus.estimators.base import run
 from manus.estimators.linear import THESIS_STEP
 from manus.estimators.registry import MODEL_BASED, NAMES, knob_range, make
 from manus.plants.errors import ManusError
@@ -72,9 +73,17 @@ def _stack(modules):
     return eqx.combine(stacked, static)
 
 
-def run_estimator(estimator, q: np.ndarray, tau: np.ndarray) -> Estimate:
+class HostEstimate(NamedTuple):
+    """An estimator's output over a recording, on the host (numpy)."""
+
+    q: np.ndarray
+    qd: np.ndarray
+    qdd: np.ndarray | None = None
+
+
+def run_estimator(estimator, q: np.ndarray, tau: np.ndarray) -> HostEstimate:
     out = _run(estimator, jnp.asarray(q), jnp.asarray(tau))
-    return Estimate(*(None if x is None else np.asarray(x) for x in out))
+    return HostEstimate(np.asarray(out.q), np.asarray(out.qd), None if out.qdd is None else np.asarray(out.qdd))
 
 
 def tune(
@@ -89,7 +98,7 @@ def tune(
     knob, low, high, log = spec
     to, back = (np.log, np.exp) if log else ((lambda x: x), (lambda x: x))
     lo, hi = to(low), to(high)
-    best = None
+    best: tuple[float, float] | None = None
     for _ in range(GRID_ROUNDS):
         values = back(np.linspace(lo, hi, GRID_POINTS))
         out = _run_batch(
@@ -111,6 +120,7 @@ def tune(
         best = (float(values[i]), float(objective[i]))
         spacing = (hi - lo) / (GRID_POINTS - 1)
         lo, hi = max(to(low), to(values[i]) - spacing), min(to(high), to(values[i]) + spacing)
+    assert best is not None  # GRID_ROUNDS > 0
     at_limit = bool(np.isclose(best[0], low, rtol=1e-9) or np.isclose(best[0], high, rtol=1e-9))
     return {
         "knob": knob,
@@ -124,7 +134,7 @@ def tune(
 def reference_velocity(rec: Recording, cutoff_hz: float) -> tuple[np.ndarray, bool, int, int]:
     """(reference velocity, is it the truth, first and last+1 sample to score)."""
     start = int(round(START_SECONDS / rec.dt))
-    if rec.has_truth:
+    if rec.qd is not None:  # the recording has the truth
         return rec.qd, True, start, len(rec)
     edge = offline.edge(rec.dt, cutoff_hz)
     return offline.differentiate(rec.q, rec.dt, cutoff_hz)[1], False, max(start, edge), len(rec) - edge

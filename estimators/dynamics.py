@@ -24,6 +24,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax.numpy as jnp
 from jax import Array
+from jax.typing import ArrayLike
 
 from manus.estimators.base import Estimator
 from manus.plants.effects import Delay, Model
@@ -46,14 +47,18 @@ class ModelDynamics(eqx.Module):
             raise ValueError(f"the friction boundary layer must be positive, got {boundary}")
         d = model.get("delay")
         n = model.n_joints
-        self.delays = tuple(int(round(x / dt)) for x in d.per_joint(n)) if isinstance(d, Delay) else (0,) * n
+        if isinstance(d, Delay):
+            delays = d.per_joint(n)  # pyright: ignore[reportAttributeAccessIssue] (equinox hides the subclass from narrowing)
+            self.delays = tuple(int(round(x / dt)) for x in delays)
+        else:
+            self.delays = (0,) * n
 
     @property
     def delay(self) -> int:
         """The longest delay [samples]: how many commands are kept."""
         return max(self.delays)
 
-    def theta(self, params: dict | Array | None, current: Array | None = None) -> Array:
+    def theta(self, params: dict | ArrayLike | None, current: Array | None = None) -> Array:
         """θ (P,) from a full vector, or a dict of some parameters (the rest from `current`, or
         the model's defaults)."""
         names = self.model.names
@@ -108,7 +113,7 @@ class ModelBased(Estimator):
 
     dynamics: eqx.AbstractVar[ModelDynamics | None]
 
-    def with_params(self, state, params: dict | Array):
+    def with_params(self, state, params: dict | ArrayLike):
         """The state with the model's parameters replaced: pure, jit-able, once per tick if need be.
 
         `params`: θ (P,) in the order of `dynamics.model.names` (an adaptive controller's â when
@@ -120,3 +125,4 @@ class ModelBased(Estimator):
     def params(self, state) -> dict:
         """The model parameters the state holds, by name."""
         return self.dynamics.model.unvector(state.theta)
+        assert self.dynamics is not None, f"{type(self).__name__} has no model"

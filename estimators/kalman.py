@@ -117,6 +117,7 @@ def _combination(terms):
             continue
         term = v if c == 1.0 else c * v
         out = term if out is None else out + term
+    assert out is not None, "a combination with every coefficient zero"
     return out
 
 

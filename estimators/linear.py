@@ -57,4 +57,5 @@ def equal_noise_bandwidth(
             f"the {corner / (2 * np.pi):.4g} Hz filtered first difference at {1 / dt:.4g} Hz"
             + (" (its corner is above Nyquist: raise the rate)" if corner >= np.pi / dt else "")
         )
-    return float(np.exp(scipy.optimize.brentq(f, lo, hi, xtol=1e-8)))
+    root: float = scipy.optimize.brentq(f, lo, hi, xtol=1e-8)  # pyright: ignore[reportAssignmentType]
+    return float(np.exp(root))

@@ -33,7 +33,7 @@ def lowpass(x: np.ndarray, dt: float, cutoff_hz: float, order: int = 4) -> np.nd
 def _butter(order: int, wn: float) -> np.ndarray:
     """The filter's second-order sections (designed once per cut-off: a search filters many
     columns through the same one)."""
-    sos = signal.butter(order, wn, output="sos")
+    sos = np.asarray(signal.butter(order, wn, output="sos"))
     sos.flags.writeable = False
     return sos
 

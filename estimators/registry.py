@@ -109,7 +109,7 @@ def _build(name: str, dt: float, n_joints: int, step: float, k: dict) -> Estimat
     if name == "first_difference":
         return FirstDifference(dt=dt)
     if name == "filtered_first_difference":  # λ as an array: a new value reuses the compiled step
-        return FilteredFirstDifference(dt=dt, **{x: jnp.asarray(float(v)) for x, v in k.items()})
+        return FilteredFirstDifference(dt=dt, **{x: jnp.asarray(float(v)) for x, v in k.items()})  # pyright: ignore[reportArgumentType]
     if name in ("kalman_cv", "kalman_ca"):
         return KinematicKalman(dt, 2 if name == "kalman_cv" else 3, r=r, **k)
     if name == "luenberger":

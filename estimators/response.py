@@ -51,8 +51,8 @@ def frequency_response(
     one joint (an axis for the model-based ones) and run on every frequency at once (vmapped);
     `seconds` defaults to four periods of the lowest frequency."""
     freqs_hz = np.asarray(freqs_hz, float)
-    seconds = max(4.0 / freqs_hz.min(), 1.0) if seconds is None else seconds
-    t, q = sinusoids(freqs_hz, dt, seconds, amplitude)
+    duration = max(4.0 / float(freqs_hz.min()), 1.0) if seconds is None else seconds
+    t, q = sinusoids(freqs_hz, dt, duration, amplitude)
     estimator = make(name, dt=dt, n_joints=1, **({"structure": "axis", **knobs} if name in MODEL_BASED else knobs))
     tau = np.zeros_like(q)
     if name in MODEL_BASED:  # the command of sample k acts over [t_k, t_k + T]: its torque at the middle

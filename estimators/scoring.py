@@ -47,9 +47,11 @@ def lag_seconds(estimate: np.ndarray, reference: np.ndarray, dt: float, max_lag:
     """Delay of `estimate` behind `reference` [s] by cross-correlation (all joints together)."""
     m = int(round(max_lag / dt))
     n = len(reference)
-    c = sum(
-        signal.correlate(estimate[:, j], reference[:, j], mode="full", method="fft")[n - 1 - m : n + m]
-        for j in range(reference.shape[1])
+    c = np.asarray(
+        sum(
+            signal.correlate(estimate[:, j], reference[:, j], mode="full", method="fft")[n - 1 - m : n + m]
+            for j in range(reference.shape[1])
+        )
     )  # c[m + s] = Σ_k est[k + s] ref[k]
     k = int(np.argmax(c))
     if not 0 < k < 2 * m:

@@ -91,7 +91,7 @@ class UdpDevice(Device):
         except (socket.gaierror, OSError) as e:
             raise DeviceError(f"{self.url}: cannot resolve the device's address ({e})") from None
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.bind((bind or ("127.0.0.1" if self.peer[0].startswith("127.") else ""), 0))
+        self.sock.bind((bind or ("127.0.0.1" if str(self.peer[0]).startswith("127.") else ""), 0))
         self.sock.setblocking(False)
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
         self.seq = 0
@@ -150,11 +150,13 @@ class UdpDevice(Device):
     def receive(self, deadline_ns: int, expect_ns: int | None = None, idle=None) -> P.Sensor | None:
         sock, clock = self.sock, time.perf_counter_ns
         warm_until = (expect_ns - WARM_GAP_NS) if (idle is not None and expect_ns is not None) else 0
+        info = self.info
+        assert info is not None, f"{self.url}: receive before connect"
         next_warm = 0
         while True:
             packet = self._packet()
             if packet is not None:
-                if isinstance(packet, P.Sensor) and packet.counts.size == self.info.n_joints:
+                if isinstance(packet, P.Sensor) and packet.counts.size == info.n_joints:
                     if P.newer(packet.seq, self.last_seq):
                         self.last_seq = packet.seq
                         self.flags = packet.flags
@@ -167,7 +169,7 @@ class UdpDevice(Device):
             now = clock()
             if now >= deadline_ns:
                 return None
-            if now < warm_until and now >= next_warm:
+            if idle is not None and now < warm_until and now >= next_warm:
                 idle()  # e.g. keep the compiled tick in the caches
                 next_warm = clock() + WARM_EVERY_NS
                 continue

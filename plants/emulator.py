@@ -57,7 +57,8 @@ class Emulator:
     ):
         import jax
 
-        if sim.encoder is None or sim.actuator is None:
+        encoder = sim.encoder
+        if encoder is None or sim.actuator is None:
             raise ManusError("the emulator needs a simulator with an encoder and an actuator (a rig has both)")
         if not (0 <= drop < 1 and 0 <= garbage < 1):
             raise ManusError(f"drop and garbage are fractions in [0, 1), got {drop} and {garbage}")
@@ -70,7 +71,7 @@ class Emulator:
         self.n = sim.model.n_joints
         self.period_ns = int(round(1e9 / sim.rate_hz))
         act = sim.actuator
-        self.info = P.Info(self.n, sim.rate_hz, 2 * math.pi / float(sim.encoder.step), act.torque_per_volt, act.volts)
+        self.info = P.Info(self.n, sim.rate_hz, 2 * math.pi / float(encoder.step), act.torque_per_volt, act.volts)
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             self.sock.bind((host, port))
@@ -82,7 +83,7 @@ class Emulator:
         def tick(state, tau):
             state, _ = sim.step(state, tau)
             q_true, qd_true = sim.truth(state)
-            return state, sim.encoder.counts(state.q).astype(np.int64), q_true, qd_true, act(tau)
+            return state, encoder.counts(state.q).astype(np.int64), q_true, qd_true, act(tau)
 
         self._tick = jax.jit(tick)
         self._reset = jax.jit(lambda: sim.reset()[0])
@@ -123,6 +124,7 @@ class Emulator:
 
     # -- packets --------------------------------------------------------------------------
     def _send(self, data: bytes) -> None:
+        assert self.peer is not None, "no session to send to"
         try:
             self.sock.sendto(data, self.peer)
         except OSError:
@@ -168,6 +170,7 @@ class Emulator:
             self.stats["dropped_in"] += 1
             return
         cmd = P.decode(data)
+        assert isinstance(cmd, P.Command)  # its header said COMMAND
         if not P.newer(cmd.seq, self.cmd_seq):
             self.refused["order"] += 1
             return

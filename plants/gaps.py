@@ -95,9 +95,7 @@ def on_grid(rec: Recording) -> tuple[Recording, np.ndarray]:
     filled = np.ones(grid.size, bool)
     filled[k] = False
 
-    def fill(x):
-        if x is None:
-            return None
+    def fill(x) -> np.ndarray:
         x = np.asarray(x, float)
         flat = x.reshape(len(rec), -1)
         out = np.stack([np.interp(grid, k, flat[:, j]) for j in range(flat.shape[1])], 1)
@@ -109,7 +107,7 @@ def on_grid(rec: Recording) -> tuple[Recording, np.ndarray]:
         rec.t[0] + grid * rec.dt,
         q,
         fill(rec.tau),
-        fill(rec.qd),
+        None if rec.qd is None else fill(rec.qd),
         dict(rec.meta),
         {name: fill(v) for name, v in rec.extra.items()},
         rec.path,

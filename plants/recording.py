@@ -26,6 +26,7 @@ import re
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NoReturn
 
 import numpy as np
 
@@ -204,7 +205,7 @@ def read(path: str | os.PathLike, robot: str | os.PathLike | None = None) -> Rec
     return rec
 
 
-def _fail(path, line, problem):
+def _fail(path, line, problem) -> NoReturn:
     where = f"{path}:{line}" if line else f"{path}"
     raise RecordingError(f"{where}: {problem}")
 
@@ -362,7 +363,7 @@ def _drop_missing(path, cols: dict, names: list[str], locate) -> dict:
     like a sample missing from the time column (`manus.plants.gaps`). More than
     `MISSING_AT_MOST` of the recording missing, or a column missing throughout, is refused."""
     missing = np.zeros(cols["t"].size, bool)
-    first = None
+    first: tuple[int, str] | None = None
     for name in names:
         bad = ~np.isfinite(cols[name])
         if bad.all():
@@ -371,7 +372,7 @@ def _drop_missing(path, cols: dict, names: list[str], locate) -> dict:
             first = (int(np.argmax(bad)), name)
         missing |= bad
     k = int(missing.sum())
-    if not k:
+    if not k or first is None:
         return cols
     where, name = first
     value = cols[name][where]
@@ -594,7 +595,7 @@ def write(rec: Recording, path: str | os.PathLike) -> Path:
     if rec.robot is not None:  # relative to where the file goes
         meta["robot"] = os.path.relpath(rec.robot.absolute(), path.parent.absolute())
     if path.suffix.lower() == ".npz":
-        np.savez(path, **cols, **{k: np.asarray(v) for k, v in meta.items()})
+        np.savez(path, **cols, **{k: np.asarray(v) for k, v in meta.items()})  # pyright: ignore[reportArgumentType]
         return path
     with RecordingWriter(path, list(cols), meta) as w:
         w.append(np.stack(list(cols.values()), 1))

@@ -10,6 +10,8 @@ import pytest
 
 from manus import estimators
 from manus.estimators.compare import Setup, reference_velocity, run_estimator, tune
+from manus.estimators.kalman import KinematicKalman
+from manus.estimators.model_kalman import ModelKalman
 from manus.plants import Manus2, Model
 
 
@@ -23,6 +25,7 @@ def test_kalman_ca_is_5x_better_than_the_thesis_filter_at_under_1ms(arm_recordin
     assert abs(ca["lag_ms"]) < 1.0
     assert ffd["lag_ms"] == pytest.approx(1e3 / 188.5, abs=0.3)  # a first-order lag of time constant 1/λ
     # the report's numbers, recomputed from the estimates by hand
+    assert rec.qd is not None
     start, stop = report["scored_samples"]
     err = est["kalman_ca"][start:stop] - rec.qd[start:stop]
     still = np.abs(rec.qd[start:stop]) < 0.02 * np.percentile(np.abs(rec.qd[start:stop]), 99, axis=0)
@@ -40,9 +43,12 @@ def test_tuning_against_truth_and_without_it(arm_recording):
     rms = lambda knob: np.sqrt(
         np.mean((run_estimator(setup.make("kalman_ca", q=knob), rec.q, rec.tau).qd[start:stop] - ref[start:stop]) ** 2)
     )
-    default = float(setup.make("kalman_ca").q)
+    kalman = setup.make("kalman_ca")
+    assert isinstance(kalman, KinematicKalman)
+    default = float(kalman.q)
     by_truth = tune(setup, "kalman_ca", rec.q, rec.tau, ref, start, stop)
     blind = tune(setup, "kalman_ca", rec.q, rec.tau, None, start, stop)
+    assert by_truth is not None and blind is not None
     assert by_truth["criterion"] == "rms_error" and blind["criterion"] == "whiteness"
     assert by_truth["objective"] == pytest.approx(rms(by_truth["value"]), rel=1e-9)
     assert by_truth["objective"] < rms(default)
@@ -65,6 +71,7 @@ def test_model_based_estimators_use_the_model_and_take_new_parameters(arm_record
     )
 
     est = estimators.make("kalman_model", n_joints=2)
+    assert isinstance(est, ModelKalman) and est.dynamics is not None
     wrong = est.with_params(est.init(jnp.asarray(rec.q[0])), {"a1": 0.7, "a3": 0.5})
     assert float(est.params(wrong)["a1"]) == 0.7 and float(est.params(wrong)["b1"]) == 0.222
 
@@ -90,10 +97,14 @@ def test_acceleration_estimates(arm_recording, arm_report):
     """q̈ from the constant-acceleration filter and the model-based ones, against the derivative
     of the true velocity while moving (the hold's stick-slip jumps excluded)."""
     rec = arm_recording
+    assert rec.qd is not None
     truth = np.gradient(rec.qd, rec.dt, axis=0)[100:2400]
-    relative = lambda name: np.sqrt(
-        np.mean((run_estimator(estimators.make(name), rec.q, rec.tau).qdd[100:2400] - truth) ** 2) / np.mean(truth**2)
-    )
+
+    def relative(name):
+        qdd = run_estimator(estimators.make(name), rec.q, rec.tau).qdd
+        assert qdd is not None
+        return np.sqrt(np.mean((qdd[100:2400] - truth) ** 2) / np.mean(truth**2))
+
     assert relative("kalman_ca") < 0.3
     assert relative("kalman_model") < 0.05
 
@@ -105,7 +116,7 @@ def test_a_model_based_estimator_applies_each_joints_own_delay():
 
     dyn = ModelDynamics(Model(Manus2(), "rigid,viscous,delay:1ms/3ms"), dt=1e-3)
     history = dyn.commands(2)
-    assert history.shape == (3, 2)
+    assert history is not None and history.shape == (3, 2)
     acting = []
     for k in range(1, 7):  # commands k, -k on the two joints
         tau, history = dyn.acting(history, jnp.array([k, -k], float), 2)

@@ -11,7 +11,9 @@ from filterpy.common import Q_continuous_white_noise
 from filterpy.kalman import ExtendedKalmanFilter, KalmanFilter
 
 from manus import estimators
-from manus.estimators.kalman import transition
+from manus.estimators.kalman import KinematicKalman, transition
+from manus.estimators.luenberger import Luenberger
+from manus.estimators.model_kalman import ModelKalman
 from manus.estimators.sliding import K1, K2
 from tests.estimators.conftest import DT, STEP
 
@@ -62,11 +64,12 @@ def test_filtered_first_difference_is_the_tustin_transform_of_eq_3_19(motion):
 def test_kinematic_kalman_equals_filterpy(motion, name, order, steady):
     q, tau = motion
     est = estimators.make(name, steady=steady)
+    assert isinstance(est, KinematicKalman)
     refs = []
     for j in range(2):
         kf = KalmanFilter(dim_x=order, dim_z=1)
         kf.F, kf.H, kf.R = transition(order, DT), np.eye(1, order), np.array([[R]])
-        kf.Q = Q_continuous_white_noise(order, DT, float(est.q))
+        kf.Q = Q_continuous_white_noise(order, DT, float(est.q))  # pyright: ignore[reportAttributeAccessIssue]
         kf.x = np.zeros((order, 1))
         kf.x[0, 0] = q[0, j]
         kf.P = np.array(est.P0)
@@ -157,6 +160,7 @@ def complex_step_jacobian(f, x, h=1e-30):
 def test_model_kalman_equals_filterpy_ekf_on_the_thesis_arm(motion):
     q, tau = motion
     est = estimators.make("kalman_model", n_joints=2, q=3e-3)
+    assert isinstance(est, ModelKalman)
 
     class ArmEKF(ExtendedKalmanFilter):
         def predict_x(self, u=0):
@@ -165,12 +169,12 @@ def test_model_kalman_equals_filterpy_ekf_on_the_thesis_arm(motion):
     ekf = ArmEKF(dim_x=4, dim_z=2)
     ekf.x = np.concatenate([q[0], [0.0, 0.0]])[:, None]
     ekf.P, ekf.R = np.array(est.P0), R * np.eye(2)
-    ekf.Q = np.kron(Q_continuous_white_noise(2, DT, 3e-3), np.eye(2))
+    ekf.Q = np.kron(Q_continuous_white_noise(2, DT, 3e-3), np.eye(2))  # pyright: ignore[reportCallIssue, reportArgumentType]
     H = np.hstack([np.eye(2), np.zeros((2, 2))])
     ref, prev = [], np.zeros(2)
     for k in range(len(q)):
         ekf.F = complex_step_jacobian(lambda x, u=prev: manus2_transition(x, u), ekf.x[:, 0].astype(complex))
-        ekf.predict(u=prev)
+        ekf.predict(u=prev)  # pyright: ignore[reportArgumentType]
         ekf.update(q[k][:, None], lambda x: H, lambda x: H @ x)
         ref.append(ekf.x[2:, 0].copy())
         prev = tau[k]
@@ -180,6 +184,7 @@ def test_model_kalman_equals_filterpy_ekf_on_the_thesis_arm(motion):
 def test_luenberger_places_both_poles_at_the_bandwidth_and_equals_numpy(motion):
     q, tau = motion
     est = estimators.make("luenberger", bandwidth=300.0)
+    assert isinstance(est, Luenberger)
     l1, l2 = np.asarray(est.gains)
     F = np.array([[1.0, DT], [0.0, 1.0]])
     closed = (np.eye(2) - np.outer([l1, l2], [1.0, 0.0])) @ F
@@ -196,6 +201,7 @@ def test_luenberger_places_both_poles_at_the_bandwidth_and_equals_numpy(motion):
 def test_model_luenberger_equals_numpy_on_the_thesis_arm(motion):
     q, tau = motion
     est = estimators.make("luenberger_model", n_joints=2, bandwidth=200.0)
+    assert isinstance(est, Luenberger)
     l1, l2 = np.asarray(est.gains)
     x, ref, prev = np.concatenate([q[0], [0.0, 0.0]]), [], np.zeros(2)
     for k in range(len(q)):
@@ -219,12 +225,14 @@ def test_levant_solves_its_implicit_step(motion):
                 e, s = 0.0, w / c
             else:  # off it: s = sgn e = sgn w, and e solves e − w + c s + b ⌈e⌋^½ = 0
                 s = np.sign(w)
-                e = scipy.optimize.brentq(
-                    lambda e, w=w, s=s: e - w + c * s + b * np.sign(e) * np.sqrt(abs(e)),
-                    0.0,
-                    w,
-                    xtol=1e-300,
-                    rtol=4 * np.finfo(float).eps,
+                e = float(
+                    scipy.optimize.brentq(  # pyright: ignore[reportArgumentType]
+                        lambda e, w=w, s=s: e - w + c * s + b * np.sign(e) * np.sqrt(abs(e)),
+                        0.0,
+                        w,
+                        xtol=1e-300,
+                        rtol=4 * np.finfo(float).eps,
+                    )
                 )
             # the implicit Euler step, as written in the differentiator's equations
             z1[j] = z1[j] - DT * K2 * L * s

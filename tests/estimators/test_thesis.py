@@ -1,12 +1,15 @@
 """The thesis's velocity estimator (§3.7): its phase lag at 2 and 5 Hz, its closed-loop poles
 (eq. 3.20), and the frequency-response measurement against scipy's closed form."""
 
+from typing import Any
+
 import control
 import numpy as np
 import pytest
 import scipy.signal
 
 from manus import estimators
+from manus.estimators.base import FilteredFirstDifference
 from manus.estimators.linear import THESIS_CORNER, ffd_noise_gain
 from manus.estimators.response import frequency_response
 
@@ -25,24 +28,26 @@ def test_filtered_first_difference_lags_as_the_thesis_says():
 
 def test_measured_response_is_scipys_transfer_function():
     freqs = np.array([0.7, 3.0, 20.0, 90.0, 300.0])
-    a, b = estimators.make("filtered_first_difference", dt=DT).coefficients
-    _, h = scipy.signal.freqz([b, -b], [1, -a], worN=freqs, fs=1 / DT)  # q -> v̂
+    ffd = estimators.make("filtered_first_difference", dt=DT)
+    assert isinstance(ffd, FilteredFirstDifference)
+    a, b = ffd.coefficients
+    _, h = scipy.signal.freqz([b, -b], [1, -a], worN=freqs, fs=1 / DT)  # pyright: ignore[reportArgumentType] q -> v̂
     np.testing.assert_allclose(
         frequency_response("filtered_first_difference", freqs, DT), h / (2j * np.pi * freqs), atol=1e-9
     )  # relative to q̇ = jω q
     # and its white-noise gain, √Σh², in closed form
     _, imp = scipy.signal.dimpulse(([b, -b], [1, -a], DT), n=20000)
-    assert ffd_noise_gain(DT) == pytest.approx(np.sqrt(np.sum(imp[0] ** 2)), rel=1e-9)
+    assert imp is not None and ffd_noise_gain(DT) == pytest.approx(np.sqrt(np.sum(imp[0] ** 2)), rel=1e-9)
 
 
 def test_closed_loop_poles_of_eq_3_20():
     """k = 100 N/m, b_c = 2 N·s/m, m = 1 kg, b = 1.5 N·s/m, λ = 188.5: −186.5 and −1.7 ± 9.9i."""
     k, bc, m, b, lam = 100.0, 2.0, 1.0, 1.5, THESIS_CORNER
-    s = control.tf("s")
+    s: Any = control.tf("s")  # python-control's operators are not typed
     plant = 1 / (m * s**2 + b * s)
     velocity = lam * s / (s + lam)  # eq. 3.19
     loop = control.feedback(k * plant, 1 + bc / k * velocity)  # τ = k(x_d − x) − b_c v̂
-    poles = np.sort_complex(control.poles(loop))
+    poles: Any = np.sort_complex(control.poles(loop))
     assert poles[0].real == pytest.approx(-186.5, abs=0.05)
     np.testing.assert_allclose(poles[1:].real, -1.7, atol=0.1)  # the thesis rounds −1.77 down
     np.testing.assert_allclose(np.abs(poles[1:].imag), 9.9, atol=0.01)
