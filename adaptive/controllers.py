@@ -3,11 +3,12 @@ controller by name.
 
     make_controller("slotine-li", model, dt=1e-3, estimator="kalman_ca", gamma={"a1": 0.3})
 
-| name | controller | gains (keywords) |
-|---|---|---|
-| `impedance` | `manus.adaptive.impedance.Impedance`: τ = K (q_d − q) + B (q̇_d − v̂) | stiffness, damping, limit |
-| `slotine-li` | `manus.adaptive.slotine_li.SlotineLi`, gradient law | gamma, lam, kd, theta0, form, boundary, project, min_inertia, lead, velocity_lag, limit |
-| `slotine-li-composite` | the same with composite adaptation (least-squares gain) | as slotine-li, plus bandwidth, weight, forgetting |
+- `impedance`: `manus.adaptive.impedance.Impedance`, τ = K (q_d − q) + B (q̇_d − v̂); gains
+  stiffness, damping, limit;
+- `slotine-li`: `manus.adaptive.slotine_li.SlotineLi`, the gradient law; gains gamma, lam, kd,
+  theta0, form, boundary, project, min_inertia, lead, velocity_lag, limit;
+- `slotine-li-composite`: the same with composite adaptation (a least-squares gain); the gains of
+  slotine-li, plus bandwidth, weight, forgetting.
 
 `estimator` is a `manus.estimators.base.Estimator`, a name in `manus.estimators.NAMES` (a model-based one,
 `kalman_model` or `luenberger_model`, is built on the controller's model, and Slotine–Li hands it
@@ -47,8 +48,9 @@ def make_estimator(name: str, dt: float, model: Model, **knobs) -> Estimator:
     return estimators.make(name, dt, n_joints=model.n_joints, **knobs)
 
 
-def make_controller(name: str, model: Model, dt: float, estimator: Estimator | str | None = None,
-                    **gains) -> Controller:
+def make_controller(
+    name: str, model: Model, dt: float, estimator: Estimator | str | None = None, **gains
+) -> Controller:
     """The controller `name` (one of `NAMES`) for `model` at control period `dt` [s]."""
     if name not in NAMES:
         raise ManusError(f"unknown controller {name!r}: expected one of {', '.join(NAMES)}")
@@ -64,8 +66,9 @@ def make_controller(name: str, model: Model, dt: float, estimator: Estimator | s
             raise ManusError(f"the velocity estimator runs at dt = {estimator.dt:g} s but the controller at {dt:g} s")
         for k in ("stiffness", "damping"):
             if k in gains and not np.all(np.isfinite(gains[k]) & (np.asarray(gains[k], float) > 0)):
-                raise ManusError(f"impedance: {k} must be positive definite (every entry finite and > 0), "
-                                 f"got {gains[k]}")
+                raise ManusError(
+                    f"impedance: {k} must be positive definite (every entry finite and > 0), got {gains[k]}"
+                )
         return Impedance(n_joints=model.n_joints, estimator=estimator, **gains)
     knobs = {k: gains.pop(k) for k in COMPOSITE_KNOBS if k in gains}
     if knobs and name != "slotine-li-composite":
@@ -73,8 +76,9 @@ def make_controller(name: str, model: Model, dt: float, estimator: Estimator | s
     composite = Composite(**knobs) if name == "slotine-li-composite" else None
     import inspect
 
-    settings = [k for k, p in inspect.signature(SlotineLi).parameters.items() if p.kind is p.KEYWORD_ONLY
-                and k != "composite"]
+    settings = [
+        k for k, p in inspect.signature(SlotineLi).parameters.items() if p.kind is p.KEYWORD_ONLY and k != "composite"
+    ]
     unknown = sorted(set(gains) - set(settings))
     if unknown:
         raise ManusError(f"{name} has no setting {', '.join(unknown)} (its settings: {', '.join(settings)})")
@@ -136,8 +140,16 @@ class LockedSpring(Controller):
         return state, spring - (self.lock_stiffness * phi + self.lock_damping * jnp.dot(self.lock, est.qd)) * self.lock
 
 
-def compiled_tick(info, controller: str, estimator: str, model_spec: str, structure: str | None, reference: str,
-                  torque_limit: float | None = None, robot: str | None = None):
+def compiled_tick(
+    info,
+    controller: str,
+    estimator: str,
+    model_spec: str,
+    structure: str | None,
+    reference: str,
+    torque_limit: float | None = None,
+    robot: str | None = None,
+):
     """The hardware loop's tick (`manus.plants.hardware.CompiledTick`) of `controller` +
     `estimator` following `reference`, for the device described by `info` (its joints, rate,
     encoder and torque limit), warmed up. `structure`: manus2 or axis (default: manus2 for a
@@ -152,8 +164,9 @@ def compiled_tick(info, controller: str, estimator: str, model_spec: str, struct
 
         chain = Serial.from_urdf(robot)
         if chain.n_joints != n:
-            raise ManusError(f"the device has {n} joint(s); the robot {robot} has {chain.n_joints} "
-                             f"({', '.join(chain.joint_names)})")
+            raise ManusError(
+                f"the device has {n} joint(s); the robot {robot} has {chain.n_joints} ({', '.join(chain.joint_names)})"
+            )
         shape, structure = chain.pseudo(), "urdf"
     else:
         structure = structure or ("manus2" if n == 2 else "axis")

@@ -51,11 +51,20 @@ import numpy as np
 from manus.adaptive.controllers import Replay
 from manus.adaptive.impedance import Impedance
 from manus.estimators.base import FilteredFirstDifference
+from manus.experiments.sizing import (
+    DELAY_MIN,
+    achieved,
+    applies,
+    delay_change,
+    distinct,
+    parameter_joints,
+    rms,
+    scale_hidden,
+    size_delay,
+)
 from manus.plants.closed_loop import simulate
-from manus.experiments.sizing import (DELAY_MIN, achieved, applies, delay_change, distinct, parameter_joints, rms,
-                                      scale_hidden, size_delay)
 from manus.plants.disturbed import Disturbed
-from manus.plants.effects import ORDER, VOCABULARY, Compliance, Cogging, Delay, Model, Stribeck
+from manus.plants.effects import ORDER, VOCABULARY, Cogging, Compliance, Delay, Model, Stribeck
 from manus.plants.recording import Recording, from_trajectory
 from manus.plants.references import Hold, MultiSine, Reaching
 from manus.plants.simulator import Actuator, Encoder, Simulator
@@ -72,7 +81,10 @@ NOMINAL = ("rigid", "viscous", "coulomb")  # what the truth always holds (the th
 AMPLITUDE = 0.05  # a hidden effect's torque RMS, as a fraction of the recorded torque's (per joint)
 TOLERANCE = 0.1  # re-scale once more when the achieved fraction is off by more than this (relative)
 WHITE = (0.10, 0.30)  # white noise on the recorded torque: std as a fraction of its RMS
-COLOURED = (0.03, 0.08)  # the unrecorded disturbance: RMS as a fraction of the torque's RMS (the size of the hidden effect) ...
+COLOURED = (
+    0.03,
+    0.08,
+)  # the unrecorded disturbance: RMS as a fraction of the torque's RMS (the size of the hidden effect) ...
 COLOURED_HZ = (1.0, 5.0)  # ... low-passed (2nd-order Butterworth) at a corner in this range [Hz]
 COMPLIANCE_BAND = (0.15, 0.30)  # hidden shaft mode: f as a fraction of the sample rate
 COMPLIANCE_ZETA = (0.005, 0.03)
@@ -107,11 +119,38 @@ class Setup:
         return {}
 
 
-ARM = Setup("arm", Manus2(), Model(Manus2(), ",".join(NOMINAL)).defaults(), (0.464, 2.409), 2 * math.pi / 131072,
-            Actuator(), 30.0, 1.0, 0.3, (1.2, 0.7), (0.08, 0.25), (2 * math.pi / 60, 2 * math.pi / 25), 0.05, False)
-AXIS = Setup("axis", Axis(n_joints=1), {"M1": 2.5, "b1": 15.0, "Fc1": 5.0}, (0.0,), 1e-6,
-             Actuator(dac_bits=16, torque_constant=25.0), 1500.0, 50.0, 0.05, (25.0,), (0.03, 0.10),
-             (0.005, 0.015), 0.02, True)
+ARM = Setup(
+    "arm",
+    Manus2(),
+    Model(Manus2(), ",".join(NOMINAL)).defaults(),
+    (0.464, 2.409),
+    2 * math.pi / 131072,
+    Actuator(),
+    30.0,
+    1.0,
+    0.3,
+    (1.2, 0.7),
+    (0.08, 0.25),
+    (2 * math.pi / 60, 2 * math.pi / 25),
+    0.05,
+    False,
+)
+AXIS = Setup(
+    "axis",
+    Axis(n_joints=1),
+    {"M1": 2.5, "b1": 15.0, "Fc1": 5.0},
+    (0.0,),
+    1e-6,
+    Actuator(dac_bits=16, torque_constant=25.0),
+    1500.0,
+    50.0,
+    0.05,
+    (25.0,),
+    (0.03, 0.10),
+    (0.005, 0.015),
+    0.02,
+    True,
+)
 SETUPS = {"arm": ARM, "axis": AXIS}
 
 
@@ -133,8 +172,10 @@ class Case:
     def describe(self) -> str:
         c = self.condition
         where = "" if self.joint is None else f" on joint {self.joint}"
-        return (f"seed {c.get('seed')}: {c.get('structure')} {c.get('rate')} Hz {c.get('excitation')}, torque "
-                f"{c.get('torque')}, hold {c.get('hold')}; hidden {self.hidden or 'nothing'}{where}")
+        return (
+            f"seed {c.get('seed')}: {c.get('structure')} {c.get('rate')} Hz {c.get('excitation')}, torque "
+            f"{c.get('torque')}, hold {c.get('hold')}; hidden {self.hidden or 'nothing'}{where}"
+        )
 
 
 # -- simulation building blocks ------------------------------------------------------------------
@@ -164,7 +205,7 @@ def step_schedule(setup: Setup, steps: int, dt: float, rng: np.random.Generator)
             a = setup.step_torque[j] * rng.uniform(0.6, 1.0) * rng.choice([-1.0, 1.0])
             h = max(1, int(round(rng.uniform(lo, hi) / dt)))
             for level, length in ((a, h), (-a, 2 * h), (a, h)):
-                u[k:k + length, j] = level
+                u[k : k + length, j] = level
                 k += length
             k += int(rng.integers(0, int(0.3 / dt) + 1))
     return u
@@ -190,8 +231,17 @@ def truth_model(setup: Setup, extra: tuple = ()) -> Model:
     return Model(setup.structure, tuple(effects) + tuple(extra))
 
 
-def simulate_case(setup: Setup, rate: int, excitation: str, params: dict, extra: tuple, seconds: float,
-                  rng_seed: int, disturbance: np.ndarray | None = None, nonlinear: tuple = ()):
+def simulate_case(
+    setup: Setup,
+    rate: int,
+    excitation: str,
+    params: dict,
+    extra: tuple,
+    seconds: float,
+    rng_seed: int,
+    disturbance: np.ndarray | None = None,
+    nonlinear: tuple = (),
+):
     """One run: returns the trajectory (numpy). `params` are the truth's linear parameters;
     `nonlinear` replaces effects of the truth (Cogging(order=...), Stribeck(vs=...)) by
     versions with other non-linear parameters (array fields: no recompilation)."""
@@ -200,8 +250,14 @@ def simulate_case(setup: Setup, rate: int, excitation: str, params: dict, extra:
         model = model.with_effect(e)
     full = {k: 0.0 for k in model.defaults()}
     full.update({k: v for k, v in params.items() if k in full})
-    plant = Simulator(model, full, rate_hz=rate, actuator=setup.actuator, encoder=Encoder(step=setup.encoder_step),
-                      q0=jnp.asarray(setup.centre, float))
+    plant = Simulator(
+        model,
+        full,
+        rate_hz=rate,
+        actuator=setup.actuator,
+        encoder=Encoder(step=setup.encoder_step),
+        q0=jnp.asarray(setup.centre, float),
+    )
     dt = 1.0 / rate
     steps = int(round(seconds * rate))
     rng = np.random.default_rng(rng_seed)
@@ -232,7 +288,7 @@ def check_rates(rates) -> tuple[int, ...]:
     """Sample rates a calibration may draw from [Hz]: whole numbers from 100 Hz (a slower
     recording is too coarse for the set's effects: a cogging or a mode needs samples) to 20 kHz."""
     out = tuple(int(r) for r in rates)
-    bad = [r for r, o in zip(rates, out) if o != r or not 100 <= o <= 20000]
+    bad = [r for r, o in zip(rates, out, strict=True) if o != r or not 100 <= o <= 20000]
     if not out or bad:
         raise ValueError(f"sample rates must be whole numbers of Hz from 100 to 20000 (got {list(rates)})")
     return out
@@ -241,7 +297,9 @@ def check_rates(rates) -> tuple[int, ...]:
 def check_amplitude(amplitude: float) -> float:
     """A hidden effect's size: a share of the recorded torque's RMS, between 0 and 1."""
     if not 0 < amplitude < 1:
-        raise ValueError(f"a hidden effect's amplitude is a fraction of the torque's RMS, between 0 and 1 (got {amplitude:g})")
+        raise ValueError(
+            f"a hidden effect's amplitude is a fraction of the torque's RMS, between 0 and 1 (got {amplitude:g})"
+        )
     return amplitude
 
 
@@ -251,8 +309,13 @@ def draw_condition(seed: int, hidden: str | None = None, rates: tuple = RATES, *
     axis (gravity) only on the arm."""
     rates = check_rates(rates)
     rng = np.random.default_rng([seed, 7])
-    c = {"structure": str(rng.choice(STRUCTURES)), "rate": int(rng.choice(rates)),
-         "excitation": str(rng.choice(EXCITATIONS)), "torque": str(rng.choice(TORQUES)), "hold": str(rng.choice(HOLDS))}
+    c = {
+        "structure": str(rng.choice(STRUCTURES)),
+        "rate": int(rng.choice(rates)),
+        "excitation": str(rng.choice(EXCITATIONS)),
+        "torque": str(rng.choice(TORQUES)),
+        "hold": str(rng.choice(HOLDS)),
+    }
     if hidden == "compliance":
         c["excitation"] = "steps"
     if hidden is not None and not applies(hidden, AXIS):
@@ -262,8 +325,7 @@ def draw_condition(seed: int, hidden: str | None = None, rates: tuple = RATES, *
         raise ValueError(f"unknown condition key(s) {sorted(unknown)}: {', '.join(c)}")
     c.update(overrides)
     check_rates((c["rate"],))
-    for key, allowed in (("structure", STRUCTURES), ("excitation", EXCITATIONS),
-                         ("torque", TORQUES), ("hold", HOLDS)):
+    for key, allowed in (("structure", STRUCTURES), ("excitation", EXCITATIONS), ("torque", TORQUES), ("hold", HOLDS)):
         if c[key] not in allowed:
             raise ValueError(f"condition {key}={c[key]!r}: one of {allowed}")
     if hidden == "compliance" and c["excitation"] != "steps":
@@ -279,8 +341,7 @@ def start_model(hidden: str | None) -> str:
     return ",".join(e for e in NOMINAL if e != hidden)
 
 
-def case(seed: int, hidden: str | None = None, rates: tuple = RATES, amplitude: float = AMPLITUDE,
-         **overrides) -> Case:
+def case(seed: int, hidden: str | None = None, rates: tuple = RATES, amplitude: float = AMPLITUDE, **overrides) -> Case:
     """Calibration recording `seed`: nothing hidden (`hidden=None`) or one effect of the
     vocabulary hidden at `amplitude` of the torque (RMS; a delay by what it changes, at least 1 ms;
     a mode has its own size), its rate drawn from `rates`. Keyword overrides fix condition values
@@ -297,8 +358,11 @@ def case(seed: int, hidden: str | None = None, rates: tuple = RATES, amplitude: 
     rng = np.random.default_rng([seed, 11])
     sim_seed = int(rng.integers(2**31))
     # the non-linear parameters of effects that have them, drawn per case (array fields)
-    order = float(np.round(2 * np.pi / rng.uniform(*setup.cogging_period))) if not setup.prismatic else \
-        float(2 * np.pi / rng.uniform(*setup.cogging_period))
+    order = (
+        float(np.round(2 * np.pi / rng.uniform(*setup.cogging_period)))
+        if not setup.prismatic
+        else float(2 * np.pi / rng.uniform(*setup.cogging_period))
+    )
     nonlinear = (Cogging(order=order), Stribeck(vs=setup.stribeck_vs))
     extra: tuple = ()
     joint: int | None = None
@@ -311,8 +375,11 @@ def case(seed: int, hidden: str | None = None, rates: tuple = RATES, amplitude: 
     params = dict(setup.nominal)
     effect = None
     if hidden is not None and hidden not in ("delay", "compliance"):
-        effect = next(e for e in truth_model(setup).with_effect(nonlinear[0]).with_effect(nonlinear[1]).effects
-                      if e.name == hidden)
+        effect = next(
+            e
+            for e in truth_model(setup).with_effect(nonlinear[0]).with_effect(nonlinear[1]).effects
+            if e.name == hidden
+        )
         owner = parameter_joints(setup, effect)
         if all(j is not None for j in owner.values()):
             joint = 1 if setup.n == 1 else [None, 1, 2][int(rng.integers(3))]
@@ -320,7 +387,7 @@ def case(seed: int, hidden: str | None = None, rates: tuple = RATES, amplitude: 
             params.update({k: 0.0 for k in Model(setup.structure, hidden).defaults()})
     # the disturbances are scaled on a first run without the hidden effect (or with it at its
     # default, for rigid: a plant needs an inertia)
-    d_white, d_coloured = None, None
+    d_coloured = None
     first = simulate_case(setup, rate, c["excitation"], params, (), seconds, sim_seed, None, nonlinear)
     tau_rms = rms(np.asarray(first.tau))
     if c["torque"] == "coloured":
@@ -330,14 +397,17 @@ def case(seed: int, hidden: str | None = None, rates: tuple = RATES, amplitude: 
         info.update(disturbance_fraction=round(level, 3), disturbance_corner_hz=round(corner, 2))
     traj = first
     if effect is not None:
-        unit = {k: float(v) for k, v in zip(effect.names(setup.structure), effect.defaults(setup.structure))}
+        unit = {
+            k: float(v) for k, v in zip(effect.names(setup.structure), effect.defaults(setup.structure), strict=True)
+        }
         base = first
         if c["torque"] == "coloured":  # measure on the motion the disturbance shapes too
             base = simulate_case(setup, rate, c["excitation"], params, (), seconds, sim_seed, d_coloured, nonlinear)
         hp, _ = scale_hidden(setup, effect, unit, joint, base, amplitude, dt)
         for attempt in range(2):
-            traj = simulate_case(setup, rate, c["excitation"], {**params, **hp}, extra, seconds, sim_seed, d_coloured,
-                                 nonlinear)
+            traj = simulate_case(
+                setup, rate, c["excitation"], {**params, **hp}, extra, seconds, sim_seed, d_coloured, nonlinear
+            )
             got = achieved(setup, effect, hp, traj, dt, joint)
             on = [i for i in range(setup.n) if joint is None or i == joint - 1]
             if attempt or all(abs(got[i] / amplitude - 1) <= TOLERANCE for i in on if got[i] > 0):
@@ -347,8 +417,11 @@ def case(seed: int, hidden: str | None = None, rates: tuple = RATES, amplitude: 
         info["hidden_fraction"] = [round(g, 4) for g in got]
         info["distinct_fraction"] = round(distinct(setup, effect, hp, start_model(hidden), traj, dt, nonlinear), 4)
     elif hidden == "delay":  # sized on the motion without it, then once more on the motion with it
-        base = first if d_coloured is None else \
-            simulate_case(setup, rate, c["excitation"], params, (), seconds, sim_seed, d_coloured, nonlinear)
+        base = (
+            first
+            if d_coloured is None
+            else simulate_case(setup, rate, c["excitation"], params, (), seconds, sim_seed, d_coloured, nonlinear)
+        )
         d = size_delay(np.asarray(base.tau), rate, amplitude)
         for attempt in range(2):
             extra = (Delay(seconds=d),)
@@ -362,8 +435,9 @@ def case(seed: int, hidden: str | None = None, rates: tuple = RATES, amplitude: 
     elif extra or d_coloured is not None:
         traj = simulate_case(setup, rate, c["excitation"], params, extra, seconds, sim_seed, d_coloured, nonlinear)
     meta = {"calibration": f"seed {seed}", **setup.meta()}
-    rec = from_trajectory(traj, rate, "manus2" if setup.name == "arm" else "axis",
-                          131072 if setup.name == "arm" else None, meta)
+    rec = from_trajectory(
+        traj, rate, "manus2" if setup.name == "arm" else "axis", 131072 if setup.name == "arm" else None, meta
+    )
     rec.qd = None  # a rig does not log true velocities
     rec.extra = {}
     if c["torque"] == "white":
@@ -404,8 +478,14 @@ def pendulum(seed: int = 0) -> Case:
     truth["M1"] *= rng.uniform(0.8, 1.25)
     truth["gs1"] *= rng.uniform(0.8, 1.25)
     model = Model(s, "rigid,viscous,coulomb,gravity")
-    plant = Simulator(model, truth, rate_hz=PENDULUM_RATE, actuator=Actuator(dac_bits=16),
-                      encoder=Encoder.counts_per_rev(PENDULUM_COUNTS), q0=jnp.zeros(1))
+    plant = Simulator(
+        model,
+        truth,
+        rate_hz=PENDULUM_RATE,
+        actuator=Actuator(dac_bits=16),
+        encoder=Encoder.counts_per_rev(PENDULUM_COUNTS),
+        q0=jnp.zeros(1),
+    )
     dt = 1.0 / PENDULUM_RATE
     steps = int(round(PENDULUM_SECONDS * PENDULUM_RATE))
     t = np.arange(steps) * dt
@@ -414,14 +494,35 @@ def pendulum(seed: int = 0) -> Case:
     ph = rng.uniform(0, 2 * np.pi, 2)
     u = amp * (0.6 * np.sin(0.93 * w0 * t + ph[0]) + 0.4 * np.sin(0.71 * w0 * t + ph[1]))
     u *= np.clip(t / 2.0, 0, 1)
-    traj = simulate(plant, Replay(jnp.asarray(u[:, None])), Hold(np.zeros(1)), PENDULUM_SECONDS,
-                    key=jax.random.PRNGKey(seed % 2**31))
-    rec = from_trajectory(traj, PENDULUM_RATE, "axis", PENDULUM_COUNTS, {"joints": "revolute", "calibration": f"pendulum {seed}"})
+    traj = simulate(
+        plant,
+        Replay(jnp.asarray(u[:, None])),
+        Hold(np.zeros(1)),
+        PENDULUM_SECONDS,
+        key=jax.random.PRNGKey(seed % 2**31),
+    )
+    rec = from_trajectory(
+        traj, PENDULUM_RATE, "axis", PENDULUM_COUNTS, {"joints": "revolute", "calibration": f"pendulum {seed}"}
+    )
     rec.qd = None
     rec.extra = {}
     rec.path = f"<calibration pendulum seed {seed}>"
-    cond = {"seed": seed, "structure": "pendulum", "rate": PENDULUM_RATE, "excitation": "open-loop sinusoids",
-            "torque": "exact", "hold": "stated", "swing_rad": round(float(np.max(np.abs(traj.q_true))), 3),
-            "drive_over_gravity": round(float(np.max(np.abs(u)) / truth["gs1"]), 3)}
-    return Case(rec, "rigid,viscous,coulomb,gravity", None, None, cond, {k: float(v) for k, v in truth.items()},
-                time.perf_counter() - t0)
+    cond = {
+        "seed": seed,
+        "structure": "pendulum",
+        "rate": PENDULUM_RATE,
+        "excitation": "open-loop sinusoids",
+        "torque": "exact",
+        "hold": "stated",
+        "swing_rad": round(float(np.max(np.abs(traj.q_true))), 3),
+        "drive_over_gravity": round(float(np.max(np.abs(u)) / truth["gs1"]), 3),
+    }
+    return Case(
+        rec,
+        "rigid,viscous,coulomb,gravity",
+        None,
+        None,
+        cond,
+        {k: float(v) for k, v in truth.items()},
+        time.perf_counter() - t0,
+    )

@@ -59,8 +59,7 @@ def trajectory(name: str, model):
     return reference_named(name, np.asarray(workspace_centre(model)), model.structure.thesis_arm)
 
 
-def controller_for(plant, model, law: str, estimator, form: str = "slotine-li", uncompensated=False,
-                   **gains):
+def controller_for(plant, model, law: str, estimator, form: str = "slotine-li", uncompensated=False, **gains):
     """The Slotine–Li controller of a trial; timing compensated for the plant's known delay
     unless told otherwise; `gains` as for `manus.adaptive.make_controller`."""
     from manus.adaptive.controllers import make_controller, make_estimator
@@ -79,8 +78,9 @@ def controller_for(plant, model, law: str, estimator, form: str = "slotine-li", 
     return make_controller(name, model, plant.dt, estimator, form=form, **{**knobs, **gains})
 
 
-def run_trials(plant, controller, reference, trials: int, seconds: float, init_spread=0.5, gain_spread=0.25,
-               seed=0, record=RECORD) -> Trials:
+def run_trials(
+    plant, controller, reference, trials: int, seconds: float, init_spread=0.5, gain_spread=0.25, seed=0, record=RECORD
+) -> Trials:
     """`trials` closed-loop runs of `controller` on `plant`, vmapped (see the module docstring)."""
     import jax
     import jax.numpy as jnp
@@ -90,25 +90,48 @@ def run_trials(plant, controller, reference, trials: int, seconds: float, init_s
 
     mine, theirs = controller.regressor.model.structure, plant.model.structure
     if controller.n_joints != plant.model.n_joints or mine.name != theirs.name:
-        raise ManusError(f"the controller's model ({mine.name}, {controller.n_joints} joints) does not match "
-                         f"the plant ({theirs.name}, {plant.model.n_joints} joints)")
+        raise ManusError(
+            f"the controller's model ({mine.name}, {controller.n_joints} joints) does not match "
+            f"the plant ({theirs.name}, {plant.model.n_joints} joints)"
+        )
     if trials < 1 or seconds <= 0 or not 0 <= init_spread < 1 or gain_spread < 0:
         raise ManusError("need trials >= 1, seconds > 0, 0 <= init-spread < 1 and gain-spread >= 0")
     steps = EVERY * max(1, int(round(seconds / plant.dt / EVERY)))
     rng = np.random.default_rng(seed)
     g = np.log1p(gain_spread)
-    theta0 = np.asarray(controller.theta0) * rng.uniform(1 - init_spread, 1 + init_spread, (trials, len(controller.names)))
-    arrays = (jnp.asarray(theta0), *(jnp.asarray(np.asarray(x) * np.exp(rng.uniform(-g, g, (trials,) + x.shape)))
-                                     for x in (controller.gamma, controller.lam, controller.kd)))
+    theta0 = np.asarray(controller.theta0) * rng.uniform(
+        1 - init_spread, 1 + init_spread, (trials, len(controller.names))
+    )
+    arrays = (
+        jnp.asarray(theta0),
+        *(
+            jnp.asarray(np.asarray(x) * np.exp(rng.uniform(-g, g, (trials,) + x.shape)))
+            for x in (controller.gamma, controller.lam, controller.kd)
+        ),
+    )
     keys = jax.random.split(jax.random.PRNGKey(seed), trials)
     known = dict(plant.params)
-    if theirs.standard_form is theirs:  # the truth in the coordinates the controller adapts in (a chain's pseudo-inertia)
+    if (
+        theirs.standard_form is theirs
+    ):  # the truth in the coordinates the controller adapts in (a chain's pseudo-inertia)
         known.update(mine.coordinates_of(plant.params))
     truth = np.array([float(known.get(k, 0.0)) for k in controller.names])
     log = rollout_batch(plant, controller, reference, arrays, keys, steps, EVERY, record, truth)
-    return Trials(log.t, log.q_err, log.tau, log.theta, (np.arange(steps // EVERY) + 1) * EVERY * plant.dt,
-                  log.grams, log.stopped, tuple(controller.names), truth, log.theta_final, log.q_err_ms, log.tau_max,
-                  log.settle)
+    return Trials(
+        log.t,
+        log.q_err,
+        log.tau,
+        log.theta,
+        (np.arange(steps // EVERY) + 1) * EVERY * plant.dt,
+        log.grams,
+        log.stopped,
+        tuple(controller.names),
+        truth,
+        log.theta_final,
+        log.q_err_ms,
+        log.tau_max,
+        log.settle,
+    )
 
 
 def settle_times(t: np.ndarray, theta: np.ndarray, truth: float, tol: float = 0.05) -> np.ndarray:
@@ -139,11 +162,17 @@ def summarize(tr: Trials) -> dict:
     # the smallest eigenvalue of ∫YᵀY at the end and after 1 s only (`Trials.lam_min` has them all)
     at = [len(tr.t_gram) - 1] + ([int(np.searchsorted(tr.t_gram, 1.0 - 1e-9))] if tr.t_gram[-1] >= 1 else [])
     lam = np.linalg.eigvalsh(tr.grams[ok][:, at])[..., 0]
-    return {"params": params, "trials": int(len(tr.stopped)), "stopped_trials": int(tr.stopped.sum()),
-            "excitation": {"lambda_min": float(np.mean(lam[:, 0])),
-                           "lambda_min_at_1s": float(np.mean(lam[:, 1])) if len(at) > 1 else None},
-            "tracking_rms": np.sqrt(np.mean(tr.q_err_ms[ok], axis=0)).tolist(),
-            "tau_max": tr.tau_max[ok].max(axis=0).tolist()}
+    return {
+        "params": params,
+        "trials": int(len(tr.stopped)),
+        "stopped_trials": int(tr.stopped.sum()),
+        "excitation": {
+            "lambda_min": float(np.mean(lam[:, 0])),
+            "lambda_min_at_1s": float(np.mean(lam[:, 1])) if len(at) > 1 else None,
+        },
+        "tracking_rms": np.sqrt(np.mean(tr.q_err_ms[ok], axis=0)).tolist(),
+        "tau_max": tr.tau_max[ok].max(axis=0).tolist(),
+    }
 
 
 def base_summary(tr: Trials, pseudo) -> dict:
@@ -154,7 +183,7 @@ def base_summary(tr: Trials, pseudo) -> dict:
     names = list(tr.names)
 
     def based(theta):
-        p = dict(zip(names, theta))
+        p = dict(zip(names, theta, strict=True))
         return base.values(np.asarray(pseudo.standard({k: p[k] for k in pseudo.rigid_names})))
 
     truth = based(tr.truth)

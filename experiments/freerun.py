@@ -110,9 +110,13 @@ def free_run(f, open_loop: bool = False) -> FreeRun:
         mode, how = "closed loop", f"closed loop: {how} on the recorded reference"
     else:
         controller, reference = Replay(jnp.asarray(rec.tau)), Hold(rec.q[0])
-        mode, how = "open loop", "open loop: the recorded torque played back (friction models drift: no loop pulls them back)"
-    plant = Simulator(model, params, rate_hz=rec.sample_rate_hz, substeps=SUBSTEPS, actuator=actuator, encoder=encoder,
-                      q0=rec.q[0])
+        mode, how = (
+            "open loop",
+            "open loop: the recorded torque played back (friction models drift: no loop pulls them back)",
+        )
+    plant = Simulator(
+        model, params, rate_hz=rec.sample_rate_hz, substeps=SUBSTEPS, actuator=actuator, encoder=encoder, q0=rec.q[0]
+    )
     seconds = len(rec) / rec.sample_rate_hz
     traj = simulate(plant, controller, reference, seconds)
     q_sim = np.asarray(traj.q)[: len(rec)]

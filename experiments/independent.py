@@ -42,10 +42,35 @@ from manus.experiments.sizing import rms
 RATES = (1000, 500, 200)
 A1, A2, A3 = 0.349, 0.241, 0.246  # kg m²: M11, the coupling, M22 (thesis §3.5.5)
 M_MIN = 0.051  # the smallest eigenvalue of the arm's mass matrix (at cos = 1) [kg m²]
-ARM = dict(n=2, b=(0.161, 0.107), fc=(0.099, 0.139), centre=(0.464, 2.409), step=2 * math.pi / 131072,
-           swing=0.3, kp=30.0, kd=1.0, pulse=(1.2, 0.7), pulse_s=(0.04, 0.2), vs=0.05, eps=1e-3)
-AXIS = dict(n=1, m=2.5, b=(15.0,), fc=(5.0,), centre=(0.0,), step=1e-6, swing=0.05, kp=1500.0, kd=50.0,
-            pulse=(25.0,), pulse_s=(0.02, 0.08), vs=0.02, eps=1e-4)
+ARM = dict(
+    n=2,
+    b=(0.161, 0.107),
+    fc=(0.099, 0.139),
+    centre=(0.464, 2.409),
+    step=2 * math.pi / 131072,
+    swing=0.3,
+    kp=30.0,
+    kd=1.0,
+    pulse=(1.2, 0.7),
+    pulse_s=(0.04, 0.2),
+    vs=0.05,
+    eps=1e-3,
+)
+AXIS = dict(
+    n=1,
+    m=2.5,
+    b=(15.0,),
+    fc=(5.0,),
+    centre=(0.0,),
+    step=1e-6,
+    swing=0.05,
+    kp=1500.0,
+    kd=50.0,
+    pulse=(25.0,),
+    pulse_s=(0.02, 0.08),
+    vs=0.02,
+    eps=1e-4,
+)
 EFFECTS = ("rigid", "viscous", "coulomb", "stribeck", "asymmetry", "offset", "gravity", "spring", "cogging", "delay")
 NOMINAL = ("rigid", "viscous", "coulomb")
 
@@ -78,6 +103,7 @@ def _run(arm: bool, p: dict, ref, pulses, disturbance, rate: int, delay: int, su
     def rk4(x, tau):
         def f(x):
             return jnp.concatenate([x[n:], _acceleration(arm, cfg, p, x[:n], x[n:], tau)])
+
         k1 = f(x)
         k2 = f(x + 0.5 * h * k1)
         k3 = f(x + 0.5 * h * k2)
@@ -103,15 +129,25 @@ def _run(arm: bool, p: dict, ref, pulses, disturbance, rate: int, delay: int, su
 _compiled = jax.jit(_run, static_argnames=("arm", "rate", "delay", "substeps", "closed"))
 
 
-def simulate(arm: bool, p: dict, ref: np.ndarray, pulses: np.ndarray, disturbance: np.ndarray, rate: int,
-             delay: int = 0, closed: bool = True) -> tuple[np.ndarray, np.ndarray]:
+def simulate(
+    arm: bool,
+    p: dict,
+    ref: np.ndarray,
+    pulses: np.ndarray,
+    disturbance: np.ndarray,
+    rate: int,
+    delay: int = 0,
+    closed: bool = True,
+) -> tuple[np.ndarray, np.ndarray]:
     """(measured positions, command), each (steps, n). RK4 sub-steps keep h·(Fc + dFs)/(ε·M) ≤ 1/2
     (rounded up to a power of two: few compilations)."""
     cfg = ARM if arm else AXIS
     stiff = float(np.max(np.abs(p["fc"]) + np.abs(p["dfs"]))) / (cfg["eps"] * (M_MIN if arm else cfg["m"]))
     substeps = max(8, 2 ** int(np.ceil(np.log2(max(2 * stiff / rate, 1.0)))))
     with jax.enable_x64(True):
-        args = [{k: jnp.asarray(v, float) for k, v in p.items()}] + [jnp.asarray(x, float) for x in (ref, pulses, disturbance)]
+        args = [{k: jnp.asarray(v, float) for k, v in p.items()}] + [
+            jnp.asarray(x, float) for x in (ref, pulses, disturbance)
+        ]
         q, u = _compiled(arm, *args, rate=rate, delay=delay, substeps=substeps, closed=closed)
         return np.asarray(q), np.asarray(u)
 
@@ -134,8 +170,8 @@ def reference(cfg: dict, excitation: str, rate: int, steps: int, rng) -> np.ndar
             target = np.asarray(cfg["centre"]) + rng.uniform(-cfg["swing"], cfg["swing"], n)
             m = int(rng.uniform(0.5, 1.2) * rate)
             x = np.linspace(0, 1, m)[:, None]
-            q[k:k + m] = (now + (10 * x**3 - 15 * x**4 + 6 * x**5) * (target - now))[:steps - k]
-            q[k + m:] = target
+            q[k : k + m] = (now + (10 * x**3 - 15 * x**4 + 6 * x**5) * (target - now))[: steps - k]
+            q[k + m :] = target
             now, k = target, k + m + int(rng.uniform(0.2, 0.8) * rate)
     return np.concatenate([q, np.gradient(q, dt, axis=0)], axis=1)
 
@@ -150,7 +186,7 @@ def pulses(cfg: dict, rate: int, steps: int, rng) -> np.ndarray:
             a = cfg["pulse"][j] * rng.uniform(0.5, 1.0) * rng.choice([-1.0, 1.0])
             length = max(1, int(rng.uniform(*cfg["pulse_s"]) * rate))
             for level, m in ((a, length), (-a, 2 * length), (a, length)):
-                u[k:k + m, j] = level
+                u[k : k + m, j] = level
                 k += m
             k += int(rng.uniform(0.0, 0.4) * rate)
     return u
@@ -158,12 +194,14 @@ def pulses(cfg: dict, rate: int, steps: int, rng) -> np.ndarray:
 
 def _unit(hidden: str, cfg: dict, p: dict, q: np.ndarray, v: np.ndarray, phase: float) -> np.ndarray:
     """The hidden effect's torque per unit of its size along a motion, (steps, n)."""
-    return {"stribeck": lambda: np.exp(-((v / cfg["vs"]) ** 2)) * np.tanh(v / cfg["eps"]),
-            "asymmetry": lambda: np.abs(v),
-            "offset": lambda: np.ones_like(q),
-            "spring": lambda: q - p["q0"],
-            "gravity": lambda: np.cos(q + phase),
-            "cogging": lambda: np.sin(p["order"] * q + phase)}[hidden]()
+    return {
+        "stribeck": lambda: np.exp(-((v / cfg["vs"]) ** 2)) * np.tanh(v / cfg["eps"]),
+        "asymmetry": lambda: np.abs(v),
+        "offset": lambda: np.ones_like(q),
+        "spring": lambda: q - p["q0"],
+        "gravity": lambda: np.cos(q + phase),
+        "cogging": lambda: np.sin(p["order"] * q + phase),
+    }[hidden]()
 
 
 def _set(hidden: str, p: dict, size: np.ndarray, phase: float) -> None:
@@ -175,8 +213,7 @@ def _set(hidden: str, p: dict, size: np.ndarray, phase: float) -> None:
         p[{"stribeck": "dfs", "asymmetry": "db", "offset": "off", "spring": "k"}[hidden]] = size
 
 
-def case(seed: int, hidden: str | None = None, rates: tuple = RATES, amplitude: float = AMPLITUDE,
-         **overrides) -> Case:
+def case(seed: int, hidden: str | None = None, rates: tuple = RATES, amplitude: float = AMPLITUDE, **overrides) -> Case:
     """Recording `seed` of the independent simulator: nothing hidden, or `hidden` (one of
     `EFFECTS`) left out of the start model. Keyword overrides fix condition values (structure,
     rate, excitation, torque, hold)."""
@@ -184,16 +221,22 @@ def case(seed: int, hidden: str | None = None, rates: tuple = RATES, amplitude: 
         raise ValueError(f"the independent simulator hides one of {', '.join(EFFECTS)} (not {hidden})")
     t_start = time.perf_counter()
     rng = np.random.default_rng([seed, 2026])
-    drawn = {"structure": str(rng.choice(["arm", "axis"])), "rate": int(rng.choice(rates)),
-             "excitation": str(rng.choice(["multisine", "reaching", "steps"])),
-             "torque": str(rng.choice(["exact", "white", "coloured"])), "hold": str(rng.choice(["stated", "not stated"]))}
+    drawn = {
+        "structure": str(rng.choice(["arm", "axis"])),
+        "rate": int(rng.choice(rates)),
+        "excitation": str(rng.choice(["multisine", "reaching", "steps"])),
+        "torque": str(rng.choice(["exact", "white", "coloured"])),
+        "hold": str(rng.choice(["stated", "not stated"])),
+    }
     if hidden == "gravity":
         drawn["structure"] = "arm"
     unknown = set(overrides) - set(drawn)
     if unknown:
         raise ValueError(f"unknown condition key(s) {sorted(unknown)}: {', '.join(drawn)}")
     drawn.update(overrides)
-    structure, rate, excitation, torque, hold = (drawn[k] for k in ("structure", "rate", "excitation", "torque", "hold"))
+    structure, rate, excitation, torque, hold = (
+        drawn[k] for k in ("structure", "rate", "excitation", "torque", "hold")
+    )
     arm = structure == "arm"
     cfg = ARM if arm else AXIS
     n = cfg["n"]
@@ -201,9 +244,20 @@ def case(seed: int, hidden: str | None = None, rates: tuple = RATES, amplitude: 
     ref = reference(cfg, excitation, rate, steps, rng)
     push = pulses(cfg, rate, steps, rng) if excitation == "steps" else np.zeros((steps, n))
     zero = np.zeros(n)
-    p = dict(b=np.array(cfg["b"]), fc=np.array(cfg["fc"]), dfs=zero, db=zero, off=zero, k=zero,
-             q0=np.asarray(cfg["centre"]) + rng.uniform(-0.5, 0.5, n) * cfg["swing"], gc=zero, gs=zero,
-             ca=zero, cb=zero, order=zero)
+    p = dict(
+        b=np.array(cfg["b"]),
+        fc=np.array(cfg["fc"]),
+        dfs=zero,
+        db=zero,
+        off=zero,
+        k=zero,
+        q0=np.asarray(cfg["centre"]) + rng.uniform(-0.5, 0.5, n) * cfg["swing"],
+        gc=zero,
+        gs=zero,
+        ca=zero,
+        cb=zero,
+        order=zero,
+    )
     delay = 0
     if hidden == "delay":  # 1–3 ms at 1 kHz and faster, else one or two samples (drawn, not sized)
         delay = int(round(rng.choice([1, 2, 3]) * rate / 1000)) if rate >= 1000 else int(rng.choice([1, 2]))
@@ -246,10 +300,21 @@ def case(seed: int, hidden: str | None = None, rates: tuple = RATES, amplitude: 
     rec = _round_trip(q, tau, rate, arm, hold == "stated")
     rec.path = f"<independent seed {seed}, hidden {hidden or 'nothing'}>"
     start = ",".join(e for e in NOMINAL if e != hidden)
-    truth = {k: [float(x) for x in np.atleast_1d(v)] for k, v in p.items()
-             if np.any(np.asarray(v) != 0) and (k != "q0" or hidden == "spring")}
-    condition = {"seed": seed, "simulator": "independent", "structure": structure, "rate": rate,
-                 "excitation": excitation, "torque": torque, "hold": hold, **info}
+    truth = {
+        k: [float(x) for x in np.atleast_1d(v)]
+        for k, v in p.items()
+        if np.any(np.asarray(v) != 0) and (k != "q0" or hidden == "spring")
+    }
+    condition = {
+        "seed": seed,
+        "simulator": "independent",
+        "structure": structure,
+        "rate": rate,
+        "excitation": excitation,
+        "torque": torque,
+        "hold": hold,
+        **info,
+    }
     return Case(rec, start, hidden, joint, condition, truth, time.perf_counter() - t_start)
 
 
@@ -259,13 +324,22 @@ def _round_trip(q: np.ndarray, tau: np.ndarray, rate: int, arm: bool, stated: bo
 
     n = q.shape[1]
     head = [f"# sample_rate_hz: {rate}"]
-    head += ["# counts_per_rev: 131072", "# structure: manus2"] if arm else \
-        [f"# position_step: {AXIS['step']:g}", "# structure: axis", "# joints: prismatic"]
+    head += (
+        ["# counts_per_rev: 131072", "# structure: manus2"]
+        if arm
+        else [f"# position_step: {AXIS['step']:g}", "# structure: axis", "# joints: prismatic"]
+    )
     if stated:
         head.append("# command_hold: zoh")
     head.append(",".join(["t"] + [f"q{i + 1}" for i in range(n)] + [f"tau{i + 1}" for i in range(n)]))
     with tempfile.TemporaryDirectory() as d:
         path = os.path.join(d, "independent.csv")
-        np.savetxt(path, np.column_stack([np.arange(len(q)) / rate, q, tau]), delimiter=",", fmt="%.10g",
-                   header="\n".join(head), comments="")
+        np.savetxt(
+            path,
+            np.column_stack([np.arange(len(q)) / rate, q, tau]),
+            delimiter=",",
+            fmt="%.10g",
+            header="\n".join(head),
+            comments="",
+        )
         return read(path)

@@ -36,17 +36,24 @@ def case_seed(seed: int, effect_index: int, i: int) -> int:
     return int(np.random.SeedSequence([seed, effect_index, i]).generate_state(1)[0] % 2**31)
 
 
-def judge(seed: int, hidden: str | None, alpha: float | None = None, blocks: int | None = None,
-          rates: tuple | None = None, amplitude: float | None = None, lost: float = 0.0,
-          simulator: str = "manus") -> dict:
+def judge(
+    seed: int,
+    hidden: str | None,
+    alpha: float | None = None,
+    blocks: int | None = None,
+    rates: tuple | None = None,
+    amplitude: float | None = None,
+    lost: float = 0.0,
+    simulator: str = "manus",
+) -> dict:
     """Simulate one calibration recording and diagnose it; never raises (a ManusError is an
     `error`, anything else a `crash`, both reported). `lost`: the fraction of its samples lost
     at random (seeded by the case), as a loop that misses packets loses them."""
     import traceback
 
     from manus.adaptive import diagnose
-    from manus.plants.errors import ManusError
     from manus.experiments import calibration
+    from manus.plants.errors import ManusError
 
     out = {"seed": seed, "hidden": hidden}
     try:
@@ -74,8 +81,12 @@ def judge(seed: int, hidden: str | None, alpha: float | None = None, blocks: int
         out.update(outcome="error", error=str(e), diagnose_s=time.perf_counter() - t0)
         return out
     except Exception as e:
-        out.update(outcome="crash", error=f"{type(e).__name__}: {e}", trace=traceback.format_exc(limit=8),
-                   diagnose_s=time.perf_counter() - t0)
+        out.update(
+            outcome="crash",
+            error=f"{type(e).__name__}: {e}",
+            trace=traceback.format_exc(limit=8),
+            diagnose_s=time.perf_counter() - t0,
+        )
         return out
     out["diagnose_s"] = time.perf_counter() - t0
     v = d.verdict
@@ -83,10 +94,12 @@ def judge(seed: int, hidden: str | None, alpha: float | None = None, blocks: int
     out["verdict_spec"] = None if v is None else v.spec
     out["verdict_joint"] = None if v is None else int(v.joint)
     out["unexplained"] = bool(d.unexplained.get("significant"))
-    out["candidates"] = [{k: c[k] for k in ("spec", "joint", "p_value", "cv_error_reduction", "significant")}
-                         | ({"not_proposed": c["not_proposed"]} if "not_proposed" in c else {})
-                         | {k: c["detail"][k] for k in ("p_values", "explains") if k in c["detail"]}
-                         for c in d.report()["candidates"]]
+    out["candidates"] = [
+        {k: c[k] for k in ("spec", "joint", "p_value", "cv_error_reduction", "significant")}
+        | ({"not_proposed": c["not_proposed"]} if "not_proposed" in c else {})
+        | {k: c["detail"][k] for k in ("p_values", "explains") if k in c["detail"]}
+        for c in d.report()["candidates"]
+    ]
     out["verdict_reads_as"] = [] if v is None else list(v.readings)
     # the detection limit diagnose states for the hidden effect's candidate (share of the torque)
     own = next((x for x in d.candidates if x.effect == hidden), None) if hidden else None
@@ -119,9 +132,11 @@ def summarize(results: list[dict]) -> dict:
         return rate(sum(r["outcome"] == "false alarm" for r in rs), len(rs))
 
     def detections(rs):
-        return {"named": rate(sum(bool(r.get("named")) for r in rs), len(rs)),
-                "named_or_reading": rate(sum(bool(r.get("named") or r.get("reading")) for r in rs), len(rs)),
-                "right_joint": rate(sum(bool(r.get("right_joint")) for r in rs), len(rs))}
+        return {
+            "named": rate(sum(bool(r.get("named")) for r in rs), len(rs)),
+            "named_or_reading": rate(sum(bool(r.get("named") or r.get("reading")) for r in rs), len(rs)),
+            "right_joint": rate(sum(bool(r.get("right_joint")) for r in rs), len(rs)),
+        }
 
     per_effect = {}
     for name in dict.fromkeys(r["hidden"] for r in hidden):
@@ -131,9 +146,12 @@ def summarize(results: list[dict]) -> dict:
     for key in CONDITION_KEYS:
         values = sorted({str(r["condition"][key]) for r in results if "condition" in r})
         per_condition[key] = {
-            v: {"false_alarm": alarms([r for r in nulls if str(r.get("condition", {}).get(key)) == v]),
-                **detections([r for r in hidden if str(r.get("condition", {}).get(key)) == v])}
-            for v in values}
+            v: {
+                "false_alarm": alarms([r for r in nulls if str(r.get("condition", {}).get(key)) == v]),
+                **detections([r for r in hidden if str(r.get("condition", {}).get(key)) == v]),
+            }
+            for v in values
+        }
     distinct = [r for r in hidden if _distinct(r)]
     # the stated detection limit against the truth: the hidden effect's distinct share at or above
     # the limit diagnose states for its candidate on that recording, and below it
@@ -143,26 +161,38 @@ def summarize(results: list[dict]) -> dict:
     times = [r["diagnose_s"] for r in results if "diagnose_s" in r]
     sims = [r["simulate_s"] for r in results if "simulate_s" in r]
     missed = [r for r in hidden if r["outcome"] == "missed"]
-    return {"false_alarm": alarms(nulls), "false_alarm_verdicts": _counts(r.get("verdict") for r in nulls
-                                                                          if r["outcome"] == "false alarm"),
-            # "something is left that no effect explains": said on a recording with nothing missing
-            # (a false alarm of its own), and said where the hidden effect was not named
-            "unexplained_on_null": rate(sum(bool(r.get("unexplained")) for r in nulls if "unexplained" in r),
-                                        sum("unexplained" in r for r in nulls)),
-            "unexplained_when_missed": rate(sum(bool(r.get("unexplained")) for r in missed), len(missed)),
-            "detection": detections(hidden),
-            # the recordings whose hidden effect has a part of its own no other reading explains
-            "detection_where_distinct": {**detections(distinct), "threshold": DISTINCT,
-                                         "per_effect": {name: detections([r for r in distinct if r["hidden"] == name])
-                                                        for name in dict.fromkeys(r["hidden"] for r in distinct)}},
-            "detection_by_limit": {"at_or_above": detections(above), "below": detections(below)},
-            "per_effect": per_effect, "per_condition": per_condition,
-            "errors": sum(r["outcome"] == "error" for r in results),
-            "null_errors": sum(r["outcome"] == "error" for r in nulls), "crashes": sum(r["outcome"] == "crash" for r in results),
-            "diagnose_s_per_recording": {"mean": float(np.mean(times)) if times else None,
-                                         "median": float(np.median(times)) if times else None,
-                                         "max": float(np.max(times)) if times else None},
-            "simulate_s_per_recording": {"mean": float(np.mean(sims)) if sims else None}}
+    return {
+        "false_alarm": alarms(nulls),
+        "false_alarm_verdicts": _counts(r.get("verdict") for r in nulls if r["outcome"] == "false alarm"),
+        # "something is left that no effect explains": said on a recording with nothing missing
+        # (a false alarm of its own), and said where the hidden effect was not named
+        "unexplained_on_null": rate(
+            sum(bool(r.get("unexplained")) for r in nulls if "unexplained" in r), sum("unexplained" in r for r in nulls)
+        ),
+        "unexplained_when_missed": rate(sum(bool(r.get("unexplained")) for r in missed), len(missed)),
+        "detection": detections(hidden),
+        # the recordings whose hidden effect has a part of its own no other reading explains
+        "detection_where_distinct": {
+            **detections(distinct),
+            "threshold": DISTINCT,
+            "per_effect": {
+                name: detections([r for r in distinct if r["hidden"] == name])
+                for name in dict.fromkeys(r["hidden"] for r in distinct)
+            },
+        },
+        "detection_by_limit": {"at_or_above": detections(above), "below": detections(below)},
+        "per_effect": per_effect,
+        "per_condition": per_condition,
+        "errors": sum(r["outcome"] == "error" for r in results),
+        "null_errors": sum(r["outcome"] == "error" for r in nulls),
+        "crashes": sum(r["outcome"] == "crash" for r in results),
+        "diagnose_s_per_recording": {
+            "mean": float(np.mean(times)) if times else None,
+            "median": float(np.median(times)) if times else None,
+            "max": float(np.max(times)) if times else None,
+        },
+        "simulate_s_per_recording": {"mean": float(np.mean(sims)) if sims else None},
+    }
 
 
 DISTINCT = 0.025  # a hidden effect is distinct when this share of the torque is its own (half its size)

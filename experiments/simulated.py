@@ -32,15 +32,18 @@ def controller_for(plant, serial: bool, stiffness=None, damping=None):
         w = 2 * np.pi * SERIAL_PD_HZ
         k = h * w**2 if stiffness is None else np.full(n, stiffness)
         b = 2 * h * w if damping is None else np.full(n, damping)
-        how = (f"computed torque (the URDF's parameters) + PD K={', '.join(f'{x:.3g}' for x in k)} "
-               f"B={', '.join(f'{x:.3g}' for x in b)}")
+        how = (
+            f"computed torque (the URDF's parameters) + PD K={', '.join(f'{x:.3g}' for x in k)} "
+            f"B={', '.join(f'{x:.3g}' for x in b)}"
+        )
         return Feedforward(chain, plant.dt, stiffness=k, damping=b), how
     k, b = (30.0 if stiffness is None else stiffness), (1.0 if damping is None else damping)
     return Impedance(k, b, n_joints=n, limit=plant.actuator.limit), f"impedance K={k:g} B={b:g}"
 
 
-def simulated_recording(plant, controller, how: str, reference, reference_name: str, seconds: float, seed: int,
-                        counts: float):
+def simulated_recording(
+    plant, controller, how: str, reference, reference_name: str, seconds: float, seed: int, counts: float
+):
     """`seconds` of `plant` under `controller` (described by `how`) following `reference`
     (called `reference_name`), its noise from `seed`, as a recording with its metadata; `counts`
     per revolution of the encoder (0: none)."""
@@ -50,8 +53,13 @@ def simulated_recording(plant, controller, how: str, reference, reference_name: 
     from manus.plants.closed_loop import simulate
 
     traj = simulate(plant, controller, reference, seconds, key=jax.random.PRNGKey(seed), progress=seconds > 5)
-    return recording.from_trajectory(traj, plant.rate_hz, plant.model.structure, counts if counts > 0 else None,
-                                     {"truth": plant.model.spec, "reference": reference_name, "controller": how})
+    return recording.from_trajectory(
+        traj,
+        plant.rate_hz,
+        plant.model.structure,
+        counts if counts > 0 else None,
+        {"truth": plant.model.spec, "reference": reference_name, "controller": how},
+    )
 
 
 def tracking_rms(rec) -> list[float]:

@@ -57,7 +57,9 @@ def parameter_joints(setup, effect) -> dict[str, int | None]:
     return out
 
 
-def scale_hidden(setup, effect, unit: dict, joint: int | None, traj, fraction: float, dt: float) -> tuple[dict, np.ndarray]:
+def scale_hidden(
+    setup, effect, unit: dict, joint: int | None, traj, fraction: float, dt: float
+) -> tuple[dict, np.ndarray]:
     """The hidden effect's parameters: `unit` scaled, per joint (or as a whole when its parameters
     are shared between joints), so that its torque along `traj` is `fraction` of the recorded
     torque's RMS. Returns (params, the fraction each joint would get before the scaling)."""
@@ -112,8 +114,13 @@ def distinct(setup, effect, params: dict, start: str, traj, dt: float, others: t
     worst = rms(tau_h) / scale
     for name in ORDER:
         rival = of(name)
-        if name == effect.name or name in base or not rival.linear or not applies(name, setup) \
-                or any(r not in base for r in rival.requires):  # (diagnose would not offer it)
+        if (
+            name == effect.name
+            or name in base
+            or not rival.linear
+            or not applies(name, setup)
+            or any(r not in base for r in rival.requires)
+        ):  # (diagnose would not offer it)
             continue
         with_ = [b for b in rival.brings if b != effect.name and b not in base] + [name]
         Y = np.concatenate([columns(b) for b in base + with_], axis=1)

@@ -63,9 +63,11 @@ class LockTest(NamedTuple):
 
 def lock_tests() -> tuple[LockTest, ...]:
     q1, q2 = CENTRE
-    return (LockTest("elbow locked", 0, (0.0, 1.0), (1.0, 0.0), (q1, q2)),
-            LockTest("shoulder locked", 1, (1.0, 0.0), (0.0, 1.0), (q1, q2)),
-            LockTest("relative lock", 0, (-1.0, 1.0), (1.0, 1.0), (q1, q1 + RELATIVE_LOCK)))
+    return (
+        LockTest("elbow locked", 0, (0.0, 1.0), (1.0, 0.0), (q1, q2)),
+        LockTest("shoulder locked", 1, (1.0, 0.0), (0.0, 1.0), (q1, q2)),
+        LockTest("relative lock", 0, (-1.0, 1.0), (1.0, 1.0), (q1, q1 + RELATIVE_LOCK)),
+    )
 
 
 class Fit(NamedTuple):
@@ -92,8 +94,9 @@ def fit_oscillation(t, x, tau, dt: float, cutoff_hz: float = 20.0, min_speed: fl
     return Fit(*map(float, theta), rel, int(use.sum()))
 
 
-def simulate_test(test: LockTest, params: dict | None = None, displacement: float = 0.3, seconds: float = 6.0,
-                  release: float = 0.5):
+def simulate_test(
+    test: LockTest, params: dict | None = None, displacement: float = 0.3, seconds: float = 6.0, release: float = 0.5
+):
     """Run one locked test on the MANUS-2 arm (rigid, viscous, coulomb; the thesis's actuator
     chain and encoder): at rest displaced by `displacement` rad along d, released (the spring's
     set point steps back) at `release` s. Returns the closed-loop trajectory."""
@@ -104,8 +107,9 @@ def simulate_test(test: LockTest, params: dict | None = None, displacement: floa
     plant = Simulator(Model(Manus2(), "rigid,viscous,coulomb"), params)
     eq = np.asarray(test.equilibrium)
     start = eq + displacement * np.asarray(test.direction)
-    ctrl = LockedSpring(jnp.eye(2)[test.joint], jnp.asarray(test.lock), stiffness=SPRING,
-                        estimator=FilteredFirstDifference(dt=plant.dt))
+    ctrl = LockedSpring(
+        jnp.eye(2)[test.joint], jnp.asarray(test.lock), stiffness=SPRING, estimator=FilteredFirstDifference(dt=plant.dt)
+    )
     return simulate(plant, ctrl, Step(start, eq, release), seconds), plant
 
 
@@ -117,7 +121,9 @@ def replay(test: LockTest, fit: Fit, displacement: float = 0.3, seconds: float =
     from manus.plants.closed_loop import simulate
     from manus.plants.references import Step
 
-    plant = Simulator(Model(Axis(), "rigid,viscous,coulomb"), {"M1": fit.inertia, "b1": fit.damping, "Fc1": fit.friction})
+    plant = Simulator(
+        Model(Axis(), "rigid,viscous,coulomb"), {"M1": fit.inertia, "b1": fit.damping, "Fc1": fit.friction}
+    )
     x0 = test.equilibrium[test.joint]
     return simulate(plant, Impedance(SPRING, 0.0, n_joints=1), Step([x0 + displacement], [x0], release), seconds)
 
@@ -133,14 +139,35 @@ def identify(params: dict | None = None, displacement: float = 0.3, seconds: flo
     truth = {k: float(v) for k, v in plant.params.items()}
     one, two, rel = fits["elbow locked"], fits["shoulder locked"], fits["relative lock"]
     a2 = (rel.inertia - (one.inertia + two.inertia)) / (2 * math.cos(RELATIVE_LOCK))
-    found = {"a1": one.inertia, "b1": one.damping, "Fc1": one.friction,
-             "a3": two.inertia, "b2": two.damping, "Fc2": two.friction,
-             "H11*": rel.inertia, "b*": rel.damping, "F*": rel.friction, "a2": a2}
-    true = {"a1": truth["a1"], "b1": truth["b1"], "Fc1": truth["Fc1"], "a3": truth["a3"], "b2": truth["b2"],
-            "Fc2": truth["Fc2"], "H11*": truth["a1"] + truth["a3"] + 2 * truth["a2"] * math.cos(RELATIVE_LOCK),
-            "b*": truth["b1"] + truth["b2"], "F*": truth["Fc1"] + truth["Fc2"], "a2": truth["a2"]}
-    return {"params": {k: {"identified": found[k], "truth": true[k], "rel_error": found[k] / true[k] - 1} for k in found},
-            "fits": {name: f._asdict() for name, f in fits.items()}, "traces": traces}
+    found = {
+        "a1": one.inertia,
+        "b1": one.damping,
+        "Fc1": one.friction,
+        "a3": two.inertia,
+        "b2": two.damping,
+        "Fc2": two.friction,
+        "H11*": rel.inertia,
+        "b*": rel.damping,
+        "F*": rel.friction,
+        "a2": a2,
+    }
+    true = {
+        "a1": truth["a1"],
+        "b1": truth["b1"],
+        "Fc1": truth["Fc1"],
+        "a3": truth["a3"],
+        "b2": truth["b2"],
+        "Fc2": truth["Fc2"],
+        "H11*": truth["a1"] + truth["a3"] + 2 * truth["a2"] * math.cos(RELATIVE_LOCK),
+        "b*": truth["b1"] + truth["b2"],
+        "F*": truth["Fc1"] + truth["Fc2"],
+        "a2": truth["a2"],
+    }
+    return {
+        "params": {k: {"identified": found[k], "truth": true[k], "rel_error": found[k] / true[k] - 1} for k in found},
+        "fits": {name: f._asdict() for name, f in fits.items()},
+        "traces": traces,
+    }
 
 
 # -- Cartesian parameters (§3.6) ---------------------------------------------------------------
@@ -174,8 +201,7 @@ def cartesian(q, p: dict) -> dict:
     c = math.cos(q[1] - q[0])
     H = np.array([[p["a1"], p["a2"] * c], [p["a2"] * c, p["a3"]]])
     corners = np.array([[1, 1], [-1, 1], [-1, -1], [1, -1]]) * np.array([p["Fc1"], p["Fc2"]])
-    return {"inertia": Ji.T @ H @ Ji, "damping": Ji.T @ np.diag([p["b1"], p["b2"]]) @ Ji,
-            "friction": corners @ Ji}
+    return {"inertia": Ji.T @ H @ Ji, "damping": Ji.T @ np.diag([p["b1"], p["b2"]]) @ Ji, "friction": corners @ Ji}
 
 
 def workspace(nx: int = 5, ny: int = 5, half_x: float = 0.25, half_y: float = 0.2) -> np.ndarray:
@@ -205,25 +231,36 @@ def study(displacement: float = 0.3, seconds: float = 6.0) -> Study:
     ident = {k: v["identified"] for k, v in result["params"].items()}
     replays = {t.name: replay(t, Fit(**result["fits"][t.name]), displacement, seconds) for t in lock_tests()}
     for t in lock_tests():  # output error of the fitted model: how well it replays the test
-        result["fits"][t.name]["replay_rms"] = float(np.sqrt(np.mean(
-            (replays[t.name].q[:, 0] - traces[t.name].q[:, t.joint]) ** 2)))
+        result["fits"][t.name]["replay_rms"] = float(
+            np.sqrt(np.mean((replays[t.name].q[:, 0] - traces[t.name].q[:, t.joint]) ** 2))
+        )
     points = workspace()
     cart = [cartesian(joint_angles(p), ident) for p in points]
     centre = cartesian(np.asarray(CENTRE), ident)
     errors = [abs(v["rel_error"]) for v in result["params"].values()]
     result = result | {
-        "max_rel_error": max(errors), "within_5pct": bool(max(errors) <= TOLERANCE),
-        "cartesian": {"centre": describe(endpoint(CENTRE), centre), "thesis_centre": THESIS_CENTRE,
-                      "by_radius": by_radius(points, cart)}}
+        "max_rel_error": max(errors),
+        "within_5pct": bool(max(errors) <= TOLERANCE),
+        "cartesian": {
+            "centre": describe(endpoint(CENTRE), centre),
+            "thesis_centre": THESIS_CENTRE,
+            "by_radius": by_radius(points, cart),
+        },
+    }
     return Study(result, traces, replays, points, cart)
 
 
 def describe(p, c: dict) -> dict:
     """The Cartesian parameters `c` at endpoint `p`, JSON-ready, with their eigenvalues."""
-    return {"position": p.tolist(), "radius": float(np.hypot(*p)), "inertia": c["inertia"].tolist(),
-            "inertia_eig": np.linalg.eigvalsh(c["inertia"]).tolist(), "damping": c["damping"].tolist(),
-            "damping_eig": np.linalg.eigvalsh(c["damping"]).tolist(),
-            "friction_range": list(friction_range(c["friction"]))}
+    return {
+        "position": p.tolist(),
+        "radius": float(np.hypot(*p)),
+        "inertia": c["inertia"].tolist(),
+        "inertia_eig": np.linalg.eigvalsh(c["inertia"]).tolist(),
+        "damping": c["damping"].tolist(),
+        "damping_eig": np.linalg.eigvalsh(c["damping"]).tolist(),
+        "friction_range": list(friction_range(c["friction"])),
+    }
 
 
 def friction_range(corners: np.ndarray) -> tuple[float, float]:
@@ -237,6 +274,12 @@ def by_radius(points, cart) -> list[dict]:
     """Each parameter's least and largest value along the column through the centre: they
     depend on the distance from the motor axis alone (§3.6)."""
     on_axis = np.flatnonzero(np.isclose(points[:, 0], endpoint(CENTRE)[0]))
-    return [{"radius": float(np.hypot(*points[i])), "inertia": np.linalg.eigvalsh(cart[i]["inertia"]).tolist(),
-             "damping": np.linalg.eigvalsh(cart[i]["damping"]).tolist(), "friction": list(friction_range(cart[i]["friction"]))}
-            for i in on_axis]
+    return [
+        {
+            "radius": float(np.hypot(*points[i])),
+            "inertia": np.linalg.eigvalsh(cart[i]["inertia"]).tolist(),
+            "damping": np.linalg.eigvalsh(cart[i]["damping"]).tolist(),
+            "friction": list(friction_range(cart[i]["friction"])),
+        }
+        for i in on_axis
+    ]

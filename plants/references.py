@@ -72,8 +72,9 @@ class Complex(PositionReference):
     centre: tuple = CENTRE
 
     def position(self, t):
-        return jnp.stack([self.centre[0] - 0.1 * (1 - jnp.cos(4 * jnp.pi * t)),
-                          self.centre[1] + 0.2 * (1 - jnp.cos(2 * jnp.pi * t))])
+        return jnp.stack(
+            [self.centre[0] - 0.1 * (1 - jnp.cos(4 * jnp.pi * t)), self.centre[1] + 0.2 * (1 - jnp.cos(2 * jnp.pi * t))]
+        )
 
 
 class MultiSine(PositionReference):
@@ -147,5 +148,9 @@ def reference_named(name: str, centre, arm: bool = True, amplitude: float = 0.15
         raise ManusError(f"unknown reference {name!r}: one of {', '.join(NAMES)}")
     if name in THESIS_ARM_ONLY and not arm:
         raise ManusError(f"the {name} trajectory is the thesis's for the manus2 arm")
-    return {"benign": Benign, "complex": Complex, "hold": lambda: Hold(centre),
-            "multisine": lambda: MultiSine(centre, amplitude, seed=seed)}[name]()
+    return {
+        "benign": Benign,
+        "complex": Complex,
+        "hold": lambda: Hold(centre),
+        "multisine": lambda: MultiSine(centre, amplitude, seed=seed),
+    }[name]()

@@ -17,34 +17,52 @@ def add_common(parser, out: bool = True) -> None:
     """--json, and --out DIR where figures go."""
     parser.add_argument("--json", action="store_true", help="print one JSON object on stdout and nothing else")
     if out:
-        parser.add_argument("--out", type=Path, default=DEFAULT_OUT, metavar="DIR",
-                            help=f"where figures go (default {DEFAULT_OUT}/)")
+        parser.add_argument(
+            "--out", type=Path, default=DEFAULT_OUT, metavar="DIR", help=f"where figures go (default {DEFAULT_OUT}/)"
+        )
 
 
 # -- a recording and a model ---------------------------------------------------------------------
 def add_robot_option(parser) -> None:
     """--robot: shared by every command that reads a recording."""
-    parser.add_argument("--robot", metavar="FILE.urdf",
-                        help="the robot's URDF: the recording is this serial chain's (structure urdf), whatever its "
-                             "metadata says (a recording can also name it: '# structure: urdf', '# robot: PATH')")
+    parser.add_argument(
+        "--robot",
+        metavar="FILE.urdf",
+        help="the robot's URDF: the recording is this serial chain's (structure urdf), whatever its "
+        "metadata says (a recording can also name it: '# structure: urdf', '# robot: PATH')",
+    )
 
 
 def add_model_options(p, required: bool = True) -> None:
     """REC, --robot, --model, --cutoff, --method and --hold: shared by fit, diagnose and discover."""
     p.add_argument("recording", metavar="REC", help="a recording (.csv, .npz, or an EMPS .mat file)")
     add_robot_option(p)
-    p.add_argument("--model", required=required, metavar="EFFECTS",
-                   help="effects of the model, e.g. rigid,viscous,coulomb (an argument fixes a non-linear "
-                        "parameter: cogging:39, delay:1ms; without one it is searched)")
-    p.add_argument("--cutoff", type=float, metavar="HZ",
-                   help="identification bandwidth (default: from the motion's band and the encoder's "
-                        "quantization-noise budget)")
-    p.add_argument("--method", choices=("auto", "ls", "iv"), default="auto",
-                   help="least squares (IDIM-LS), instrumental variables (IDIM-IV, instruments from a simulation "
-                        "of the model driven by the recorded command), or auto (IV where LS is biased; default)")
-    p.add_argument("--hold", choices=("zoh", "none"),
-                   help="how the recorded command was held (default: the file's command_hold, else zoh: a digital "
-                        "controller holds each command over its period)")
+    p.add_argument(
+        "--model",
+        required=required,
+        metavar="EFFECTS",
+        help="effects of the model, e.g. rigid,viscous,coulomb (an argument fixes a non-linear "
+        "parameter: cogging:39, delay:1ms; without one it is searched)",
+    )
+    p.add_argument(
+        "--cutoff",
+        type=float,
+        metavar="HZ",
+        help="identification bandwidth (default: from the motion's band and the encoder's quantization-noise budget)",
+    )
+    p.add_argument(
+        "--method",
+        choices=("auto", "ls", "iv"),
+        default="auto",
+        help="least squares (IDIM-LS), instrumental variables (IDIM-IV, instruments from a simulation "
+        "of the model driven by the recorded command), or auto (IV where LS is biased; default)",
+    )
+    p.add_argument(
+        "--hold",
+        choices=("zoh", "none"),
+        help="how the recorded command was held (default: the file's command_hold, else zoh: a digital "
+        "controller holds each command over its period)",
+    )
 
 
 def read_recording(args):
@@ -64,11 +82,15 @@ def load_recording(args, proposing: bool = False):
         raise ManusError(f"--cutoff {args.cutoff:g}: must be positive")
     effects = parse_effects(args.model)  # unknown names, duplicates: refused before the file is read
     if proposing and len(effects) == len(ORDER):
-        raise ManusError(f"the model {args.model} already holds every effect of the vocabulary: nothing is left to propose")
+        raise ManusError(
+            f"the model {args.model} already holds every effect of the vocabulary: nothing is left to propose"
+        )
     rec = read_recording(args)
     if args.hold:
         rec.meta["command_hold"] = args.hold
-    note(f"{rec.path}: {len(rec)} samples of {rec.n_joints} joint(s) at {rec.sample_rate_hz:g} Hz ({rec.structure_name})")
+    note(
+        f"{rec.path}: {len(rec)} samples of {rec.n_joints} joint(s) at {rec.sample_rate_hz:g} Hz ({rec.structure_name})"
+    )
     return rec
 
 
@@ -78,16 +100,28 @@ def add_plant_options(parser, truth_default: str = THESIS_TRUTH, robot: bool = F
     with `robot`, --robot FILE.urdf as well."""
     g = parser.add_argument_group("plant")
     if robot:
-        g.add_argument("--robot", metavar="FILE.urdf",
-                       help="a serial robot from its URDF instead of --structure (its joints' <dynamics damping "
-                            "friction> are the default viscous and Coulomb levels)")
+        g.add_argument(
+            "--robot",
+            metavar="FILE.urdf",
+            help="a serial robot from its URDF instead of --structure (its joints' <dynamics damping "
+            "friction> are the default viscous and Coulomb levels)",
+        )
     else:
         parser.set_defaults(robot=None)
-    g.add_argument("--truth", default=truth_default, metavar="EFFECTS",
-                   help=f"effects of the simulated plant, e.g. rigid,viscous,coulomb,cogging:39,delay:1ms "
-                        f"(default {truth_default})")
-    g.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
-                   help="set a truth parameter, e.g. --param Fc1=0.2 (repeatable)")
+    g.add_argument(
+        "--truth",
+        default=truth_default,
+        metavar="EFFECTS",
+        help=f"effects of the simulated plant, e.g. rigid,viscous,coulomb,cogging:39,delay:1ms "
+        f"(default {truth_default})",
+    )
+    g.add_argument(
+        "--param",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="set a truth parameter, e.g. --param Fc1=0.2 (repeatable)",
+    )
     g.add_argument("--structure", choices=("manus2", "axis"), default="manus2")
     g.add_argument("--joints", type=int, default=1, help="number of joints of an axis structure")
     g.add_argument("--rate", type=float, default=1000.0, help="control rate [Hz] (default 1000)")
@@ -101,11 +135,10 @@ def plant_options(**values) -> argparse.Namespace:
     p = argparse.ArgumentParser(add_help=False)
     add_plant_options(p, robot=True)
     args = p.parse_args([])
-    for k, v in values.items():
-        if not hasattr(args, k):
-            raise ValueError(f"no plant option {k!r}")
-        setattr(args, k, v)
-    return args
+    unknown = set(values) - set(vars(args))
+    if unknown:
+        raise ValueError(f"no plant option {', '.join(sorted(unknown))}")
+    return argparse.Namespace(**{**vars(args), **values})
 
 
 def parse_pairs(items: list[str], flag: str, example: str = "") -> dict[str, float]:
@@ -159,10 +192,20 @@ def build_plant(args, robot_torque_limit: float | None = None):
     if args.robot:
         from manus.plants.simulator import Actuator
 
-        extra["actuator"] = None if robot_torque_limit is None else Actuator(
-            dac_bits=24, volts=10.0, amps_per_volt=1.0, torque_constant=robot_torque_limit / 10.0)
-    sim = Simulator(model, parse_params(args.param), rate_hz=args.rate, substeps=args.substeps,
-                    encoder=encoder, torque_noise=args.torque_noise, **extra)
+        extra["actuator"] = (
+            None
+            if robot_torque_limit is None
+            else Actuator(dac_bits=24, volts=10.0, amps_per_volt=1.0, torque_constant=robot_torque_limit / 10.0)
+        )
+    sim = Simulator(
+        model,
+        parse_params(args.param),
+        rate_hz=args.rate,
+        substeps=args.substeps,
+        encoder=encoder,
+        torque_noise=args.torque_noise,
+        **extra,
+    )
     bad = model.violations({k: float(v) for k, v in sim.params.items()})
     if bad:  # a plant that breaks its effects' physics (a negative inertia, friction that pushes)
         raise ManusError("--param: the plant breaks physics: " + "; ".join(bad))

@@ -21,13 +21,16 @@ import os
 import pkgutil
 import sys
 import warnings
+from types import ModuleType
 
 from manus import runs
 
 # Measured on this CPU (docs/performance.md): compile a whole scan body as one
 # function, and expose both cores as devices for sharded batches.
-XLA_FLAGS = ("--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000000",
-             "--xla_force_host_platform_device_count=2")
+XLA_FLAGS = (
+    "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000000",
+    "--xla_force_host_platform_device_count=2",
+)
 
 
 def configure_environment() -> None:
@@ -51,7 +54,7 @@ def configure_jax() -> None:
     jax.config.update("jax_enable_x64", True)
 
 
-def commands() -> dict[str, object]:
+def commands() -> dict[str, ModuleType]:
     """The sub-commands by name: every module `cmd_*` of this package."""
     found = {}
     for info in pkgutil.iter_modules(runs.__path__):
@@ -62,8 +65,11 @@ def commands() -> dict[str, object]:
 
 
 def parser(cmds: dict) -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="manus", description="Adaptive control of interactive robots: "
-                                "simulate, estimate velocity, fit and diagnose models, adapt, run hardware.")
+    p = argparse.ArgumentParser(
+        prog="manus",
+        description="Adaptive control of interactive robots: "
+        "simulate, estimate velocity, fit and diagnose models, adapt, run hardware.",
+    )
     p.add_argument("--debug", action="store_true", help="show the full traceback of an error")
     p.add_argument("--version", action="version", version=f"manus {_version()}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND", required=True)
@@ -96,8 +102,10 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as e:  # an unexpected failure: still one line, the traceback on request
         if args.debug:
             raise
-        print(f"manus {args.command}: internal error: {type(e).__name__}: {e} (run with --debug for the traceback)",
-              file=sys.stderr)
+        print(
+            f"manus {args.command}: internal error: {type(e).__name__}: {e} (run with --debug for the traceback)",
+            file=sys.stderr,
+        )
         return 1
     if args.json:
         print(json.dumps(result, default=_jsonable))

@@ -36,11 +36,20 @@ def default_emps() -> Path:
 
 
 def add_arguments(p) -> None:
-    p.add_argument("--out", type=Path, default=Path("runs/out/demo"), metavar="DIR",
-                   help="where the recording, the figures and the report go (default runs/out/demo/)")
+    p.add_argument(
+        "--out",
+        type=Path,
+        default=Path("runs/out/demo"),
+        metavar="DIR",
+        help="where the recording, the figures and the report go (default runs/out/demo/)",
+    )
     p.add_argument("--seconds", type=float, default=20.0, help="length of the simulated recording (default 20 s)")
-    p.add_argument("--emps", type=Path, metavar="FILE",
-                   help=f"the EMPS recording (default $MANUS_EMPS or ../shared/data/emps/{EMPS_NAME} beside the repository)")
+    p.add_argument(
+        "--emps",
+        type=Path,
+        metavar="FILE",
+        help=f"the EMPS recording (default $MANUS_EMPS or ../shared/data/emps/{EMPS_NAME} beside the repository)",
+    )
     p.add_argument("--no-emps", action="store_true", help="part (a) only")
     p.add_argument("--max-steps", type=int, default=6, help="stop each loop after this many additions")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout and nothing else")
@@ -83,12 +92,17 @@ def run(args) -> dict:
     simulated = simulate_hidden(out, args.seconds)
     rec = recording.read(simulated)
     note(f"(a) discovering from the thesis's nominal model {NOMINAL} (the analysis is not told the truth) ...")
-    intro = (f"The MANUS-2 arm simulated for {args.seconds:g} s under impedance control (K = 30 N·m/rad, B = 1 N·m·s/rad) "
-             f"following a multi-sine, with truth `{TRUTH}` (131072 counts/rev encoder, 12-bit D/A). The analysis "
-             f"starts from the thesis's nominal model `{NOMINAL}` and is not told about the 39/rev cogging or the 1 ms "
-             "amplifier delay.")
-    sections.append(report.discover_section(rec, NOMINAL, out, "a_", "(a) Simulated arm with a hidden effect", intro,
-                                     max_steps=args.max_steps))
+    intro = (
+        f"The MANUS-2 arm simulated for {args.seconds:g} s under impedance control (K = 30 N·m/rad, B = 1 N·m·s/rad) "
+        f"following a multi-sine, with truth `{TRUTH}` (131072 counts/rev encoder, 12-bit D/A). The analysis "
+        f"starts from the thesis's nominal model `{NOMINAL}` and is not told about the 39/rev cogging or the 1 ms "
+        "amplifier delay."
+    )
+    sections.append(
+        report.discover_section(
+            rec, NOMINAL, out, "a_", "(a) Simulated arm with a hidden effect", intro, max_steps=args.max_steps
+        )
+    )
     emps = None if args.no_emps else (args.emps or default_emps())
     emps_note = "skipped (--no-emps)" if args.no_emps else None
     if emps is not None and not emps.is_file():
@@ -97,15 +111,29 @@ def run(args) -> dict:
         emps = None
     if emps is not None:
         note(f"(b) the same loop on the real EMPS recording {emps}, from {EMPS_START} alone ...")
-        intro = ("The EMPS benchmark (Janot, Gautier, Brunot 2019): a real ball-screw axis in closed loop at 1 kHz. "
-                 "The published model is force = M q̈ + Fv q̇ + Fc sgn(q̇) + offset, rel_error 4.08 % "
-                 f"(M = 95.11 kg, Fv = 203.5 N·s/m, Fc = 20.39 N, offset = −3.16 N). The loop starts from `{EMPS_START}` alone.")
-        sections.append(report.discover_section(recording.read(emps), EMPS_START, out, "b_", "(b) Real data: EMPS", intro,
-                                         max_steps=args.max_steps))
+        intro = (
+            "The EMPS benchmark (Janot, Gautier, Brunot 2019): a real ball-screw axis in closed loop at 1 kHz. "
+            "The published model is force = M q̈ + Fv q̇ + Fc sgn(q̇) + offset, rel_error 4.08 % "
+            f"(M = 95.11 kg, Fv = 203.5 N·s/m, Fc = 20.39 N, offset = −3.16 N). The loop starts from `{EMPS_START}` "
+            "alone."
+        )
+        sections.append(
+            report.discover_section(
+                recording.read(emps), EMPS_START, out, "b_", "(b) Real data: EMPS", intro, max_steps=args.max_steps
+            )
+        )
     path = report.write(sections, out / "report.md", "manus demo: fit, see where it fails, name the missing effect")
-    r = {"simulated": {"recording": simulated, "truth": TRUTH, "start": NOMINAL, "hidden": HIDDEN,
-                       "discovery": report.section_result(sections[0])},
-         "emps": report.section_result(sections[1]) if len(sections) > 1 else {"skipped": emps_note}, "report": path}
+    r = {
+        "simulated": {
+            "recording": simulated,
+            "truth": TRUTH,
+            "start": NOMINAL,
+            "hidden": HIDDEN,
+            "discovery": report.section_result(sections[0]),
+        },
+        "emps": report.section_result(sections[1]) if len(sections) > 1 else {"skipped": emps_note},
+        "report": path,
+    }
     return r
 
 
@@ -115,7 +143,10 @@ def render(r: dict) -> str:
     if "skipped" in r["emps"]:
         lines += [f"(b) EMPS: {r['emps']['skipped']}", ""]
     else:
-        lines += [f"(b) real EMPS recording {r['emps']['recording']}, starting from {r['emps']['start']['model']}:",
-                  discovery_text(r["emps"]), ""]
+        lines += [
+            f"(b) real EMPS recording {r['emps']['recording']}, starting from {r['emps']['start']['model']}:",
+            discovery_text(r["emps"]),
+            "",
+        ]
     lines.append(f"the report (Markdown with its figures): {r['report']}")
     return "\n".join(lines)

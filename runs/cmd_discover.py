@@ -29,12 +29,22 @@ def run(args) -> dict:
     rec = load_recording(args, proposing=True)
     stem = Path(rec.path).stem
     note(f"discovering from {args.model} ...")
-    sec = report.discover_section(rec, args.model, args.out, f"discover_{stem}_",
-                                  f"{Path(rec.path).name} from `{args.model}`", cutoff_hz=args.cutoff,
-                                  max_steps=args.max_steps, figures=not args.no_figures, method=args.method)
+    sec = report.discover_section(
+        rec,
+        args.model,
+        args.out,
+        f"discover_{stem}_",
+        f"{Path(rec.path).name} from `{args.model}`",
+        cutoff_hz=args.cutoff,
+        max_steps=args.max_steps,
+        figures=not args.no_figures,
+        method=args.method,
+    )
     r = report.section_result(sec)
     if not args.no_figures:
-        r["report"] = report.write([sec], Path(args.out) / f"discover_{stem}.md", f"manus discover: {Path(rec.path).name}")
+        r["report"] = report.write(
+            [sec], Path(args.out) / f"discover_{stem}.md", f"manus discover: {Path(rec.path).name}"
+        )
     return r
 
 

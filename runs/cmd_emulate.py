@@ -5,8 +5,8 @@ from __future__ import annotations
 import signal
 from pathlib import Path
 
-from manus.runs.text import note
 from manus.runs.args import add_plant_options, build_plant
+from manus.runs.text import note
 
 NAME = "emulate"
 HELP = "play the rig: the simulator in real time behind the UDP device protocol (for run-hardware)"
@@ -15,19 +15,37 @@ HELP = "play the rig: the simulator in real time behind the UDP device protocol 
 def add_arguments(p) -> None:
     p.add_argument("--port", type=int, required=True, help="UDP port to listen on (0: any free port, printed)")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
-    p.add_argument("--watchdog-ms", type=float, default=20.0,
-                   help="no valid command for this long: zero torque for the rest of the session (default 20: this 2-vCPU VM stalls a process for up to ~20 ms a few times a minute, measured)")
+    p.add_argument(
+        "--watchdog-ms",
+        type=float,
+        default=20.0,
+        help="no valid command for this long: zero torque for the rest of the session (default 20: this 2-vCPU VM "
+        "stalls a process for up to ~20 ms a few times a minute, measured)",
+    )
     p.add_argument("--seconds", type=float, default=None, help="exit after this long (default: run until Ctrl-C)")
     p.add_argument("--drop", type=float, default=0.0, help="fault injection: lose this fraction of packets each way")
     p.add_argument("--garbage", type=float, default=0.0, help="fault injection: send this fraction of junk datagrams")
-    p.add_argument("--log", type=Path, default=None, metavar="FILE",
-                   help="write what the device did (positions, applied torques, flags) as a recording")
-    p.add_argument("--spin-ms", type=float, default=2.0,
-                   help="busy-wait this long before each tick instead of sleeping (a sleeping vCPU wakes late; default 2)")
+    p.add_argument(
+        "--log",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="write what the device did (positions, applied torques, flags) as a recording",
+    )
+    p.add_argument(
+        "--spin-ms",
+        type=float,
+        default=2.0,
+        help="busy-wait this long before each tick instead of sleeping (a sleeping vCPU wakes late; default 2)",
+    )
     p.add_argument("--seed", type=int, default=0, help="seed of the fault injection")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout at exit")
-    p.add_argument("--torque-limit", type=float, default=100.0,
-                   help="with --robot: the largest torque its (ideal, 24-bit) D/A reaches [N·m] (default 100)")
+    p.add_argument(
+        "--torque-limit",
+        type=float,
+        default=100.0,
+        help="with --robot: the largest torque its (ideal, 24-bit) D/A reaches [N·m] (default 100)",
+    )
     add_plant_options(p, robot=True)
 
 
@@ -45,11 +63,21 @@ def run(args) -> dict:
     if args.robot and not args.torque_limit > 0:
         raise ManusError("--torque-limit must be positive")
     plant = build_plant(args, robot_torque_limit=args.torque_limit if args.robot else None)
-    emu = Emulator(plant, args.port, args.host, watchdog=args.watchdog_ms / 1e3, drop=args.drop,
-                   garbage=args.garbage, log=args.log, seed=args.seed,
-                   spin=args.spin_ms / 1e3)
-    note(f"emulating {plant.model.spec} ({plant.model.n_joints} joints, {plant.rate_hz:g} Hz) "
-         f"on udp://{args.host}:{emu.port}", )
+    emu = Emulator(
+        plant,
+        args.port,
+        args.host,
+        watchdog=args.watchdog_ms / 1e3,
+        drop=args.drop,
+        garbage=args.garbage,
+        log=args.log,
+        seed=args.seed,
+        spin=args.spin_ms / 1e3,
+    )
+    note(
+        f"emulating {plant.model.spec} ({plant.model.n_joints} joints, {plant.rate_hz:g} Hz) "
+        f"on udp://{args.host}:{emu.port}",
+    )
     signal.signal(signal.SIGTERM, _interrupt)  # a terminate closes the log like Ctrl-C
     try:
         stats = emu.serve(args.seconds)
@@ -65,5 +93,7 @@ def _interrupt(*_):
 
 def render(r: dict) -> str:
     refused = ", ".join(f"{k} {v}" for k, v in sorted(r["refused"].items())) or "none"
-    return (f"emulator on port {r['port']} ({r['truth']}): {r['sessions']} session(s), {r.get('ticks', 0)} ticks, "
-            f"{r.get('late', 0)} late commands, {r.get('watchdog_trips', 0)} watchdog trips; refused: {refused}")
+    return (
+        f"emulator on port {r['port']} ({r['truth']}): {r['sessions']} session(s), {r.get('ticks', 0)} ticks, "
+        f"{r.get('late', 0)} late commands, {r.get('watchdog_trips', 0)} watchdog trips; refused: {refused}"
+    )

@@ -16,9 +16,14 @@ HELP = "identify a model's parameters from a recording (inverse dynamics), with 
 
 def add_arguments(p) -> None:
     add_model_options(p)
-    p.add_argument("--open-loop", action="store_true",
-                   help="free-run on the recorded torque even when the recording names its controller and reference")
-    p.add_argument("--no-sim", action="store_true", help="skip the free-run simulation (the figure shows the torque only)")
+    p.add_argument(
+        "--open-loop",
+        action="store_true",
+        help="free-run on the recorded torque even when the recording names its controller and reference",
+    )
+    p.add_argument(
+        "--no-sim", action="store_true", help="skip the free-run simulation (the figure shows the torque only)"
+    )
     p.add_argument("--no-figures", action="store_true", help="skip the figure (and the free run)")
     add_common(p)
 
@@ -62,14 +67,19 @@ def render(r: dict) -> str:
     for k, p in r["params"].items():
         std = p["std"]
         rel = f"{100 * std / abs(p['value']):.2f}" if std is not None and p["value"] else "-"
-        rows.append([k, f"{p['value']:.6g}", "-" if std is None else f"{std:.3g}", rel]
-                    + ([f"{urdf[k]:.6g}" if k in urdf else ""] if urdf else []))
-    lines = [f"model {r['spec']}: rel_error {100 * r['rel_error']:.2f} % on {r['samples']} rows "
-             f"(torque low-passed at {r['cutoff_hz']:.1f} Hz, {100 * r['standstill_excluded']:.1f} % left out at standstill)",
-             f"  method {r['method']}: {r['method_why']}",
-             f"  cut-off: {r['cutoff_note']}; command hold: {r['hold']}",
-             *([f"  gaps: {r['gaps']}"] if r.get("gaps") else []),
-             table(rows, ["parameter", "value", "std", "std %"] + (["in the URDF"] if urdf else []))]
+        rows.append(
+            [k, f"{p['value']:.6g}", "-" if std is None else f"{std:.3g}", rel]
+            + ([f"{urdf[k]:.6g}" if k in urdf else ""] if urdf else [])
+        )
+    lines = [
+        f"model {r['spec']}: rel_error {100 * r['rel_error']:.2f} % on {r['samples']} rows "
+        f"(torque low-passed at {r['cutoff_hz']:.1f} Hz, {100 * r['standstill_excluded']:.1f} % left out at "
+        "standstill)",
+        f"  method {r['method']}: {r['method_why']}",
+        f"  cut-off: {r['cutoff_note']}; command hold: {r['hold']}",
+        *([f"  gaps: {r['gaps']}"] if r.get("gaps") else []),
+        table(rows, ["parameter", "value", "std", "std %"] + (["in the URDF"] if urdf else [])),
+    ]
     regrouped = {k: v for k, v in r.get("base_parameters", {}).items() if k != v}
     if regrouped:  # a serial chain: the base parameters that are combinations of standard ones
         lines.append("  base parameters (identifiable combinations of the standard ones; the others are themselves):")
@@ -79,12 +89,20 @@ def render(r: dict) -> str:
         lines.append(f"  physically consistent: none found ({c['error']})")
     elif c is not None:
         far = {k: v for k, v in c["moved_std"].items() if abs(v) >= 1}
-        lines.append("  physically consistent (each link's pseudo-inertia positive semidefinite, armatures and friction "
-                     "within their bounds): " + ("the estimate is consistent already" if c["already"] else "the estimate is not consistent")
-                     + f"; the closest consistent set leaves rel_error {100 * c['rel_error']:.2f} %"
-                     + (", moving " + ", ".join(f"{k} by {v:+.1f} std" for k, v in far.items()) if far else
-                        ", every parameter within one standard deviation"))
-        lines.append("    link masses " + ", ".join(f"{x['mass']:.4g}" for x in c["links"]) + " kg (held near the URDF's)")
+        lines.append(
+            "  physically consistent (each link's pseudo-inertia positive semidefinite, armatures and friction "
+            "within their bounds): "
+            + ("the estimate is consistent already" if c["already"] else "the estimate is not consistent")
+            + f"; the closest consistent set leaves rel_error {100 * c['rel_error']:.2f} %"
+            + (
+                ", moving " + ", ".join(f"{k} by {v:+.1f} std" for k, v in far.items())
+                if far
+                else ", every parameter within one standard deviation"
+            )
+        )
+        lines.append(
+            "    link masses " + ", ".join(f"{x['mass']:.4g}" for x in c["links"]) + " kg (held near the URDF's)"
+        )
     for k, v in r.get("nonlinear", {}).items():
         shown = ", ".join(f"{x:.6g}" for x in v) if isinstance(v, (list, tuple)) else f"{v:.6g}"
         lines.append(f"  {k} = {shown} (searched or fixed)")
@@ -100,7 +118,9 @@ def render(r: dict) -> str:
         if "position" in fits:
             lines.append("    position fit per joint: " + ", ".join(f"{x:.2f} %" for x in fits["position"]))
         if "tracking_error_fit_percent" in fr:
-            lines.append("    tracking-error fit per joint: " + ", ".join(f"{x:.1f} %" for x in fr["tracking_error_fit_percent"]))
+            lines.append(
+                "    tracking-error fit per joint: " + ", ".join(f"{x:.1f} %" for x in fr["tracking_error_fit_percent"])
+            )
     for k, v in r.get("figures", {}).items():
         lines.append(f"  figure ({k}): {v}")
     return "\n".join(lines)

@@ -16,17 +16,33 @@ def add_arguments(p) -> None:
     p.add_argument("--controller", default="slotine-li", help="impedance, slotine-li or slotine-li-composite")
     p.add_argument("--estimator", default="kalman_cv", help="velocity estimator (see `manus estimators`)")
     p.add_argument("--model", default="rigid,viscous,coulomb", help="the controller's model (adaptive ones)")
-    p.add_argument("--robot", metavar="FILE.urdf", default=None,
-                   help="the rig is this serial robot (its joints the device's; adaptive controllers adapt in "
-                        "pseudo-inertia coordinates, manus.plants.serial_pseudo)")
-    p.add_argument("--structure", choices=("manus2", "axis"), default=None,
-                   help="default: manus2 for a 2-joint device, axis otherwise")
+    p.add_argument(
+        "--robot",
+        metavar="FILE.urdf",
+        default=None,
+        help="the rig is this serial robot (its joints the device's; adaptive controllers adapt in "
+        "pseudo-inertia coordinates, manus.plants.pseudo_inertia)",
+    )
+    p.add_argument(
+        "--structure",
+        choices=("manus2", "axis"),
+        default=None,
+        help="default: manus2 for a 2-joint device, axis otherwise",
+    )
     p.add_argument("--reference", choices=("benign", "complex", "hold", "multisine"), default="benign")
     p.add_argument("--seconds", type=float, default=10.0)
-    p.add_argument("--record", type=Path, default=None, metavar="FILE", help="the recording (.csv), written as the run goes")
+    p.add_argument(
+        "--record", type=Path, default=None, metavar="FILE", help="the recording (.csv), written as the run goes"
+    )
     p.add_argument("--torque-limit", type=float, default=None, help="|τ| limit [N·m] (default: the device's)")
     p.add_argument("--torque", action="store_true", help="send torques (default: D/A volts)")
-    p.add_argument("--watchdog-ms", type=float, default=20.0, help="no sample for this long: stop (default 20: this 2-vCPU VM stalls a process for up to ~20 ms a few times a minute, measured)")
+    p.add_argument(
+        "--watchdog-ms",
+        type=float,
+        default=20.0,
+        help="no sample for this long: stop (default 20: this 2-vCPU VM stalls a process for up to ~20 ms a few "
+        "times a minute, measured)",
+    )
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout and nothing else")
 
 
@@ -47,18 +63,41 @@ def run(args) -> dict:
     with open_device(args.device) as device:
         info = device.connect()  # what the device is; the run opens its own session below
         device.stop()
-        note(f"{args.device}: {info.n_joints} joints at {info.rate_hz:g} Hz, {info.counts_per_rev:g} counts/rev; "
-             f"compiling {args.controller} + {args.estimator} ...")
-        stepper = compiled_tick(info, args.controller, args.estimator, args.model, args.structure, args.reference,
-                                args.torque_limit, args.robot)
-        meta = {"controller": args.controller, "estimator": args.estimator, "model": args.model,
-                "reference": args.reference, "device": args.device,
-                "structure": "urdf" if args.robot else (args.structure or ("manus2" if info.n_joints == 2 else "axis"))}
+        note(
+            f"{args.device}: {info.n_joints} joints at {info.rate_hz:g} Hz, {info.counts_per_rev:g} counts/rev; "
+            f"compiling {args.controller} + {args.estimator} ..."
+        )
+        stepper = compiled_tick(
+            info,
+            args.controller,
+            args.estimator,
+            args.model,
+            args.structure,
+            args.reference,
+            args.torque_limit,
+            args.robot,
+        )
+        meta = {
+            "controller": args.controller,
+            "estimator": args.estimator,
+            "model": args.model,
+            "reference": args.reference,
+            "device": args.device,
+            "structure": "urdf" if args.robot else (args.structure or ("manus2" if info.n_joints == 2 else "axis")),
+        }
         if args.robot:
             meta["robot"] = str(Path(args.robot).absolute())
         note(f"running {args.seconds:g} s ...")
-        result = run_loop(device, stepper, args.seconds, args.record, watchdog=args.watchdog_ms / 1e3,
-                          torque_limit=args.torque_limit, volts=not args.torque, meta=meta).as_dict()
+        result = run_loop(
+            device,
+            stepper,
+            args.seconds,
+            args.record,
+            watchdog=args.watchdog_ms / 1e3,
+            torque_limit=args.torque_limit,
+            volts=not args.torque,
+            meta=meta,
+        ).as_dict()
     if args.record is not None:
         summary = args.record.with_suffix(".stats.json")
         summary.write_text(json.dumps(result, indent=1) + "\n")

@@ -8,8 +8,10 @@ from manus.runs.args import add_plant_options, build_plant
 from manus.runs.text import note
 
 NAME = "simulate"
-HELP = ("simulate the arm, axes or a serial robot (--robot FILE.urdf) under control and write a recording with "
-        "true velocities")
+HELP = (
+    "simulate the arm, axes or a serial robot (--robot FILE.urdf) under control and write a recording with "
+    "true velocities"
+)
 
 
 def add_arguments(p) -> None:
@@ -17,13 +19,26 @@ def add_arguments(p) -> None:
     p.add_argument("--reference", choices=("multisine", "benign", "complex", "hold"), default="multisine")
     p.add_argument("--amplitude", type=float, default=0.15, help="multi-sine amplitude per joint [rad or m]")
     p.add_argument("--seed", type=int, default=0, help="multi-sine phases and plant noise")
-    p.add_argument("--stiffness", type=float, default=None,
-                   help="impedance controller K [N·m/rad] (default 30; a serial robot's PD around its computed "
-                        "torque: a 5 Hz loop on each joint's inertia)")
-    p.add_argument("--damping", type=float, default=None,
-                   help="impedance controller B [N·m·s/rad] (default 1; a serial robot's: critically damped)")
-    p.add_argument("--out", type=Path, default=Path("runs/out/simulated.csv"), metavar="FILE",
-                   help="the recording to write (.csv or .npz); a figure goes beside it (.png)")
+    p.add_argument(
+        "--stiffness",
+        type=float,
+        default=None,
+        help="impedance controller K [N·m/rad] (default 30; a serial robot's PD around its computed "
+        "torque: a 5 Hz loop on each joint's inertia)",
+    )
+    p.add_argument(
+        "--damping",
+        type=float,
+        default=None,
+        help="impedance controller B [N·m·s/rad] (default 1; a serial robot's: critically damped)",
+    )
+    p.add_argument(
+        "--out",
+        type=Path,
+        default=Path("runs/out/simulated.csv"),
+        metavar="FILE",
+        help="the recording to write (.csv or .npz); a figure goes beside it (.png)",
+    )
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout and nothing else")
     add_plant_options(p, robot=True)
 
@@ -50,12 +65,20 @@ def run(args) -> dict:
     path = recording.write(rec, args.out)
     rec.path = str(path)
     figure = plot_recording(rec, path.with_suffix(".png"), f"{path.name}: truth {plant.model.spec}")
-    return {"recording": str(path), "figure": figure, "samples": len(rec), "seconds": args.seconds,
-            "truth": plant.model.spec, "params": {k: float(v) for k, v in plant.params.items()},
-            "tracking_rms": tracking_rms(rec)}
+    return {
+        "recording": str(path),
+        "figure": figure,
+        "samples": len(rec),
+        "seconds": args.seconds,
+        "truth": plant.model.spec,
+        "params": {k: float(v) for k, v in plant.params.items()},
+        "tracking_rms": tracking_rms(rec),
+    }
 
 
 def render(r: dict) -> str:
     track = ", ".join(f"{x:.4f}" for x in r["tracking_rms"])
-    return (f"wrote {r['samples']} samples ({r['seconds']:g} s) of truth {r['truth']}\n"
-            f"  tracking error RMS per joint: {track}\n  recording: {r['recording']}\n  figure:    {r['figure']}")
+    return (
+        f"wrote {r['samples']} samples ({r['seconds']:g} s) of truth {r['truth']}\n"
+        f"  tracking error RMS per joint: {track}\n  recording: {r['recording']}\n  figure:    {r['figure']}"
+    )

@@ -29,21 +29,28 @@ def run(args) -> dict:
         raise ManusError(f"--seconds {args.seconds:g}: a test needs at least 3 s to oscillate")
     note("three locked-joint oscillation tests ...")
     s = study(displacement=args.displacement, seconds=args.seconds)
-    return s.result | {"figures": {"oscillations": figures.oscillations(s.traces, s.replays, args.out),
-                                   "ellipses": figures.workspace(s.points, s.cartesian, args.out)}}
+    return s.result | {
+        "figures": {
+            "oscillations": figures.oscillations(s.traces, s.replays, args.out),
+            "ellipses": figures.workspace(s.points, s.cartesian, args.out),
+        }
+    }
 
 
 def render(r: dict) -> str:
-    rows = [[k, f"{v['identified']:.4f}", f"{v['truth']:.4f}", f"{100 * v['rel_error']:+.2f} %"]
-            for k, v in r["params"].items()]
+    rows = [
+        [k, f"{v['identified']:.4f}", f"{v['truth']:.4f}", f"{100 * v['rel_error']:+.2f} %"]
+        for k, v in r["params"].items()
+    ]
     c = r["cartesian"]["centre"]
     th = r["cartesian"]["thesis_centre"]
-    lines = [table(rows, ["parameter", "identified", "truth", "error"]),
-             f"largest error {100 * r['max_rel_error']:.2f} % ({'within' if r['within_5pct'] else 'NOT within'} 5 %)",
-             f"at the workspace centre (r = {c['radius']:.3f} m): inertia eigenvalues "
-             f"{c['inertia_eig'][0]:.2f}, {c['inertia_eig'][1]:.2f} kg (thesis ≈ {th['mass']:g}); damping x "
-             f"{c['damping'][0][0]:.2f}, y {c['damping'][1][1]:.2f} N·s/m (thesis {th['damping_x']:g}, "
-             f"{th['damping_y']:g}); friction {c['friction_range'][0]:.2f}–{c['friction_range'][1]:.2f} N"]
+    lines = [
+        table(rows, ["parameter", "identified", "truth", "error"]),
+        f"largest error {100 * r['max_rel_error']:.2f} % ({'within' if r['within_5pct'] else 'NOT within'} 5 %)",
+        f"at the workspace centre (r = {c['radius']:.3f} m): inertia eigenvalues "
+        f"{c['inertia_eig'][0]:.2f}, {c['inertia_eig'][1]:.2f} kg (thesis ≈ {th['mass']:g}); damping x "
+        f"{c['damping'][0][0]:.2f}, y {c['damping'][1][1]:.2f} N·s/m (thesis {th['damping_x']:g}, "
+        f"{th['damping_y']:g}); friction {c['friction_range'][0]:.2f}–{c['friction_range'][1]:.2f} N",
+    ]
     lines += [f"figure: {f}" for f in r["figures"].values()]
     return "\n".join(lines)
-

@@ -9,16 +9,20 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from manus.runs.figures.common import figure_dir
 from manus.runs.text import format_params, limits_line, note, unexplained_line
+
+if TYPE_CHECKING:
+    from manus.adaptive import Discovery
 
 
 @dataclass
 class Section:
     title: str
     recording: str
-    discovery: object  # manus.adaptive.Discovery
+    discovery: Discovery
     figures: dict = field(default_factory=dict)  # "waterfall", "steps" [(spec, path)], "resid", "compare"
     intro: str = ""
     free_run: str = ""  # one line: what drove the free run (or why there is none)
@@ -56,13 +60,24 @@ def make_figures(section: Section, out: Path, prefix: str, free_run: bool = True
     section.figures = figs
 
 
-def discover_section(rec, model: str, out: Path, prefix: str, title: str, intro: str = "", cutoff_hz=None,
-                     max_steps: int = 6, figures: bool = True, method: str = "auto") -> Section:
+def discover_section(
+    rec,
+    model: str,
+    out: Path,
+    prefix: str,
+    title: str,
+    intro: str = "",
+    cutoff_hz=None,
+    max_steps: int = 6,
+    figures: bool = True,
+    method: str = "auto",
+) -> Section:
     """Run the loop on `rec` and make its report section (figures drawn into `out`)."""
     from manus.adaptive import discover
 
-    disc = discover(rec, model, cutoff_hz=cutoff_hz, max_steps=max_steps, method=method,
-                    progress=lambda line: note("  " + line))
+    disc = discover(
+        rec, model, cutoff_hz=cutoff_hz, max_steps=max_steps, method=method, progress=lambda line: note("  " + line)
+    )
     section = Section(title, str(rec.path), disc, intro=intro)
     if figures:
         note("  figures ...")
@@ -75,8 +90,11 @@ def section_result(section: Section) -> dict:
     r = section.discovery.report()
     r["recording"] = section.recording
     if section.figures:
-        r["figures"] = {"waterfall": section.figures["waterfall"], "compare": section.figures["compare"],
-                        "steps": [p for _, p in section.figures["steps"]]}
+        r["figures"] = {
+            "waterfall": section.figures["waterfall"],
+            "compare": section.figures["compare"],
+            "steps": [p for _, p in section.figures["steps"]],
+        }
         if "resid" in section.figures:
             r["figures"]["resid"] = section.figures["resid"]
         r["free_run"] = section.free_run
@@ -103,36 +121,62 @@ def write(sections: list[Section], path: Path, title: str = "manus discover") ->
         md += [f"## {sec.title}", ""]
         if sec.intro:
             md += [sec.intro, ""]
-        md += [f"Recording `{sec.recording}`: {disc.start.data.rows.size} rows, torque low-passed at "
-               f"{disc.start.data.cutoff_hz:.1f} Hz. Stopped: **{disc.stopped}**. Final model `{disc.model}`, "
-               f"rel_error **{100 * disc.rel_error:.2f} %** (from {100 * disc.start.rel_error:.2f} %).", ""]
+        md += [
+            f"Recording `{sec.recording}`: {disc.start.data.rows.size} rows, torque low-passed at "
+            f"{disc.start.data.cutoff_hz:.1f} Hz. Stopped: **{disc.stopped}**. Final model `{disc.model}`, "
+            f"rel_error **{100 * disc.rel_error:.2f} %** (from {100 * disc.start.rel_error:.2f} %).",
+            "",
+        ]
         md += [_md_table(step_rows(disc), ["step", "effect added", "parameters (value±std)", "rel_error %"]), ""]
         for n in disc.notes:
             md += [f"- {n}"]
         f = sec.figures
         if "waterfall" in f:
             md += ["### The error falling", "", f"![waterfall]({_link(f['waterfall'], base)})", ""]
-        for (spec, fig), s in zip(f.get("steps", []), disc.steps):
+        for (spec, fig), s in zip(f.get("steps", []), disc.steps, strict=False):
             v = s.verdict
-            md += [f"### Step {s.index}: + `{spec}`", "",
-                   f"The diagnosis of `{s.diagnosis.base.model.spec}` proposed it: it removes "
-                   f"{100 * v.error_reduction:.1f} % of the error ({100 * v.cv_error_reduction:.1f} % on held-out "
-                   f"blocks, p = {v.p_value:.2g}). rel_error {100 * s.rel_error_before:.2f} % → {100 * s.rel_error:.2f} %."
-                   + (f" {s.note}." if s.note else ""), "", f"![{spec}]({_link(fig, base)})", ""]
+            md += [
+                f"### Step {s.index}: + `{spec}`",
+                "",
+                f"The diagnosis of `{s.diagnosis.base.model.spec}` proposed it: it removes "
+                f"{100 * v.error_reduction:.1f} % of the error ({100 * v.cv_error_reduction:.1f} % on held-out "
+                f"blocks, p = {v.p_value:.2g}). rel_error {100 * s.rel_error_before:.2f} % → {100 * s.rel_error:.2f} %."
+                + (f" {s.note}." if s.note else ""),
+                "",
+                f"![{spec}]({_link(fig, base)})",
+                "",
+            ]
         if "resid" in f:
-            md += ["### What is left: the final model's residual", "",
-                   "No effect of the vocabulary is significant on held-out blocks any more; the residual analysis in "
-                   "the spirit of MATLAB `resid` (99 % bands):", "", f"![resid]({_link(f['resid'], base)})", ""]
+            md += [
+                "### What is left: the final model's residual",
+                "",
+                "No effect of the vocabulary is significant on held-out blocks any more; the residual analysis in "
+                "the spirit of MATLAB `resid` (99 % bands):",
+                "",
+                f"![resid]({_link(f['resid'], base)})",
+                "",
+            ]
         if disc.final is not None and disc.final.verdict is None and disc.final.detection_limits:
-            md += ["### How large a missing effect would have to be", "", limits_line(disc.final.detection_limits) + ".", ""]
+            md += [
+                "### How large a missing effect would have to be",
+                "",
+                limits_line(disc.final.detection_limits) + ".",
+                "",
+            ]
         u = disc.unexplained
         if u:
             md += ["### Something left that no effect explains?", "", unexplained_line(u) + ".", ""]
             if "unexplained" in f:
                 md += [f"![unexplained]({_link(f['unexplained'], base)})", ""]
         if "compare" in f:
-            md += ["### The final model against the measurements", "",
-                   f"Measured against predicted torque, and a free run of the fitted model in the JAX simulator "
-                   f"({sec.free_run}).", "", f"![compare]({_link(f['compare'], base)})", ""]
+            md += [
+                "### The final model against the measurements",
+                "",
+                f"Measured against predicted torque, and a free run of the fitted model in the JAX simulator "
+                f"({sec.free_run}).",
+                "",
+                f"![compare]({_link(f['compare'], base)})",
+                "",
+            ]
     path.write_text("\n".join(md) + "\n")
     return str(path)

@@ -96,7 +96,8 @@ def compare(paths) -> dict:
 
 def render(r: dict) -> str:
     lines = [
-        "torque error on the same samples (standstill kept), MANUS-2 absolute angles vs the URDF chain in relative coordinates:",
+        "torque error on the same samples (standstill kept), MANUS-2 absolute angles vs the URDF chain in relative "
+        "coordinates:",
         f"{'file':24s} {'samples':>7s}  {'absolute torques':>22s}  {'motor torques':>22s}  methods",
     ]
     for x in r["recordings"]:

@@ -8,7 +8,8 @@ q1 = the shoulder angle, q2 = the elbow angle relative to link 1, tau = the comm
 (the forces conjugate to those coordinates), with `# structure: urdf` and `# robot:` naming the URDF.
 The driver-reported torques go along as `tau_meas1`, `tau_meas2`, mapped back to the motors.
 
-    python examples/dfki_double_pendulum/to_relative.py ../shared/data/real/dfki_double_pendulum/A0_trajectory_01.csv -o runs/out/dfki
+    python examples/dfki_double_pendulum/to_relative.py \
+        ../shared/data/real/dfki_double_pendulum/A0_trajectory_01.csv -o runs/out/dfki
     manus fit runs/out/dfki/A0_trajectory_01_relative.csv --model rigid,viscous,coulomb
 """
 
@@ -33,12 +34,17 @@ def relative(path: str | Path):
     cols = rec.columns()
     missing = [c for c in NEEDS if c not in cols]
     if missing:
-        raise RecordingError(f"{path}: no column {', '.join(missing)}: not one of the DFKI double pendulum's "
-                             f"exports (they carry {', '.join(NEEDS)})")
+        raise RecordingError(
+            f"{path}: no column {', '.join(missing)}: not one of the DFKI double pendulum's "
+            f"exports (they carry {', '.join(NEEDS)})"
+        )
     meta = {k: v for k, v in rec.meta.items() if k in ("sample_rate_hz", "position_step", "source")}
-    meta.update(structure="urdf", robot=str(URDF.absolute()),
-                units="t s; q1 shoulder angle from the downward vertical, q2 elbow angle relative to link 1 [rad]; "
-                      "tau1, tau2 the commanded motor torques [N m]; tau_meas1, tau_meas2 the driver-reported ones")
+    meta.update(
+        structure="urdf",
+        robot=str(URDF.absolute()),
+        units="t s; q1 shoulder angle from the downward vertical, q2 elbow angle relative to link 1 [rad]; "
+        "tau1, tau2 the commanded motor torques [N m]; tau_meas1, tau_meas2 the driver-reported ones",
+    )
     extra = {}
     if "tau_meas1" in cols and "tau_meas2" in cols:  # mapped back: motor 1 = tau1 + tau2 of the absolute form
         extra = {"tau_meas1": cols["tau_meas1"] + cols["tau_meas2"], "tau_meas2": cols["tau_meas2"]}

@@ -22,12 +22,17 @@ from manus.experiments.stability.steptest import TYPE1, TYPE2, StepTest
 THESIS_POLES = [-186.5, complex(-1.7, 9.9), complex(-1.7, -9.9)]  # §3.7, k = 100, b_c = 2
 THESIS_NEGATIVE_DAMPING = -1.5  # N·s/m, §4.5
 APPENDIX_D_SPRINGS = (0.0, 1050.0, 3826.0)  # N/m
+APPENDIX_D_TEST = StepTest(rate_hz=100.0, step=0.002)  # test 3 of Appendix D: a 2 mm step at 100 Hz
+THESIS_AXIS = LinearAxis()  # the linear model of chapter 4
 
 # Equivalent thresholds, in our normalization (|X|²/N at 1 kHz, a line of amplitude A reads
 # 250 A²), of 10⁻⁶ read in other conventions: a one-sided density in m²/Hz over 1 s (A²/2), and
 # MATLAB's Welch `psd` with a 256-point Hann window (A² 256/6).
-PSD_CONVENTIONS = {"fft |X|^2/N (ours)": 1e-6, "one-sided density m^2/Hz": 1e-6 * 250 / 0.5,
-                   "Welch Hann-256": 1e-6 * 250 / (256 / 6)}
+PSD_CONVENTIONS = {
+    "fft |X|^2/N (ours)": 1e-6,
+    "one-sided density m^2/Hz": 1e-6 * 250 / 0.5,
+    "Welch Hann-256": 1e-6 * 250 / (256 / 6),
+}
 
 
 def finite(x):
@@ -43,22 +48,29 @@ def eq41_poles(k: float = 100.0, b_c: float = 2.0) -> dict:
 
     p = np.sort_complex(control.poles(LinearAxis(delay=0.0).closed_loop(k, b_c)))
     wn = float(np.abs(p[np.argmax(np.abs(p.imag))]))
-    return {"k": k, "b_c": b_c, "poles": [[float(z.real), float(z.imag)] for z in p],
-            "thesis": [[float(np.real(z)), float(np.imag(z))] for z in THESIS_POLES],
-            "natural_hz": wn / (2 * np.pi), "damping_ratio": float(-p[np.argmax(np.abs(p.imag))].real / wn)}
+    return {
+        "k": k,
+        "b_c": b_c,
+        "poles": [[float(z.real), float(z.imag)] for z in p],
+        "thesis": [[float(np.real(z)), float(np.imag(z))] for z in THESIS_POLES],
+        "natural_hz": wn / (2 * np.pi),
+        "damping_ratio": float(-p[np.argmax(np.abs(p.imag))].real / wn),
+    }
 
 
-def type1_curves(b_cs, base: LinearAxis = LinearAxis(), springs=(0.0, *SPRINGS), rate_hz: float = 1000.0) -> dict:
+def type1_curves(b_cs, base: LinearAxis = THESIS_AXIS, springs=(0.0, *SPRINGS), rate_hz: float = 1000.0) -> dict:
     """k_max per b_c: continuous (the thesis's analysis) for each spring; sampled at `rate_hz`
     uncoupled, rigid and with the shaft mode (the linear face of Type 2)."""
     from manus.plants.effects import Compliance
 
     b_cs = np.asarray(b_cs, float)
-    return {"b_c": b_cs.tolist(),
-            "continuous": {f"{s:g}": finite(curve(base.with_(spring=s), b_cs)) for s in springs},
-            "sampled": finite(curve(base, b_cs, rate_hz)),
-            "sampled_shaft": finite(curve(base.with_(shaft=Compliance()), b_cs, rate_hz)),
-            "rate_hz": rate_hz}
+    return {
+        "b_c": b_cs.tolist(),
+        "continuous": {f"{s:g}": finite(curve(base.with_(spring=s), b_cs)) for s in springs},
+        "sampled": finite(curve(base, b_cs, rate_hz)),
+        "sampled_shaft": finite(curve(base.with_(shaft=Compliance()), b_cs, rate_hz)),
+        "rate_hz": rate_hz,
+    }
 
 
 def negative_damping(test: StepTest, ks=(10.0, 30.0, 100.0, 300.0), cluster=None) -> dict:
@@ -69,10 +81,17 @@ def negative_damping(test: StepTest, ks=(10.0, 30.0, 100.0, 300.0), cluster=None
     lin = test.linear()
     sampled = np.array([lin.b_c_min(k, test.rate_hz) for k in ks])
     best = int(np.nanargmin(e.limit)) if np.isfinite(e.limit).any() else 0
-    return {"k": ks.tolist(), "simulated": finite(e.limit), "resolution": float(np.max(np.abs(e.step))),
-            "linear_sampled": finite(sampled), "linear_continuous": finite([lin.b_c_min(k) for k in ks]),
-            "limit": finite(e.limit[best]), "at_k": float(ks[best]), "physical_damping": test.damping,
-            "thesis": THESIS_NEGATIVE_DAMPING}
+    return {
+        "k": ks.tolist(),
+        "simulated": finite(e.limit),
+        "resolution": float(np.max(np.abs(e.step))),
+        "linear_sampled": finite(sampled),
+        "linear_continuous": finite([lin.b_c_min(k) for k in ks]),
+        "limit": finite(e.limit[best]),
+        "at_k": float(ks[best]),
+        "physical_damping": test.damping,
+        "thesis": THESIS_NEGATIVE_DAMPING,
+    }
 
 
 def map_summary(smap, lin: LinearAxis, rate_hz: float) -> dict:
@@ -80,16 +99,30 @@ def map_summary(smap, lin: LinearAxis, rate_hz: float) -> dict:
     t1, t2 = boundary(smap, TYPE1), boundary(smap, TYPE2)
     ok = np.isfinite(smap.limit)
     peak = int(np.nanargmax(np.where(ok, smap.limit, -np.inf))) if ok.any() else 0
-    return {"b_c": smap.b_cs.tolist(), "k": smap.ks.tolist(), "points": int(smap.kinds.size),
-            "limit": finite(smap.limit), "limit_kind": smap.limit_kind.tolist(),
-            "type1_boundary": t1, "type2_boundary": t2, "type1_slope": finite(slope(t1)), "type2_slope": finite(slope(t2)),
-            "peak": {"b_c": float(smap.b_cs[peak]), "k": float(smap.limit[peak])} if ok.any() else None,
-            "stable_fraction": float(np.mean(smap.kinds == 0)),
-            "linear_sampled": finite(curve(lin, smap.b_cs, rate_hz))}
+    return {
+        "b_c": smap.b_cs.tolist(),
+        "k": smap.ks.tolist(),
+        "points": int(smap.kinds.size),
+        "limit": finite(smap.limit),
+        "limit_kind": smap.limit_kind.tolist(),
+        "type1_boundary": t1,
+        "type2_boundary": t2,
+        "type1_slope": finite(slope(t1)),
+        "type2_slope": finite(slope(t2)),
+        "peak": {"b_c": float(smap.b_cs[peak]), "k": float(smap.limit[peak])} if ok.any() else None,
+        "stable_fraction": float(np.mean(smap.kinds == 0)),
+        "linear_sampled": finite(curve(lin, smap.b_cs, rate_hz)),
+    }
 
 
-def appendix_d(b_cs, ks, springs=APPENDIX_D_SPRINGS, base: StepTest = StepTest(rate_hz=100.0, step=0.002),
-               cluster=None, progress: bool = True) -> tuple[dict, dict]:
+def appendix_d(
+    b_cs,
+    ks,
+    springs=APPENDIX_D_SPRINGS,
+    base: StepTest = APPENDIX_D_TEST,
+    cluster=None,
+    progress: bool = True,
+) -> tuple[dict, dict]:
     """Maps at 100 Hz (Appendix D: test 3's 2 mm step) for each spring -> (summary, maps)."""
     maps, out = {}, {"rate_hz": base.rate_hz, "step": base.step, "springs": {}}
     for s in springs:
@@ -101,8 +134,13 @@ def appendix_d(b_cs, ks, springs=APPENDIX_D_SPRINGS, base: StepTest = StepTest(r
 
 def psd_conventions(test: StepTest, smap) -> dict:
     """The Type 2 boundary of a map read with the threshold of each PSD convention (`PSD_CONVENTIONS`)."""
-    return {name: {"threshold": thr, "type2_boundary": boundary(
-        read_map(test, smap.b_cs, smap.ks, smap.metrics, psd_threshold=thr), TYPE2)} for name, thr in PSD_CONVENTIONS.items()}
+    return {
+        name: {
+            "threshold": thr,
+            "type2_boundary": boundary(read_map(test, smap.b_cs, smap.ks, smap.metrics, psd_threshold=thr), TYPE2),
+        }
+        for name, thr in PSD_CONVENTIONS.items()
+    }
 
 
 def type2_example(smap) -> tuple[float, float] | None:

@@ -57,7 +57,7 @@ class LinearAxis:
     spring: float = 0.0
     shaft: Compliance | None = None
 
-    def with_(self, **changes) -> "LinearAxis":
+    def with_(self, **changes) -> LinearAxis:
         return replace(self, **changes)
 
     def state_space(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -68,10 +68,14 @@ class LinearAxis:
         k2, b2 = (float(x) for x in self.shaft.shaft(m))
         mm = self.shaft.motor_fraction * m  # motor: friction b, measured; link: the rest, the spring
         ml = m - mm
-        A = np.array([[0, 1, 0, 0],
-                      [-k2 / mm, -(b + b2) / mm, k2 / mm, b2 / mm],
-                      [0, 0, 0, 1],
-                      [k2 / ml, b2 / ml, -(k2 + ke) / ml, -b2 / ml]])
+        A = np.array(
+            [
+                [0, 1, 0, 0],
+                [-k2 / mm, -(b + b2) / mm, k2 / mm, b2 / mm],
+                [0, 0, 0, 1],
+                [k2 / ml, b2 / ml, -(k2 + ke) / ml, -b2 / ml],
+            ]
+        )
         return A, np.array([[0], [1 / mm], [0], [0]]), np.array([[1.0, 0, 0, 0]])
 
     # -- the loop broken at k ---------------------------------------------------------------------
@@ -108,7 +112,7 @@ class LinearAxis:
         before it for the first d' (d = nT + d'): x_{k+1} = Φ x_k + Γ0 u_{k−n} + Γ1 u_{k−n−1}.
         Past commands are kept in a shift register."""
         phi, gamma0, gamma1, n = self._hold(1.0 / rate_hz)
-        A, B, C = self.state_space()
+        A, _, C = self.state_space()
         nx = A.shape[0]
         regs = n + bool(np.any(gamma1))  # registers hold u_{k−1} ... u_{k−regs}
         Ad = np.zeros((nx + regs, nx + regs))
@@ -117,12 +121,12 @@ class LinearAxis:
         if n == 0:
             Bd[:nx] += gamma0
         else:
-            Ad[:nx, nx + n - 1:nx + n] += gamma0
+            Ad[:nx, nx + n - 1 : nx + n] += gamma0
         if regs > n:
-            Ad[:nx, nx + n:nx + n + 1] += gamma1
+            Ad[:nx, nx + n : nx + n + 1] += gamma1
         if regs:
             Bd[nx, 0] = 1.0
-            Ad[nx + 1:, nx:-1] = np.eye(regs - 1)
+            Ad[nx + 1 :, nx:-1] = np.eye(regs - 1)
         return control.ss(Ad, Bd, np.hstack([C, np.zeros((1, regs))]), 0, 1.0 / rate_hz)
 
     def _hold(self, T: float):
@@ -224,7 +228,7 @@ def _pade(delay: float) -> control.StateSpace:
 
 def _inside(poles: np.ndarray, rate_hz: float | None, strict: bool) -> bool:
     """All poles in the stable region (open when `strict`, else marginal poles allowed)."""
-    margin = (-1e-12 if strict else 1e-9)
+    margin = -1e-12 if strict else 1e-9
     return bool(np.all(np.abs(poles) - 1 < margin) if rate_hz else np.all(poles.real < margin))
 
 

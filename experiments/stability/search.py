@@ -26,8 +26,9 @@ class Edge(NamedTuple):
     kind: np.ndarray  # of the first unstable point: STABLE (none found), TYPE1 or TYPE2
 
 
-def edge(test: StepTest, fixed, start: float, stop: float, along: str = "k", points=(24, 12),
-         cluster=None, **criteria) -> Edge:
+def edge(
+    test: StepTest, fixed, start: float, stop: float, along: str = "k", points=(24, 12), cluster=None, **criteria
+) -> Edge:
     """For each value in `fixed` (b_c when `along` is "k", k when it is "b_c"), the last stable
     value from `start` towards `stop` before the first unstable one. `criteria` go to
     `verdict` (psd_threshold, split_hz, native)."""
@@ -38,8 +39,7 @@ def edge(test: StepTest, fixed, start: float, stop: float, along: str = "k", poi
     for r, n in enumerate(points):
         # round 0: from start to stop inclusive; later: inside (lo, hi), hi being unstable
         frac = np.linspace(0.0, 1.0, n) if r == 0 else np.arange(1, n + 1) / (n + 1)
-        s = (lo[:, None] * (hi / lo)[:, None] ** frac if along == "k"
-             else lo[:, None] + (hi - lo)[:, None] * frac)
+        s = lo[:, None] * (hi / lo)[:, None] ** frac if along == "k" else lo[:, None] + (hi - lo)[:, None] * frac
         other = np.broadcast_to(fixed[:, None], s.shape)
         k, b_c = (s, other) if along == "k" else (other, s)
         v = verdict(sweep.run(test, k, b_c, cluster, progress=False), test, **criteria)
@@ -86,8 +86,11 @@ def read_map(test: StepTest, b_cs, ks, m: Metrics, **criteria) -> StabilityMap:
 
 def boundary(smap: StabilityMap, kind: int) -> list[dict]:
     """The rows whose limit is set by `kind`: [{"b_c", "k"}, ...] (a threshold curve)."""
-    return [{"b_c": float(b), "k": float(k)} for b, k, c in zip(smap.b_cs, smap.limit, smap.limit_kind)
-            if c == kind and np.isfinite(k)]
+    return [
+        {"b_c": float(b), "k": float(k)}
+        for b, k, c in zip(smap.b_cs, smap.limit, smap.limit_kind, strict=True)
+        if c == kind and np.isfinite(k)
+    ]
 
 
 def slope(points: list[dict]) -> float:

@@ -16,33 +16,49 @@ moves, *not reproduced* otherwise.
 
 from __future__ import annotations
 
+from itertools import pairwise
+
 from manus.experiments.stability.analysis import finite
 from manus.experiments.stability.search import edge
 from manus.experiments.stability.steptest import KINDS, TYPE1, TYPE2, StepTest
 
 PROBE_B_C = (0.0, 5.0, 20.0, 25.0, 30.0)  # N·s/m: k limits found here
+THESIS_TEST = StepTest()  # the thesis's step test
 PROBE_K = 300.0  # N/m: the b_c limit found here
-VARIATIONS = {"delay": (0.0, 0.0005, 0.001, 0.002), "quantum": (1.2e-5, 2.4e-5, 4.8e-5),
-              "rate_hz": (500.0, 1000.0, 2000.0)}
+VARIATIONS = {
+    "delay": (0.0, 0.0005, 0.001, 0.002),
+    "quantum": (1.2e-5, 2.4e-5, 4.8e-5),
+    "rate_hz": (500.0, 1000.0, 2000.0),
+}
 # (parameter, claim, instability type, how the parameter changes, how the threshold should move)
-CLAIMS = (("delay", "less delay raises the Type 1 threshold", TYPE1, "down", "up"),
-          ("delay", "less delay raises the Type 2 threshold", TYPE2, "down", "up"),
-          ("quantum", "a finer quantizer raises the Type 2 threshold", TYPE2, "down", "up"),
-          ("rate_hz", "faster sampling lowers the Type 2 threshold", TYPE2, "up", "down"))
+CLAIMS = (
+    ("delay", "less delay raises the Type 1 threshold", TYPE1, "down", "up"),
+    ("delay", "less delay raises the Type 2 threshold", TYPE2, "down", "up"),
+    ("quantum", "a finer quantizer raises the Type 2 threshold", TYPE2, "down", "up"),
+    ("rate_hz", "faster sampling lowers the Type 2 threshold", TYPE2, "up", "down"),
+)
 
 
 def limits(test: StepTest, cluster=None, native: bool = False) -> list[dict]:
     """The probes' limits for one setting: [{"probe", "b_c" or "k", "limit", "step", "kind"}]."""
     k_edge = edge(test, PROBE_B_C, 30.0, 3e4, cluster=cluster, native=native)
     b_edge = edge(test, [PROBE_K], 0.0, 60.0, along="b_c", cluster=cluster, native=native)
-    rows = [{"probe": f"k at b_c={b:g}", "limit": finite(x), "step": float(s), "kind": KINDS[int(c)]}
-            for b, x, s, c in zip(PROBE_B_C, *k_edge)]
-    rows.append({"probe": f"b_c at k={PROBE_K:g}", "limit": finite(b_edge.limit[0]), "step": float(b_edge.step[0]),
-                 "kind": KINDS[int(b_edge.kind[0])]})
+    rows = [
+        {"probe": f"k at b_c={b:g}", "limit": finite(x), "step": float(s), "kind": KINDS[int(c)]}
+        for b, x, s, c in zip(PROBE_B_C, *k_edge, strict=True)
+    ]
+    rows.append(
+        {
+            "probe": f"b_c at k={PROBE_K:g}",
+            "limit": finite(b_edge.limit[0]),
+            "step": float(b_edge.step[0]),
+            "kind": KINDS[int(b_edge.kind[0])],
+        }
+    )
     return rows
 
 
-def sensitivity(base: StepTest = StepTest(), variations=None, cluster=None) -> dict:
+def sensitivity(base: StepTest = THESIS_TEST, variations=None, cluster=None) -> dict:
     """Limits for every value of every parameter (the others at `base`), and the claims.
 
     Two readings of the thesis are checked beside the default (the PSD of the measured
@@ -59,8 +75,11 @@ def sensitivity(base: StepTest = StepTest(), variations=None, cluster=None) -> d
     for label, name, test, native in tables:
         rows = [{"value": v, "probes": limits(test.with_(**{name: v}), cluster, native)} for v in variations[name]]
         out["tables"].append({"label": label, "parameter": name, "rows": rows})
-        out["claims"] += [check(rows, text, kind, change, move) | {"parameter": name, "reading": label}
-                          for p, text, kind, change, move in CLAIMS if p == name and (label == name or kind == TYPE2)]
+        out["claims"] += [
+            check(rows, text, kind, change, move) | {"parameter": name, "reading": label}
+            for p, text, kind, change, move in CLAIMS
+            if p == name and (label == name or kind == TYPE2)
+        ]
     return out
 
 
@@ -73,15 +92,31 @@ def check(rows: list[dict], claim: str, kind: int, change: str, move: str) -> di
     outcome = {}
     for j, probe in enumerate(rows[0]["probes"]):
         seq = [r["probes"][j] for r in rows]
-        signs = [s for a, b in zip(seq, seq[1:]) if (s := _direction(a, b, KINDS[kind])) is not None]
+        signs = [s for a, b in pairwise(seq) if (s := _direction(a, b, KINDS[kind])) is not None]
         if signs:
-            outcome[probe["probe"]] = ("as claimed" if all(s == want for s in signs) else
-                                       "opposite" if all(s == -want for s in signs) else
-                                       "unchanged" if all(s == 0 for s in signs) else "mixed")
+            outcome[probe["probe"]] = (
+                "as claimed"
+                if all(s == want for s in signs)
+                else "opposite"
+                if all(s == -want for s in signs)
+                else "unchanged"
+                if all(s == 0 for s in signs)
+                else "mixed"
+            )
     votes = set(outcome.values())
-    verdict = ("not comparable" if not votes else "reproduced" if votes == {"as claimed"}
-               else "partly" if "as claimed" in votes else "contradicted" if votes == {"opposite"}
-               else "unchanged" if votes == {"unchanged"} else "not reproduced")
+    verdict = (
+        "not comparable"
+        if not votes
+        else "reproduced"
+        if votes == {"as claimed"}
+        else "partly"
+        if "as claimed" in votes
+        else "contradicted"
+        if votes == {"opposite"}
+        else "unchanged"
+        if votes == {"unchanged"}
+        else "not reproduced"
+    )
     return {"claim": claim, "verdict": verdict, "probes": outcome, "values": [r["value"] for r in rows]}
 
 

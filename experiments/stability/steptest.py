@@ -50,10 +50,10 @@ import numpy as np
 
 from manus.adaptive.impedance import Impedance
 from manus.estimators.base import FilteredFirstDifference
+from manus.experiments.stability.linear import LinearAxis
 from manus.plants import Axis, Encoder, Model, Simulator
 from manus.plants.effects import Compliance, Effect, per_joint, stack
 from manus.plants.references import Step
-from manus.experiments.stability.linear import LinearAxis
 
 THESIS_PSD = 1e-6  # m², the thesis's Type 2 criterion (§4.5)
 SAMPLES_1KHZ = 1000  # the thesis's last second: 1000 samples
@@ -114,7 +114,7 @@ class StepTest:
         if self.signal not in ("measured", "true"):
             raise ValueError(f"StepTest.signal: {self.signal!r} is neither 'measured' nor 'true'")
 
-    def with_(self, **changes) -> "StepTest":
+    def with_(self, **changes) -> StepTest:
         return replace(self, **changes)
 
     @property
@@ -127,27 +127,39 @@ class StepTest:
         return int(round(self.rate_hz))
 
     def plant(self) -> Simulator:
-        effects = ["rigid", "viscous", *(["compliance"] if self.compliance else []),
-                   *([f"delay:{self.delay}"] if self.delay > 0 else [])]
+        effects = [
+            "rigid",
+            "viscous",
+            *(["compliance"] if self.compliance else []),
+            *([f"delay:{self.delay}"] if self.delay > 0 else []),
+        ]
         model = Model(Axis(), ",".join(effects))
         params = {"M1": self.mass, "b1": self.damping}
         if self.spring:
             model = Model(model.structure, (*model.effects, EnvironmentSpring()))
             params["kenv1"] = self.spring
-        return Simulator(model, params, rate_hz=self.rate_hz, substeps=max(1, round(self.physics_hz / self.rate_hz)),
-                         actuator=None, encoder=Encoder(step=self.quantum) if self.quantum > 0 else None)
+        return Simulator(
+            model,
+            params,
+            rate_hz=self.rate_hz,
+            substeps=max(1, round(self.physics_hz / self.rate_hz)),
+            actuator=None,
+            encoder=Encoder(step=self.quantum) if self.quantum > 0 else None,
+        )
 
     def controller(self, k, b_c) -> Impedance:
-        return Impedance(k, b_c, FilteredFirstDifference(dt=1.0 / self.rate_hz, corner=self.corner),
-                         limit=self.limit, n_joints=1)
+        return Impedance(
+            k, b_c, FilteredFirstDifference(dt=1.0 / self.rate_hz, corner=self.corner), limit=self.limit, n_joints=1
+        )
 
     def reference(self) -> Step:
         return Step(jnp.zeros(1), jnp.full(1, self.step), self.at)
 
     def linear(self) -> LinearAxis:
         """The linear model of the same axis (Type 1 analysis; with the shaft mode if compliant)."""
-        return LinearAxis(self.mass, self.damping, self.corner, self.delay, self.spring,
-                          Compliance() if self.compliance else None)
+        return LinearAxis(
+            self.mass, self.damping, self.corner, self.delay, self.spring, Compliance() if self.compliance else None
+        )
 
     # -- one trial, traceable -------------------------------------------------------------------
     def last_second(self, k, b_c):
@@ -175,8 +187,14 @@ class StepTest:
         band = jnp.where(jnp.asarray(in_band), psd, -1.0)
         peak = jnp.argmax(band)
         move = self.step * k / (k + self.spring)  # the spring takes its share of the step
-        return Metrics(jnp.max(jnp.abs(x - move)), move, jnp.maximum(band[peak], 0.0), jnp.asarray(f)[peak],
-                       jnp.asarray(f)[jnp.argmax(psd.at[0].set(0.0))], jnp.asarray(x.shape[0]))
+        return Metrics(
+            jnp.max(jnp.abs(x - move)),
+            move,
+            jnp.maximum(band[peak], 0.0),
+            jnp.asarray(f)[peak],
+            jnp.asarray(f)[jnp.argmax(psd.at[0].set(0.0))],
+            jnp.asarray(x.shape[0]),
+        )
 
 
 def periodogram(x, rate_hz: float):
@@ -186,6 +204,7 @@ def periodogram(x, rate_hz: float):
     n = x.shape[-1]
     X = jnp.fft.rfft(x - jnp.mean(x, axis=-1, keepdims=True))
     return np.fft.rfftfreq(n, 1.0 / rate_hz), jnp.abs(X) ** 2 / n * (SAMPLES_1KHZ / n)
+
 
 @functools.lru_cache(maxsize=32)
 def batched(test: StepTest):
@@ -198,8 +217,9 @@ STABLE, TYPE1, TYPE2 = 0, 1, 2
 KINDS = {STABLE: "stable", TYPE1: "type1", TYPE2: "type2"}
 
 
-def verdict(m: Metrics, test: StepTest, psd_threshold: float = THESIS_PSD, split_hz: float = 100.0,
-            native: bool = False) -> np.ndarray:
+def verdict(
+    m: Metrics, test: StepTest, psd_threshold: float = THESIS_PSD, split_hz: float = 100.0, native: bool = False
+) -> np.ndarray:
     """STABLE, TYPE1 or TYPE2 per trial (see the module docstring). An oscillation counts as
     sustained when it reaches the step's move of the equilibrium (and at least one encoder
     step: below that the test cannot see it). `native`: compare the PSD in the rate-dependent

@@ -16,8 +16,8 @@ import sys
 
 import numpy as np
 
-from manus.plants.errors import ManusError, require
 from manus.experiments.stability.steptest import Metrics, StepTest, batched
+from manus.plants.errors import ManusError, require
 
 CHUNK = 512  # points per Dask task
 
@@ -78,15 +78,16 @@ def distributed(test: StepTest, k, b_c, cluster, chunk: int = CHUNK, progress: b
     shape, n = k.shape, k.size
     pad = -n % chunk
     k, b_c = (np.concatenate([x.ravel(), np.repeat(x.ravel()[-1:], pad)]) for x in (k, b_c))
-    parts = [(k[i:i + chunk], b_c[i:i + chunk]) for i in range(0, n + pad, chunk)]
+    parts = [(k[i : i + chunk], b_c[i : i + chunk]) for i in range(0, n + pad, chunk)]
     client = client_for(cluster)
     try:
-        results = _gather(client, [client.submit(_chunk, test, a, b, pure=False) for a, b in parts],
-                          f"sweep {n} points", progress)
+        results = _gather(
+            client, [client.submit(_chunk, test, a, b, pure=False) for a, b in parts], f"sweep {n} points", progress
+        )
     finally:
         if client is not cluster:  # ours: made from an address
             client.close()
-    return Metrics(*(np.concatenate(x)[:n].reshape(shape) for x in zip(*results)))
+    return Metrics(*(np.concatenate(x)[:n].reshape(shape) for x in zip(*results, strict=True)))
 
 
 def _gather(client, futures, desc: str, progress: bool) -> list:

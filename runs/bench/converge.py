@@ -87,8 +87,10 @@ def bare_plant(trials: int, seconds: float, repeats: int) -> dict:
     keys = jax.random.split(jax.random.PRNGKey(0), trials)
     out = {}
     for every in (1, 100):
-        def batch():
+
+        def batch(every=every):
             return simulate_batch(plant, controllers, reference, seconds, keys, batched=("controller",), every=every)
+
         batch()  # compile
         wall, cpu = _best(batch, repeats)
         out[every] = trials * int(round(seconds / plant.dt)) / wall
@@ -99,15 +101,14 @@ def bare_plant(trials: int, seconds: float, repeats: int) -> dict:
 def run(args) -> dict:
     import equinox as eqx
     import jax
-
     import jax.numpy as jnp
 
     from manus.adaptive.slotine_li import trial
+    from manus.experiments.convergence import EVERY, RECORD, controller_for, run_trials, summarize
     from manus.plants import Model, Simulator
     from manus.plants.errors import ManusError
     from manus.plants.references import Complex
     from manus.plants.structures import Manus2
-    from manus.experiments.convergence import EVERY, RECORD, controller_for, run_trials, summarize
     from manus.runs.text import note
 
     if args.trials < 1 or args.sample < 1 or args.repeats < 1 or args.seconds <= 0 or args.tick_sample <= 0:
@@ -119,11 +120,14 @@ def run(args) -> dict:
     steps = EVERY * max(1, int(round(args.seconds / plant.dt / EVERY)))
     seconds = steps * plant.dt
 
-    note(f"batch of {args.trials} trials ({seconds:g} s each) on {len(jax.devices())} device(s): compiling, "
-         f"then best of {args.repeats} ...")
+    note(
+        f"batch of {args.trials} trials ({seconds:g} s each) on {len(jax.devices())} device(s): compiling, "
+        f"then best of {args.repeats} ..."
+    )
     first, _ = _timed(lambda: summarize(run_trials(plant, controller, reference, args.trials, seconds)))
-    batch, batch_cpu = _best(lambda: summarize(run_trials(plant, controller, reference, args.trials, seconds, seed=1)),
-                             args.repeats)
+    batch, batch_cpu = _best(
+        lambda: summarize(run_trials(plant, controller, reference, args.trials, seconds, seed=1)), args.repeats
+    )
 
     note(f"one by one, a scan per trial: {args.sample} trial(s) ...")
     truth = jnp.asarray([float(plant.params.get(k, 0.0)) for k in controller.names])
@@ -168,32 +172,51 @@ def run(args) -> dict:
         "batch_compile_s": first - batch,
         "scan_compile_s": compile_one - scan_s,
     }
-    return {"figures": figures, "speedup": scan_s * args.trials / batch, "speedup_vs_tick_loop": tick_s * args.trials / batch,
-            "speedup_cpu": scan_cpu / steps * 1e9 / batch_cpu_ns, "load_average": os.getloadavg()[0], "cores": os.cpu_count(),
-            "of_bare_plant": args.trials * steps / batch / bare["record_every_tick"], "bare_plant": bare["plant"],
-            "trials": args.trials, "seconds": seconds, "model": model.spec, "law": args.law, "devices": devices,
-            "note": (f"one-by-one rates timed on {args.sample} scanned trial(s) and {ticks} ticks of one trial, "
-                     f"extrapolated to {args.trials} trials of {seconds:g} s; compilation excluded")}
+    return {
+        "figures": figures,
+        "speedup": scan_s * args.trials / batch,
+        "speedup_vs_tick_loop": tick_s * args.trials / batch,
+        "speedup_cpu": scan_cpu / steps * 1e9 / batch_cpu_ns,
+        "load_average": os.getloadavg()[0],
+        "cores": os.cpu_count(),
+        "of_bare_plant": args.trials * steps / batch / bare["record_every_tick"],
+        "bare_plant": bare["plant"],
+        "trials": args.trials,
+        "seconds": seconds,
+        "model": model.spec,
+        "law": args.law,
+        "devices": devices,
+        "note": (
+            f"one-by-one rates timed on {args.sample} scanned trial(s) and {ticks} ticks of one trial, "
+            f"extrapolated to {args.trials} trials of {seconds:g} s; compilation excluded"
+        ),
+    }
 
 
 def render(r: dict) -> str:
     f = r["figures"]
-    return "\n".join([
-        f"benchmark converge: {r['trials']} trials of {r['seconds']:g} s, model {r['model']}, {r['law']} law",
-        f"  batch (vmapped scan, {r['devices']} device(s)): {f['batch_trials_per_s']:8.2f} trials/s  "
-        f"({f['batch_trial_steps_per_s']:.3g} trial-steps/s, {f['batch_cpu_ns_per_trial_step']:.0f} ns CPU per "
-        f"trial-step; compile {f['batch_compile_s']:.1f} s)",
-        f"  one by one, scan per trial:  {f['scan_loop_trials_per_s']:8.2f} trials/s  "
-        f"({f['scan_loop_trial_steps_per_s']:.3g} steps/s; compile {f['scan_compile_s']:.1f} s)",
-        f"  one by one, tick by tick:    {f['tick_loop_trials_per_s']:8.3f} trials/s  ({f['tick_loop_us_per_tick']:.0f} µs per tick)",
-        f"  speedup of the batch: {r['speedup']:.3g}x over the scan loop, {r['speedup_vs_tick_loop']:.3g}x over the tick loop",
-        f"  the bare plant ({r['bare_plant']} under impedance control, manus bench sim's batch, same size): "
-        f"{f['bare_plant_batch_trial_steps_per_s']:.3g} trial-steps/s recording every tick "
-        f"({f['bare_plant_batch_cpu_ns_per_trial_step']:.0f} ns CPU per trial-step), "
-        f"{f['bare_plant_batch_every_100_trial_steps_per_s']:.3g} every 100th; the convergence batch runs at "
-        f"{100 * r['of_bare_plant']:.0f} % of the first",
-        f"  in CPU time: the batch {f['batch_cpu_ns_per_trial_step']:.0f} ns per trial-step, the scan loop "
-        f"{f['scan_loop_cpu_ns_per_step']:.0f} ns per step: {r['speedup_cpu']:.3g}x less work; with "
-        f"{r['devices']} core(s) to itself the batch would run {f['batch_trial_steps_per_s_idle']:.3g} trial-steps/s "
-        f"(1-min load average {r['load_average']:.1f} on {r['cores']} cores at the end, this run included)",
-        f"  ({r['note']})"])
+    return "\n".join(
+        [
+            f"benchmark converge: {r['trials']} trials of {r['seconds']:g} s, model {r['model']}, {r['law']} law",
+            f"  batch (vmapped scan, {r['devices']} device(s)): {f['batch_trials_per_s']:8.2f} trials/s  "
+            f"({f['batch_trial_steps_per_s']:.3g} trial-steps/s, {f['batch_cpu_ns_per_trial_step']:.0f} ns CPU per "
+            f"trial-step; compile {f['batch_compile_s']:.1f} s)",
+            f"  one by one, scan per trial:  {f['scan_loop_trials_per_s']:8.2f} trials/s  "
+            f"({f['scan_loop_trial_steps_per_s']:.3g} steps/s; compile {f['scan_compile_s']:.1f} s)",
+            f"  one by one, tick by tick:    {f['tick_loop_trials_per_s']:8.3f} trials/s  "
+            f"({f['tick_loop_us_per_tick']:.0f} µs per tick)",
+            f"  speedup of the batch: {r['speedup']:.3g}x over the scan loop, {r['speedup_vs_tick_loop']:.3g}x over "
+            "the tick loop",
+            f"  the bare plant ({r['bare_plant']} under impedance control, manus bench sim's batch, same size): "
+            f"{f['bare_plant_batch_trial_steps_per_s']:.3g} trial-steps/s recording every tick "
+            f"({f['bare_plant_batch_cpu_ns_per_trial_step']:.0f} ns CPU per trial-step), "
+            f"{f['bare_plant_batch_every_100_trial_steps_per_s']:.3g} every 100th; the convergence batch runs at "
+            f"{100 * r['of_bare_plant']:.0f} % of the first",
+            f"  in CPU time: the batch {f['batch_cpu_ns_per_trial_step']:.0f} ns per trial-step, the scan loop "
+            f"{f['scan_loop_cpu_ns_per_step']:.0f} ns per step: {r['speedup_cpu']:.3g}x less work; with "
+            f"{r['devices']} core(s) to itself the batch would run {f['batch_trial_steps_per_s_idle']:.3g} "
+            "trial-steps/s "
+            f"(1-min load average {r['load_average']:.1f} on {r['cores']} cores at the end, this run included)",
+            f"  ({r['note']})",
+        ]
+    )

@@ -29,6 +29,7 @@ diagnose at another family-wise level or number of held-out blocks, to see what 
 
 from __future__ import annotations
 
+import math
 import os
 import time
 
@@ -43,35 +44,66 @@ NAMES = ("a1", "a2", "a3", "b1", "b2", "Fc1", "Fc2")
 def add_arguments(p) -> None:
     p.add_argument("--seconds", type=float, default=20.0, help="length of the simulated recording [s]")
     p.add_argument("--repeats", type=int, default=2, help="best of this many timed runs after the first")
-    p.add_argument("--calibrate", action="store_true",
-                   help="false-alarm and detection rates over the calibration set (manus.experiments.calibration)")
-    p.add_argument("--recordings", type=int, default=100,
-                   help="with --calibrate: recordings with nothing missing, and this many per hidden effect")
+    p.add_argument(
+        "--calibrate",
+        action="store_true",
+        help="false-alarm and detection rates over the calibration set (manus.experiments.calibration)",
+    )
+    p.add_argument(
+        "--recordings",
+        type=int,
+        default=100,
+        help="with --calibrate: recordings with nothing missing, and this many per hidden effect",
+    )
     p.add_argument("--seed", type=int, default=0, help="with --calibrate: the first seed of the set")
-    p.add_argument("--effects", default="",
-                   help="with --calibrate: a comma-separated subset of the hidden effects (default: every effect; "
-                        "'none': the recordings with nothing missing only)")
-    p.add_argument("--alpha", type=float, default=None,
-                   help="with --calibrate: the family-wise significance level diagnose uses (default: its own, "
-                        "manus.adaptive.ALPHA), to see what another level would give")
-    p.add_argument("--blocks", type=int, default=None,
-                   help="with --calibrate: held-out blocks per recording (default: diagnose's own, "
-                        "manus.adaptive.BLOCKS)")
-    p.add_argument("--jobs", type=int, default=0,
-                   help="with --calibrate: worker processes (default: one per core)")
-    p.add_argument("--amplitude", type=float, default=None,
-                   help="with --calibrate: a hidden effect's torque RMS as a fraction of the recorded torque's "
-                        "(default: the set's own, 0.05); a detection curve is one run per amplitude")
-    p.add_argument("--lost", type=float, default=0.0,
-                   help="with --calibrate: lose this fraction of each recording's samples at random, as a real-time "
-                        "loop that misses packets does (a step of 2T in t; default 0)")
-    p.add_argument("--simulator", choices=("manus", "independent"), default="manus",
-                   help="with --calibrate: the recordings' simulator: manus's own, or the one written independently "
-                        "from the equations (regularized friction, RK4, a PD loop, read back from CSV files; "
-                        "manus.experiments.independent)")
-    p.add_argument("--rates", default="",
-                   help="with --calibrate: comma-separated sample rates [Hz] the recordings are drawn at (default: "
-                        "the set's own, 1000,200), e.g. your rig's")
+    p.add_argument(
+        "--effects",
+        default="",
+        help="with --calibrate: a comma-separated subset of the hidden effects (default: every effect; "
+        "'none': the recordings with nothing missing only)",
+    )
+    p.add_argument(
+        "--alpha",
+        type=float,
+        default=None,
+        help="with --calibrate: the family-wise significance level diagnose uses (default: its own, "
+        "manus.adaptive.ALPHA), to see what another level would give",
+    )
+    p.add_argument(
+        "--blocks",
+        type=int,
+        default=None,
+        help="with --calibrate: held-out blocks per recording (default: diagnose's own, manus.adaptive.BLOCKS)",
+    )
+    p.add_argument("--jobs", type=int, default=0, help="with --calibrate: worker processes (default: one per core)")
+    p.add_argument(
+        "--amplitude",
+        type=float,
+        default=None,
+        help="with --calibrate: a hidden effect's torque RMS as a fraction of the recorded torque's "
+        "(default: the set's own, 0.05); a detection curve is one run per amplitude",
+    )
+    p.add_argument(
+        "--lost",
+        type=float,
+        default=0.0,
+        help="with --calibrate: lose this fraction of each recording's samples at random, as a real-time "
+        "loop that misses packets does (a step of 2T in t; default 0)",
+    )
+    p.add_argument(
+        "--simulator",
+        choices=("manus", "independent"),
+        default="manus",
+        help="with --calibrate: the recordings' simulator: manus's own, or the one written independently "
+        "from the equations (regularized friction, RK4, a PD loop, read back from CSV files; "
+        "manus.experiments.independent)",
+    )
+    p.add_argument(
+        "--rates",
+        default="",
+        help="with --calibrate: comma-separated sample rates [Hz] the recordings are drawn at (default: "
+        "the set's own, 1000,200), e.g. your rig's",
+    )
 
 
 def mean_sign(v: np.ndarray, a: np.ndarray, dt: float) -> np.ndarray:
@@ -129,13 +161,13 @@ def run(args) -> dict:
     import jax
 
     from manus.adaptive import diagnose, fit, prepare
+    from manus.adaptive.impedance import Impedance
     from manus.plants import Manus2, Model, Simulator
     from manus.plants.closed_loop import simulate
     from manus.plants.errors import ManusError
     from manus.plants.recording import from_trajectory
     from manus.plants.references import MultiSine
     from manus.plants.simulator import workspace_centre
-    from manus.adaptive.impedance import Impedance
     from manus.runs.text import note
 
     if args.seconds < 5 or args.repeats < 0:
@@ -143,8 +175,13 @@ def run(args) -> dict:
     load = os.getloadavg()[0]
     note(f"simulating {args.seconds:g} s of the arm (truth {TRUTH}) ...")
     plant = Simulator(Model(Manus2(), TRUTH))
-    traj = simulate(plant, Impedance(30.0, 1.0), MultiSine(np.asarray(workspace_centre(plant.model))), args.seconds,
-                    key=jax.random.PRNGKey(0))
+    traj = simulate(
+        plant,
+        Impedance(30.0, 1.0),
+        MultiSine(np.asarray(workspace_centre(plant.model))),
+        args.seconds,
+        key=jax.random.PRNGKey(0),
+    )
     rec = from_trajectory(traj, plant.rate_hz, "manus2", 131072, {"truth": TRUTH})
     rec.path = "<bench: simulated arm>"
     note(f"diagnose {MODEL} (all candidates), first call then best of {args.repeats} ...")
@@ -156,38 +193,63 @@ def run(args) -> dict:
     (theta, sp_err), sp_first, sp_best = _timed(lambda: scipy_fit(data, f.delay), args.repeats)
     ref = np.array([f.params[k] for k in NAMES])
     d_best = d_first if not args.repeats else d_best
-    return {"figures": {"diagnose_s": d_best, "diagnose_first_call_s": d_first, "fit_s": f_best if args.repeats else f_first,
-                        "fit_first_call_s": f_first, "scipy_least_squares_s": sp_best if args.repeats else sp_first},
-            "diagnose_over_scipy": (d_best) / (sp_best if args.repeats else sp_first),
-            "candidates": len(d.candidates), "verdict": d.verdict.spec if d.verdict else None,
-            "rows": int(data.rows.size), "samples": len(rec), "cutoff_hz": data.cutoff_hz,
-            "rel_error": {"fit": f.rel_error, "scipy": sp_err},
-            "scipy_vs_fit_max_rel_diff": float(np.max(np.abs(theta - ref) / np.abs(ref))),
-            "truth": TRUTH, "model": MODEL, "seconds": args.seconds, "repeats": args.repeats, "load_average": load,
-            "cpu_count": os.cpu_count()}
+    return {
+        "figures": {
+            "diagnose_s": d_best,
+            "diagnose_first_call_s": d_first,
+            "fit_s": f_best if args.repeats else f_first,
+            "fit_first_call_s": f_first,
+            "scipy_least_squares_s": sp_best if args.repeats else sp_first,
+        },
+        "diagnose_over_scipy": (d_best) / (sp_best if args.repeats else sp_first),
+        "candidates": len(d.candidates),
+        "verdict": d.verdict.spec if d.verdict else None,
+        "rows": int(data.rows.size),
+        "samples": len(rec),
+        "cutoff_hz": data.cutoff_hz,
+        "rel_error": {"fit": f.rel_error, "scipy": sp_err},
+        "scipy_vs_fit_max_rel_diff": float(np.max(np.abs(theta - ref) / np.abs(ref))),
+        "truth": TRUTH,
+        "model": MODEL,
+        "seconds": args.seconds,
+        "repeats": args.repeats,
+        "load_average": load,
+        "cpu_count": os.cpu_count(),
+    }
 
 
 def render(r: dict) -> str:
     if "calibration" in r:
         return render_calibration(r)
     f = r["figures"]
-    return "\n".join([
-        f"diagnose {r['model']} on {r['seconds']:g} s of the simulated arm (truth {r['truth']}), {r['samples']} samples "
-        f"at 1 kHz -> {r['rows']} rows at a {r['cutoff_hz']:.1f} Hz cut-off, {r['cpu_count']} CPUs, load {r['load_average']:.2f}",
-        f"  diagnose, {r['candidates']} candidates (verdict {r['verdict']}): {f['diagnose_s']:.2f} s "
-        f"(first call, with compilation: {f['diagnose_first_call_s']:.2f} s)",
-        f"  fit of the nominal model alone:          {f['fit_s']:.3f} s (first call {f['fit_first_call_s']:.2f} s)",
-        f"  scipy.optimize.least_squares, same model: {f['scipy_least_squares_s']:.3f} s; its parameters within "
-        f"{100 * r['scipy_vs_fit_max_rel_diff']:.2g} % of fit's (rel_error {100 * r['rel_error']['scipy']:.2f} % "
-        f"against fit's {100 * r['rel_error']['fit']:.2f} %)",
-        f"  diagnose costs {r['diagnose_over_scipy']:.3g} plain scipy fits",
-    ])
+    return "\n".join(
+        [
+            f"diagnose {r['model']} on {r['seconds']:g} s of the simulated arm (truth {r['truth']}), {r['samples']} "
+            "samples "
+            f"at 1 kHz -> {r['rows']} rows at a {r['cutoff_hz']:.1f} Hz cut-off, {r['cpu_count']} CPUs, load "
+            f"{r['load_average']:.2f}",
+            f"  diagnose, {r['candidates']} candidates (verdict {r['verdict']}): {f['diagnose_s']:.2f} s "
+            f"(first call, with compilation: {f['diagnose_first_call_s']:.2f} s)",
+            f"  fit of the nominal model alone:          {f['fit_s']:.3f} s (first call {f['fit_first_call_s']:.2f} s)",
+            f"  scipy.optimize.least_squares, same model: {f['scipy_least_squares_s']:.3f} s; its parameters within "
+            f"{100 * r['scipy_vs_fit_max_rel_diff']:.2g} % of fit's (rel_error {100 * r['rel_error']['scipy']:.2f} % "
+            f"against fit's {100 * r['rel_error']['fit']:.2f} %)",
+            f"  diagnose costs {r['diagnose_over_scipy']:.3g} plain scipy fits",
+        ]
+    )
 
 
 # -- the calibration set -------------------------------------------------------------------------
-def run_one(seed: int, hidden: str | None, alpha: float | None = None, blocks: int | None = None,
-            rates: tuple | None = None, amplitude: float | None = None, lost: float = 0.0,
-            simulator: str = "manus") -> dict:
+def run_one(
+    seed: int,
+    hidden: str | None,
+    alpha: float | None = None,
+    blocks: int | None = None,
+    rates: tuple | None = None,
+    amplitude: float | None = None,
+    lost: float = 0.0,
+    simulator: str = "manus",
+) -> dict:
     """`manus.experiments.judging.judge` in a worker: float64 and the environment, as `manus`
     runs (a spawned worker was not started by it)."""
     from manus.runs.cli import configure_jax
@@ -199,10 +261,10 @@ def run_one(seed: int, hidden: str | None, alpha: float | None = None, blocks: i
 
 
 def calibrate(args) -> dict:
-    from manus.experiments.judging import case_seed, summarize
     from manus.adaptive import ALPHA, BLOCKS
-    from manus.plants.errors import ManusError
     from manus.experiments import calibration
+    from manus.experiments.judging import case_seed, summarize
+    from manus.plants.errors import ManusError
     from manus.runs.text import note
 
     n = args.recordings
@@ -219,16 +281,19 @@ def calibrate(args) -> dict:
         chosen = [e.strip() for e in args.effects.split(",") if e.strip()]
         bad = [e for e in chosen if e not in effects]
         if bad:
-            raise ManusError(f"--effects: unknown effect(s) {', '.join(bad)}: the {simulator} simulator hides "
-                             f"{', '.join(effects)}")
+            raise ManusError(
+                f"--effects: unknown effect(s) {', '.join(bad)}: the {simulator} simulator hides {', '.join(effects)}"
+            )
         effects = tuple(chosen)
     rates = independent.RATES if simulator == "independent" else calibration.RATES
     if args.rates:
         try:
             rates = calibration.check_rates([float(r) for r in args.rates.split(",") if r.strip()])
         except ValueError:
-            raise ManusError(f"--rates {args.rates!r}: comma-separated sample rates, whole numbers of Hz from 100 "
-                             "to 20000 (e.g. 500,2000)") from None
+            raise ManusError(
+                f"--rates {args.rates!r}: comma-separated sample rates, whole numbers of Hz from 100 "
+                "to 20000 (e.g. 500,2000)"
+            ) from None
     amplitude = args.amplitude
     try:
         amplitude = calibration.check_amplitude(calibration.AMPLITUDE if amplitude is None else amplitude)
@@ -236,8 +301,10 @@ def calibrate(args) -> dict:
         raise ManusError(f"--amplitude: {e}") from None
     plan = [(case_seed(args.seed, 0, i), None) for i in range(n)]
     plan += [(case_seed(args.seed, 1 + vocabulary.index(e), i), e) for e in effects for i in range(n)]
-    note(f"calibration: {n} recordings with nothing missing and {n} per hidden effect ({', '.join(effects)}): "
-         f"{len(plan)} in all")
+    note(
+        f"calibration: {n} recordings with nothing missing and {n} per hidden effect ({', '.join(effects)}): "
+        f"{len(plan)} in all"
+    )
     if args.alpha is not None and not 0 < args.alpha < 1:
         raise ManusError(f"--alpha must lie between 0 and 1 (got {args.alpha})")
     jobs = args.jobs or os.cpu_count() or 1
@@ -256,11 +323,14 @@ def calibrate(args) -> dict:
         results.append(r)
         if r["outcome"] in ("crash", "error", "false alarm", "missed", "wrong", "reading"):
             c = r.get("condition", {})
-            note(f"  [{k}/{len(plan)}] hidden {hidden or 'nothing'} (seed {seed}, {c.get('structure')} {c.get('rate')} Hz "
-                 f"{c.get('excitation')} {c.get('torque')} hold {c.get('hold')}): {r['outcome']}"
-                 + (f" {r.get('verdict_spec')}" if r.get("verdict_spec") else "")
-                 + (f" (reads as {' or '.join(r['verdict_reads_as'])})" if r.get("verdict_reads_as") else "")
-                 + (f": {r['error']}" if "error" in r else ""))
+            note(
+                f"  [{k}/{len(plan)}] hidden {hidden or 'nothing'} (seed {seed}, {c.get('structure')} "
+                f"{c.get('rate')} Hz "
+                f"{c.get('excitation')} {c.get('torque')} hold {c.get('hold')}): {r['outcome']}"
+                + (f" {r.get('verdict_spec')}" if r.get("verdict_spec") else "")
+                + (f" (reads as {' or '.join(r['verdict_reads_as'])})" if r.get("verdict_reads_as") else "")
+                + (f": {r['error']}" if "error" in r else "")
+            )
         elif k % 20 == 0:
             note(f"  [{k}/{len(plan)}] {time.perf_counter() - t0:.0f} s")
     summary = summarize(results)
@@ -268,22 +338,46 @@ def calibrate(args) -> dict:
     crashes = {}
     for r in results:
         if r["outcome"] == "crash":
-            crashes.setdefault(r["error"].splitlines()[0][:200], {"count": 0, "seed": r["seed"], "hidden": r["hidden"],
-                                                                  "trace": r.get("trace", "")})["count"] += 1
-    return {"figures": {"false_alarm_rate": summary["false_alarm"]["rate"],
-                        "detection_rate": summary["detection"]["named"]["rate"],
-                        "detection_rate_with_readings": summary["detection"]["named_or_reading"]["rate"],
-                        "diagnose_s_per_recording": summary["diagnose_s_per_recording"]["mean"],
-                        "wall_s": wall},
-            "calibration": summary, "crashes": crashes, "recordings": n, "seed": args.seed, "effects": list(effects),
-            "amplitude": amplitude, "alpha": args.alpha if args.alpha is not None else ALPHA, "jobs": jobs,
-            "blocks": blocks if blocks is not None else BLOCKS, "rates": list(rates), "lost": lost, "simulator": simulator,
-            "results": [{k: v for k, v in r.items() if k != "trace"} for r in results],
-            "load_average": os.getloadavg()[0], "cpu_count": os.cpu_count()}
+            crashes.setdefault(
+                r["error"].splitlines()[0][:200],
+                {"count": 0, "seed": r["seed"], "hidden": r["hidden"], "trace": r.get("trace", "")},
+            )["count"] += 1
+    return {
+        "figures": {
+            "false_alarm_rate": summary["false_alarm"]["rate"],
+            "detection_rate": summary["detection"]["named"]["rate"],
+            "detection_rate_with_readings": summary["detection"]["named_or_reading"]["rate"],
+            "diagnose_s_per_recording": summary["diagnose_s_per_recording"]["mean"],
+            "wall_s": wall,
+        },
+        "calibration": summary,
+        "crashes": crashes,
+        "recordings": n,
+        "seed": args.seed,
+        "effects": list(effects),
+        "amplitude": amplitude,
+        "alpha": args.alpha if args.alpha is not None else ALPHA,
+        "jobs": jobs,
+        "blocks": blocks if blocks is not None else BLOCKS,
+        "rates": list(rates),
+        "lost": lost,
+        "simulator": simulator,
+        "results": [{k: v for k, v in r.items() if k != "trace"} for r in results],
+        "load_average": os.getloadavg()[0],
+        "cpu_count": os.cpu_count(),
+    }
 
 
-def _each(plan: list, alpha: float | None, blocks: int | None, jobs: int, rates: tuple | None = None,
-          amplitude: float | None = None, lost: float = 0.0, simulator: str = "manus"):
+def _each(
+    plan: list,
+    alpha: float | None,
+    blocks: int | None,
+    jobs: int,
+    rates: tuple | None = None,
+    amplitude: float | None = None,
+    lost: float = 0.0,
+    simulator: str = "manus",
+):
     """`run_one` over the plan, in order: in this process (one job) or in `jobs` fresh worker
     processes (spawned, not forked: JAX is not fork-safe), each compiling its own simulations."""
     if jobs == 1 or len(plan) < 2:
@@ -294,8 +388,16 @@ def _each(plan: list, alpha: float | None, blocks: int | None, jobs: int, rates:
     from concurrent.futures import ProcessPoolExecutor
 
     with ProcessPoolExecutor(min(jobs, len(plan)), mp_context=multiprocessing.get_context("spawn")) as pool:
-        yield from pool.map(run_one, *zip(*plan), [alpha] * len(plan), [blocks] * len(plan), [rates] * len(plan),
-                            [amplitude] * len(plan), [lost] * len(plan), [simulator] * len(plan))
+        yield from pool.map(
+            run_one,
+            *zip(*plan, strict=True),
+            [alpha] * len(plan),
+            [blocks] * len(plan),
+            [rates] * len(plan),
+            [amplitude] * len(plan),
+            [lost] * len(plan),
+            [simulator] * len(plan),
+        )
 
 
 def _pct(r: dict) -> str:
@@ -306,27 +408,38 @@ def _pct(r: dict) -> str:
 
 def render_calibration(r: dict) -> str:
     s = r["calibration"]
-    at = f", at {'/'.join(str(x) for x in r['rates'])} Hz" if r.get("rates") and tuple(r["rates"]) != (1000, 200) else ""
+    at = (
+        f", at {'/'.join(str(x) for x in r['rates'])} Hz" if r.get("rates") and tuple(r["rates"]) != (1000, 200) else ""
+    )
     by = " (the independent simulator: manus.experiments.independent)" if r.get("simulator") == "independent" else ""
-    lines = [f"calibration{by}: {r['recordings']} recordings per row, seed {r['seed']}{at}, hidden at "
-             f"{100 * r['amplitude']:g} % of the torque RMS"
-             + (f", {100 * r['lost']:g} % of the samples lost at random" if r.get("lost") else "") + f", alpha {r.get('alpha', '-')}, {r.get('blocks', '-')} held-out blocks; rates with Wilson 95 % intervals",
-             f"  false alarms (verdict on nothing missing):  {_pct(s['false_alarm'])}"
-             + (f"  verdicts: {s['false_alarm_verdicts']}" if s["false_alarm_verdicts"] else "")
-             + (f"  (and {s['null_errors']} refused with a ManusError)" if s.get("null_errors") else ""),
-             f"  detection (verdict = hidden effect):       {_pct(s['detection']['named'])}",
-             f"  ... or among the verdict's readings:       {_pct(s['detection']['named_or_reading'])}  (the verdict "
-             "names the hidden effect as a reading this recording cannot tell from it)",
-             f"  ... of those, on the right joint:          {_pct(s['detection']['right_joint'])}",
-             f"  detection where the hidden effect is distinct (>= {100 * s['detection_where_distinct']['threshold']:g} % "
-             f"of the torque no other reading explains): {_pct(s['detection_where_distinct']['named'])}",
-             *([f"  where its distinct share is at or above the detection limit diagnose states for it: "
+    lines = [
+        f"calibration{by}: {r['recordings']} recordings per row, seed {r['seed']}{at}, hidden at "
+        f"{100 * r['amplitude']:g} % of the torque RMS"
+        + (f", {100 * r['lost']:g} % of the samples lost at random" if r.get("lost") else "")
+        + f", alpha {r.get('alpha', '-')}, {r.get('blocks', '-')} held-out blocks; rates with Wilson 95 % intervals",
+        f"  false alarms (verdict on nothing missing):  {_pct(s['false_alarm'])}"
+        + (f"  verdicts: {s['false_alarm_verdicts']}" if s["false_alarm_verdicts"] else "")
+        + (f"  (and {s['null_errors']} refused with a ManusError)" if s.get("null_errors") else ""),
+        f"  detection (verdict = hidden effect):       {_pct(s['detection']['named'])}",
+        f"  ... or among the verdict's readings:       {_pct(s['detection']['named_or_reading'])}  (the verdict "
+        "names the hidden effect as a reading this recording cannot tell from it)",
+        f"  ... of those, on the right joint:          {_pct(s['detection']['right_joint'])}",
+        f"  detection where the hidden effect is distinct (>= {100 * s['detection_where_distinct']['threshold']:g} % "
+        f"of the torque no other reading explains): {_pct(s['detection_where_distinct']['named'])}",
+        *(
+            [
+                f"  where its distinct share is at or above the detection limit diagnose states for it: "
                 f"{_pct(s['detection_by_limit']['at_or_above']['named'])}; below it: "
-                f"{_pct(s['detection_by_limit']['below']['named'])}"] if "detection_by_limit" in s else []),
-             f"  'something left' on nothing missing:      {_pct(s['unexplained_on_null'])}",
-             f"  'something left' where an effect was missed: {_pct(s['unexplained_when_missed'])}",
-             "",
-             f"{'hidden effect':<14}{'named':<32}{'right joint':<32}verdicts"]
+                f"{_pct(s['detection_by_limit']['below']['named'])}"
+            ]
+            if "detection_by_limit" in s
+            else []
+        ),
+        f"  'something left' on nothing missing:      {_pct(s['unexplained_on_null'])}",
+        f"  'something left' where an effect was missed: {_pct(s['unexplained_when_missed'])}",
+        "",
+        f"{'hidden effect':<14}{'named':<32}{'right joint':<32}verdicts",
+    ]
     lines[-1] = f"{'hidden effect':<14}{'named':<32}{'or a reading':<32}{'named where distinct':<32}verdicts"
     where = s["detection_where_distinct"]["per_effect"]
     for name, e in s["per_effect"].items():
@@ -335,12 +448,18 @@ def render_calibration(r: dict) -> str:
     lines += ["", f"{'condition':<24}{'false alarm':<32}{'named':<32}named or a reading, on its joint"]
     for key, values in s["per_condition"].items():
         for v, x in values.items():
-            lines.append(f"{key + '=' + v:<24}{_pct(x['false_alarm']):<32}{_pct(x['named']):<32}{_pct(x['right_joint'])}")
+            lines.append(
+                f"{key + '=' + v:<24}{_pct(x['false_alarm']):<32}{_pct(x['named']):<32}{_pct(x['right_joint'])}"
+            )
     t = s["diagnose_s_per_recording"]
-    lines += ["", f"time per recording: diagnose {t['mean']:.2f} s mean, {t['median']:.2f} s median, {t['max']:.2f} s max; "
-              f"simulation {s['simulate_s_per_recording']['mean']:.2f} s mean; wall {r['figures']['wall_s']:.0f} s"
-              if t["mean"] is not None else "time per recording: -",
-              f"errors (ManusError): {s['errors']}, crashes (any other exception): {s['crashes']}"]
+    lines += [
+        "",
+        f"time per recording: diagnose {t['mean']:.2f} s mean, {t['median']:.2f} s median, {t['max']:.2f} s max; "
+        f"simulation {s['simulate_s_per_recording']['mean']:.2f} s mean; wall {r['figures']['wall_s']:.0f} s"
+        if t["mean"] is not None
+        else "time per recording: -",
+        f"errors (ManusError): {s['errors']}, crashes (any other exception): {s['crashes']}",
+    ]
     for msg, c in r["crashes"].items():
         lines.append(f"  crash x{c['count']} (first: seed {c['seed']}, hidden {c['hidden']}): {msg}")
     return "\n".join(lines)

@@ -83,7 +83,7 @@ def _filterpy_ca(q0, r):
         filters.append(kf)
 
     def call(q, tau):
-        for kf, y in zip(filters, q):
+        for kf, y in zip(filters, q, strict=True):
             kf.predict()
             kf.update(y)
         return np.array([kf.x[1, 0] for kf in filters])
@@ -96,7 +96,8 @@ def run(args) -> dict:
     import jax
     import jax.numpy as jnp
 
-    from manus.estimators import NAMES, make, run as scan_run
+    from manus.estimators import NAMES, make
+    from manus.estimators import run as scan_run
     from manus.estimators.linear import quantization_variance
     from manus.plants.errors import ManusError
     from manus.runs.text import note
@@ -104,7 +105,7 @@ def run(args) -> dict:
     if args.calls < 300 or args.samples < 1000 or args.joints < 1:
         raise ManusError("--calls must be at least 300, --samples at least 1000, --joints at least 1")
     q, tau = _motion(max(args.calls + 200, args.samples), args.joints)
-    inputs = list(zip(q[:args.calls + 200], tau[:args.calls + 200]))
+    inputs = list(zip(q[: args.calls + 200], tau[: args.calls + 200], strict=True))
     figures, table = {}, {}
 
     floor = jax.jit(lambda x: x + 1)
@@ -114,11 +115,16 @@ def run(args) -> dict:
     figures.update({"kalman_ca_filter_jit_p50_us": f["p50_us"], "kalman_ca_filter_jit_p99_us": f["p99_us"]})
     note("filterpy KalmanFilter (constant acceleration, one per joint) ...")
     f = _percentiles(_filterpy_ca(q[0], quantization_variance()), inputs)
-    figures.update({"filterpy_kalman_ca_p50_us": f["p50_us"], "filterpy_kalman_ca_p99_us": f["p99_us"],
-                    "filterpy_kalman_ca_per_s": 1e6 / f["p50_us"]})
+    figures.update(
+        {
+            "filterpy_kalman_ca_p50_us": f["p50_us"],
+            "filterpy_kalman_ca_p99_us": f["p99_us"],
+            "filterpy_kalman_ca_per_s": 1e6 / f["p50_us"],
+        }
+    )
 
     scan = eqx.filter_jit(scan_run)
-    qs, taus = jnp.asarray(q[:args.samples]), jnp.asarray(tau[:args.samples])
+    qs, taus = jnp.asarray(q[: args.samples]), jnp.asarray(tau[: args.samples])
     for name in NAMES:
         note(f"{name} ...")
         est = make(name, n_joints=args.joints)
@@ -132,36 +138,78 @@ def run(args) -> dict:
         row["scan_per_s"] = args.samples / best
         table[name] = row
         figures.update({f"{name}_{k}": v for k, v in row.items()})
-    return {"figures": figures, "estimators": table, "calls": args.calls, "samples": args.samples,
-            "joints": args.joints, "target_p99_us": TARGET_P99_US,
-            "within_target": [n for n, r in table.items() if r["p99_us"] < TARGET_P99_US],
-            "speedup": table["kalman_ca"]["scan_per_s"] / figures["filterpy_kalman_ca_per_s"],
-            "step_vs_filterpy": figures["filterpy_kalman_ca_p50_us"] / table["kalman_ca"]["p50_us"],
-            "limit": (f"a jax.jit of x + 1 alone costs {figures['jax_dispatch_p50_us']:.0f} µs p50 / "
-                      f"{figures['jax_dispatch_p99_us']:.0f} µs p99 (dispatch, read-back, and the scheduling of a "
-                      f"shared CPU in the p99); the same kalman_ca step under eqx.filter_jit costs "
-                      f"{figures['kalman_ca_filter_jit_p50_us']:.0f} µs p50 (the module flattened and hashed per call); "
-                      f"in a scan the slowest estimator needs {1e6 / min(r['scan_per_s'] for r in table.values()):.1f} µs "
-                      f"a sample, so a single call's cost beyond the floor is XLA executing the step's operations one "
-                      f"by one")}
+    return {
+        "figures": figures,
+        "estimators": table,
+        "calls": args.calls,
+        "samples": args.samples,
+        "joints": args.joints,
+        "target_p99_us": TARGET_P99_US,
+        "within_target": [n for n, r in table.items() if r["p99_us"] < TARGET_P99_US],
+        "speedup": table["kalman_ca"]["scan_per_s"] / figures["filterpy_kalman_ca_per_s"],
+        "step_vs_filterpy": figures["filterpy_kalman_ca_p50_us"] / table["kalman_ca"]["p50_us"],
+        "limit": (
+            f"a jax.jit of x + 1 alone costs {figures['jax_dispatch_p50_us']:.0f} µs p50 / "
+            f"{figures['jax_dispatch_p99_us']:.0f} µs p99 (dispatch, read-back, and the scheduling of a "
+            f"shared CPU in the p99); the same kalman_ca step under eqx.filter_jit costs "
+            f"{figures['kalman_ca_filter_jit_p50_us']:.0f} µs p50 (the module flattened and hashed per call); "
+            f"in a scan the slowest estimator needs {1e6 / min(r['scan_per_s'] for r in table.values()):.1f} µs "
+            f"a sample, so a single call's cost beyond the floor is XLA executing the step's operations one "
+            f"by one"
+        ),
+    }
 
 
 def render(r: dict) -> str:
     from manus.runs.text import table
 
-    rows = [[n, f"{v['p50_us']:.0f}", f"{v['p99_us']:.0f}", f"{v['scan_per_s']:.3g}",
-             "yes" if n in r["within_target"] else "NO"] for n, v in r["estimators"].items()]
+    rows = [
+        [
+            n,
+            f"{v['p50_us']:.0f}",
+            f"{v['p99_us']:.0f}",
+            f"{v['scan_per_s']:.3g}",
+            "yes" if n in r["within_target"] else "NO",
+        ]
+        for n, v in r["estimators"].items()
+    ]
     f = r["figures"]
-    rows.append(["filterpy KalmanFilter (CA)", f"{f['filterpy_kalman_ca_p50_us']:.0f}",
-                 f"{f['filterpy_kalman_ca_p99_us']:.0f}", f"{f['filterpy_kalman_ca_per_s']:.3g}", ""])
-    rows.append(["kalman_ca under eqx.filter_jit", f"{f['kalman_ca_filter_jit_p50_us']:.0f}",
-                 f"{f['kalman_ca_filter_jit_p99_us']:.0f}", "", ""])
-    rows.append(["jax.jit(x + 1): dispatch floor", f"{f['jax_dispatch_p50_us']:.0f}", f"{f['jax_dispatch_p99_us']:.0f}",
-                 "", ""])
-    return "\n".join([
-        f"per-step latency over {r['calls']} calls ({r['joints']} joints) and lax.scan over {r['samples']} samples",
-        table(rows, ["estimator", "step p50 [µs]", "step p99 [µs]", "scan [samples/s]",
-                     f"p99 < {r['target_p99_us']:.0f} µs"]),
-        f"kalman_ca: a scan is {r['speedup']:.0f}x filterpy's throughput; one jitted step from Python takes "
-        f"{1 / r['step_vs_filterpy']:.2f}x the time of filterpy's predict/update",
-        f"limit: {r['limit']}"])
+    rows.append(
+        [
+            "filterpy KalmanFilter (CA)",
+            f"{f['filterpy_kalman_ca_p50_us']:.0f}",
+            f"{f['filterpy_kalman_ca_p99_us']:.0f}",
+            f"{f['filterpy_kalman_ca_per_s']:.3g}",
+            "",
+        ]
+    )
+    rows.append(
+        [
+            "kalman_ca under eqx.filter_jit",
+            f"{f['kalman_ca_filter_jit_p50_us']:.0f}",
+            f"{f['kalman_ca_filter_jit_p99_us']:.0f}",
+            "",
+            "",
+        ]
+    )
+    rows.append(
+        ["jax.jit(x + 1): dispatch floor", f"{f['jax_dispatch_p50_us']:.0f}", f"{f['jax_dispatch_p99_us']:.0f}", "", ""]
+    )
+    return "\n".join(
+        [
+            f"per-step latency over {r['calls']} calls ({r['joints']} joints) and lax.scan over {r['samples']} samples",
+            table(
+                rows,
+                [
+                    "estimator",
+                    "step p50 [µs]",
+                    "step p99 [µs]",
+                    "scan [samples/s]",
+                    f"p99 < {r['target_p99_us']:.0f} µs",
+                ],
+            ),
+            f"kalman_ca: a scan is {r['speedup']:.0f}x filterpy's throughput; one jitted step from Python takes "
+            f"{1 / r['step_vs_filterpy']:.2f}x the time of filterpy's predict/update",
+            f"limit: {r['limit']}",
+        ]
+    )

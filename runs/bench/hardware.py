@@ -27,6 +27,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 
@@ -46,7 +47,7 @@ class NumpyImpedance:
     """The baseline stepper: the thesis's filtered first difference (λ = 188.5 rad/s, Tustin)
     and τ = K (q_d − q) + B (q̇_d − v̂), with the benign reference, in numpy."""
 
-    extras = ["qref1", "qref2"]
+    extras: ClassVar[list[str]] = ["qref1", "qref2"]
 
     def __init__(self, dt: float, counts_per_rev: float, limit: float, stiffness=30.0, damping=1.0, corner=188.5):
         self.n, self.dt, self.q_step, self.limit = 2, dt, 2 * math.pi / counts_per_rev, limit
@@ -72,14 +73,30 @@ class NumpyImpedance:
 
 def _steal() -> tuple[int, int]:
     """(stolen, total) CPU ticks of this VM so far."""
-    fields = [int(x) for x in open("/proc/stat").readline().split()[1:]]
+    with open("/proc/stat") as stat:
+        fields = [int(x) for x in stat.readline().split()[1:]]
     return fields[7] if len(fields) > 7 else 0, sum(fields)
 
 
 def _emulator(tmp: Path):
     err = tmp / "emulator.err"
-    proc = subprocess.Popen([sys.executable, "-m", "manus.runs.cli", "emulate", "--port", "0", "--truth", PLANT,
-                             "--watchdog-ms", "1000"], stdout=subprocess.DEVNULL, stderr=open(err, "w"))
+    with open(err, "w") as log:  # the emulator writes into its own copy of the handle
+        proc = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "manus.runs.cli",
+                "emulate",
+                "--port",
+                "0",
+                "--truth",
+                PLANT,
+                "--watchdog-ms",
+                "1000",
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=log,
+        )
     end = time.monotonic() + 120
     while time.monotonic() < end:
         m = re.search(r"on udp://127\.0\.0\.1:(\d+)", err.read_text())
@@ -100,10 +117,18 @@ def _measure(device, stepper, seconds: float) -> dict:
     s0 = _steal()
     r = run_loop(device, stepper, seconds, None, watchdog=1.0)
     s1 = _steal()
-    return {"ticks": r.ticks, "deadline_misses": r.deadline_misses, "miss_fraction": r.deadline_misses / max(r.ticks, 1),
-            "device_late": r.device_late, "lost_samples": r.lost_samples, "compute_us": r.compute_us,
-            "jitter_us": r.jitter_us, "stopped_by": r.stopped_by, "tracking_rms": r.tracking_rms,
-            "steal_percent": round(100 * (s1[0] - s0[0]) / max(s1[1] - s0[1], 1), 2)}
+    return {
+        "ticks": r.ticks,
+        "deadline_misses": r.deadline_misses,
+        "miss_fraction": r.deadline_misses / max(r.ticks, 1),
+        "device_late": r.device_late,
+        "lost_samples": r.lost_samples,
+        "compute_us": r.compute_us,
+        "jitter_us": r.jitter_us,
+        "stopped_by": r.stopped_by,
+        "tracking_rms": r.tracking_rms,
+        "steal_percent": round(100 * (s1[0] - s0[0]) / max(s1[1] - s0[1], 1), 2),
+    }
 
 
 def _tick_alone(stepper, calls: int = 5000) -> dict:
@@ -125,8 +150,8 @@ def run(args) -> dict:
     from manus.plants.hardware import realtime_jax
 
     realtime_jax()  # before JAX computes anything
-    from manus.plants.device import open_device
     from manus.adaptive.controllers import compiled_tick
+    from manus.plants.device import open_device
     from manus.runs.text import note
 
     if not (args.seconds > 0 and args.baseline_seconds > 0):
@@ -144,42 +169,63 @@ def run(args) -> dict:
                 note(f"{args.estimator} + {args.controller}: {args.seconds:g} s at {info.rate_hz:g} Hz ...")
                 subject = _measure(device, stepper, args.seconds)
                 note(f"numpy impedance baseline: {args.baseline_seconds:g} s ...")
-                baseline = _measure(device, NumpyImpedance(1 / info.rate_hz, info.counts_per_rev, info.torque_limit),
-                                    args.baseline_seconds)
+                baseline = _measure(
+                    device,
+                    NumpyImpedance(1 / info.rate_hz, info.counts_per_rev, info.torque_limit),
+                    args.baseline_seconds,
+                )
         finally:
             proc.terminate()
             proc.wait(10)
-    figures = {"tick_alone_p50_us": alone["p50"], "tick_alone_p99_us": alone["p99"],
-               "miss_fraction": subject["miss_fraction"], "compute_p50_us": subject["compute_us"]["p50"],
-               "compute_p99_us": subject["compute_us"]["p99"], "jitter_p99_us": subject["jitter_us"]["p99"],
-               "baseline_miss_fraction": baseline["miss_fraction"],
-               "baseline_compute_p50_us": baseline["compute_us"]["p50"],
-               "baseline_compute_p99_us": baseline["compute_us"]["p99"]}
-    return {"figures": figures, "subject": subject, "baseline": baseline,
-            "targets": {"miss_fraction_below_0.1%": subject["miss_fraction"] < TARGET_MISS,
-                        "compute_p99_below_200us": (subject["compute_us"]["p99"] or math.inf) < TARGET_P99_US},
-            "subject_name": f"{args.estimator} + {args.controller} (one compiled tick)",
-            "baseline_name": "numpy filtered first difference + impedance", "plant": PLANT,
-            "rate_hz": info.rate_hz, "load_average": load, "cpus": os.cpu_count()}
+    figures = {
+        "tick_alone_p50_us": alone["p50"],
+        "tick_alone_p99_us": alone["p99"],
+        "miss_fraction": subject["miss_fraction"],
+        "compute_p50_us": subject["compute_us"]["p50"],
+        "compute_p99_us": subject["compute_us"]["p99"],
+        "jitter_p99_us": subject["jitter_us"]["p99"],
+        "baseline_miss_fraction": baseline["miss_fraction"],
+        "baseline_compute_p50_us": baseline["compute_us"]["p50"],
+        "baseline_compute_p99_us": baseline["compute_us"]["p99"],
+    }
+    return {
+        "figures": figures,
+        "subject": subject,
+        "baseline": baseline,
+        "targets": {
+            "miss_fraction_below_0.1%": subject["miss_fraction"] < TARGET_MISS,
+            "compute_p99_below_200us": (subject["compute_us"]["p99"] or math.inf) < TARGET_P99_US,
+        },
+        "subject_name": f"{args.estimator} + {args.controller} (one compiled tick)",
+        "baseline_name": "numpy filtered first difference + impedance",
+        "plant": PLANT,
+        "rate_hz": info.rate_hz,
+        "load_average": load,
+        "cpus": os.cpu_count(),
+    }
 
 
 def render(r: dict) -> str:
     def line(name, m):
         c, j = m["compute_us"], m["jitter_us"]
-        return (f"  {name}: {m['ticks']} ticks, {m['deadline_misses']} deadline misses ({100 * m['miss_fraction']:.3f} %), "
-                f"device saw {m['device_late']} late, {m['lost_samples']} lost; stopped by {m['stopped_by']}\n"
-                f"      compute µs p50 {c['p50']}  p99 {c['p99']}  max {c['max']};  "
-                f"jitter µs p50 {j['p50']}  p99 {j['p99']}  max {j['max']};  CPU stolen by the hypervisor "
-                f"{m['steal_percent']} %")
+        return (
+            f"  {name}: {m['ticks']} ticks, {m['deadline_misses']} deadline misses ({100 * m['miss_fraction']:.3f} %), "
+            f"device saw {m['device_late']} late, {m['lost_samples']} lost; stopped by {m['stopped_by']}\n"
+            f"      compute µs p50 {c['p50']}  p99 {c['p99']}  max {c['max']};  "
+            f"jitter µs p50 {j['p50']}  p99 {j['p99']}  max {j['max']};  CPU stolen by the hypervisor "
+            f"{m['steal_percent']} %"
+        )
 
     t = r["targets"]
-    return "\n".join([
-        f"hardware loop at {r['rate_hz']:g} Hz against the emulator ({r['plant']}), {r['cpus']} CPUs, "
-        f"load average {r['load_average']:.2f} at the start",
-        f"  the compiled tick alone, back to back: p50 {r['figures']['tick_alone_p50_us']} µs, "
-        f"p99 {r['figures']['tick_alone_p99_us']} µs",
-        line(r["subject_name"], r["subject"]),
-        line(r["baseline_name"], r["baseline"]),
-        f"  targets: misses < 0.1 %: {'met' if t['miss_fraction_below_0.1%'] else 'NOT met'}; "
-        f"p99 compute < 200 µs: {'met' if t['compute_p99_below_200us'] else 'NOT met'}",
-    ])
+    return "\n".join(
+        [
+            f"hardware loop at {r['rate_hz']:g} Hz against the emulator ({r['plant']}), {r['cpus']} CPUs, "
+            f"load average {r['load_average']:.2f} at the start",
+            f"  the compiled tick alone, back to back: p50 {r['figures']['tick_alone_p50_us']} µs, "
+            f"p99 {r['figures']['tick_alone_p99_us']} µs",
+            line(r["subject_name"], r["subject"]),
+            line(r["baseline_name"], r["baseline"]),
+            f"  targets: misses < 0.1 %: {'met' if t['miss_fraction_below_0.1%'] else 'NOT met'}; "
+            f"p99 compute < 200 µs: {'met' if t['compute_p99_below_200us'] else 'NOT met'}",
+        ]
+    )

@@ -32,8 +32,12 @@ def add_arguments(p) -> None:
     p.add_argument("--states", type=int, default=20000, help="random states in the JAX array")
     p.add_argument("--pinocchio-states", type=int, default=2000, help="states in pinocchio's Python loop")
     p.add_argument("--repeats", type=int, default=3, help="best of this many timed runs")
-    p.add_argument("--fit-seconds", type=float, default=60.0,
-                   help="length of the simulated Panda recording that manus fit is timed on [s] (0: skip)")
+    p.add_argument(
+        "--fit-seconds",
+        type=float,
+        default=60.0,
+        help="length of the simulated Panda recording that manus fit is timed on [s] (0: skip)",
+    )
     p.add_argument("--trials", type=int, default=8, help="trials in the simulator's vmapped batch")
     p.add_argument("--batch-seconds", type=float, default=1.0, help="length of each batched trial [s]")
 
@@ -52,7 +56,7 @@ def run(args) -> dict:
 
         path = str(importlib.metadata.distribution("example-robot-data").locate_file(f"cmeel.prefix/share/{PANDA}"))
     except (ImportError, importlib.metadata.PackageNotFoundError) as e:
-        raise ManusError(f"bench robot needs pinocchio and example-robot-data (pip install -e \".[test]\"): {e}") from e
+        raise ManusError(f'bench robot needs pinocchio and example-robot-data (pip install -e ".[test]"): {e}') from e
     load = os.getloadavg()[0]
     serial = Serial.from_urdf(path)
     n = serial.n_joints
@@ -70,8 +74,9 @@ def run(args) -> dict:
         jax_s = best_time(lambda: regressors(q, qd, qdd).block_until_ready(), args.repeats)
 
     model = pin.buildModelFromUrdf(path)
-    model = pin.buildReducedModel(model, [model.getJointId(k) for k in model.names[1:] if k not in serial.joint_names],
-                                  np.zeros(model.nq))
+    model = pin.buildReducedModel(
+        model, [model.getJointId(k) for k in model.names[1:] if k not in serial.joint_names], np.zeros(model.nq)
+    )
     data = model.createData()
     m = min(args.pinocchio_states, args.states)
 
@@ -84,10 +89,18 @@ def run(args) -> dict:
     agreement = float(np.abs(np.stack(loop())[:, :, order] - Y[:m, :, : 10 * n]).max())
 
     jax_rows, pin_rows = args.states * n / jax_s, m * n / pin_s
-    out = {"figures": {"jax_rows_per_s": jax_rows, "pinocchio_rows_per_s": pin_rows, "jax_compile_s": compile_s},
-           "speedup": jax_rows / pin_rows, "agreement": agreement, "robot": "panda", "joints": n,
-           "columns": Y.shape[-1], "states": args.states, "pinocchio_states": m,
-           "devices": len(jax.devices()), "load_average": load}
+    out = {
+        "figures": {"jax_rows_per_s": jax_rows, "pinocchio_rows_per_s": pin_rows, "jax_compile_s": compile_s},
+        "speedup": jax_rows / pin_rows,
+        "agreement": agreement,
+        "robot": "panda",
+        "joints": n,
+        "columns": Y.shape[-1],
+        "states": args.states,
+        "pinocchio_states": m,
+        "devices": len(jax.devices()),
+        "load_average": load,
+    }
     if args.fit_seconds > 0:
         out["figures"].update(_loop(path, args, note))
         out.update(fit_seconds=args.fit_seconds, trials=args.trials, batch_seconds=args.batch_seconds)
@@ -110,8 +123,12 @@ def panda_case(path: str):
     from manus.plants.serial_sim import Fourier
 
     serial = Serial.from_urdf(path, armature=np.linspace(0.1, 0.3, 7))
-    truth = {**{f"b{i + 1}": v for i, v in enumerate(B)}, **{f"Fc{i + 1}": v for i, v in enumerate(FC)},
-             **{f"off{i + 1}": 0.0 for i in range(7)}, **HIDDEN}
+    truth = {
+        **{f"b{i + 1}": v for i, v in enumerate(B)},
+        **{f"Fc{i + 1}": v for i, v in enumerate(FC)},
+        **{f"off{i + 1}": 0.0 for i in range(7)},
+        **HIDDEN,
+    }
     centre = np.array(CENTRE)
     sim = Simulator(Model(serial, MODEL), truth, substeps=2, actuator=None, q0=centre)
     return serial, sim, Fourier(centre, amplitude=1.0, f0=0.2, harmonics=6, decay=1.5, seed=1), truth
@@ -134,13 +151,25 @@ def accuracy(f, truth: dict, columns=None) -> dict:
     for i, k in enumerate(f.names):
         share = float(np.max(abs(truth[k]) * rms_col[:, i] / rms_tau))
         err = f.params[k] - truth[k]
-        rows.append({"name": k, "share": share, "error": abs(err) / abs(truth[k]) if truth[k] else float("inf"),
-                     "adds": float(np.max(abs(err) * rms_col[:, i] / rms_tau))})
+        rows.append(
+            {
+                "name": k,
+                "share": share,
+                "error": abs(err) / abs(truth[k]) if truth[k] else float("inf"),
+                "adds": float(np.max(abs(err) * rms_col[:, i] / rms_tau)),
+            }
+        )
     carrying = [r for r in rows if r["share"] >= 0.01]
     others = [r for r in rows if r["share"] < 0.01]
     worst = max(carrying, key=lambda r: r["error"])
-    return {"carrying": [r["name"] for r in carrying], "worst": worst["error"], "worst_name": worst["name"],
-            "others": len(others), "others_add": max((r["adds"] for r in others), default=0.0), "rows": rows}
+    return {
+        "carrying": [r["name"] for r in carrying],
+        "worst": worst["error"],
+        "worst_name": worst["name"],
+        "others": len(others),
+        "others_add": max((r["adds"] for r in others), default=0.0),
+        "rows": rows,
+    }
 
 
 def _loop(path: str, args, note) -> dict:
@@ -148,8 +177,8 @@ def _loop(path: str, args, note) -> dict:
     import jax
 
     from manus.adaptive import diagnose, fit
-    from manus.plants.errors import ManusError
     from manus.plants.closed_loop import simulate_batch
+    from manus.plants.errors import ManusError
     from manus.plants.serial_sim import Feedforward, record
 
     with jax.enable_x64(True):
@@ -165,7 +194,7 @@ def _loop(path: str, args, note) -> dict:
         fit_s = best_time(lambda: fit(rec, MODEL), args.repeats)
         note("the acceptance on it: the base parameters against the truth, and diagnose from rigid,viscous,coulomb ...")
         base = serial.base()
-        acc = accuracy(fitted, {**truth, **dict(zip(base.rigid_names, base.values(serial.defaults)))})
+        acc = accuracy(fitted, {**truth, **dict(zip(base.rigid_names, base.values(serial.defaults), strict=True))})
         t0 = time.perf_counter()
         try:
             # with the method the fit chose on this recording (diagnose's own choice would run IV's
@@ -182,31 +211,54 @@ def _loop(path: str, args, note) -> dict:
         batch()  # compile
         batch_s = best_time(batch, max(1, args.repeats - 1))
     steps = int(round(args.batch_seconds * sim.rate_hz))
-    return {"simulate_one_trial_steps_per_s": len(rec) / sim_s, "fit_first_call_s": fit_first, "fit_s": fit_s,
-            "fit_rel_error": fitted.rel_error, "batch_trial_steps_per_s": args.trials * steps / batch_s,
-            "fit_method": fitted.method, "base_worst_error": acc["worst"], "base_worst_name": acc["worst_name"],
-            "base_carrying": len(acc["carrying"]), "base_others_add": acc["others_add"],
-            "diagnose_verdict": None if verdict is None else verdict.spec,
-            "diagnose_joint": None if verdict is None else int(verdict.joint), "diagnose_s": diagnose_s}
+    return {
+        "simulate_one_trial_steps_per_s": len(rec) / sim_s,
+        "fit_first_call_s": fit_first,
+        "fit_s": fit_s,
+        "fit_rel_error": fitted.rel_error,
+        "batch_trial_steps_per_s": args.trials * steps / batch_s,
+        "fit_method": fitted.method,
+        "base_worst_error": acc["worst"],
+        "base_worst_name": acc["worst_name"],
+        "base_carrying": len(acc["carrying"]),
+        "base_others_add": acc["others_add"],
+        "diagnose_verdict": None if verdict is None else verdict.spec,
+        "diagnose_joint": None if verdict is None else int(verdict.joint),
+        "diagnose_s": diagnose_s,
+    }
 
 
 def render(r: dict) -> str:
     f = r["figures"]
-    return "\n".join([
-        f"regressor of the {r['robot']} ({r['joints']} joints, {r['columns']} standard parameters), float64",
-        f"  JAX, vmapped over {r['states']} states:    {f['jax_rows_per_s']:.3g} rows/s "
-        f"(compile {f['jax_compile_s']:.2g} s, {r['devices']} device(s))",
-        f"  pinocchio, Python loop, {r['pinocchio_states']} states: {f['pinocchio_rows_per_s']:.3g} rows/s",
-        f"  speedup: {r['speedup']:.3g}x; the two agree within {r['agreement']:.2g}; "
-        f"load average {r['load_average']:.2f} at the start",
-    ] + ([
-        f"the Panda simulated at 1 kHz (2 sub-steps, friction per joint, coupled stick-slip), fitted by manus fit:",
-        f"  one trial of {r['fit_seconds']:g} s: {f['simulate_one_trial_steps_per_s']:.3g} steps/s (compilation included)",
-        f"  batch of {r['trials']} trials of {r['batch_seconds']:g} s, vmapped: {f['batch_trial_steps_per_s']:.3g} trial-steps/s",
-        f"  manus fit on the {r['fit_seconds']:g} s: {f['fit_s']:.2f} s (first call {f['fit_first_call_s']:.2f} s), "
-        f"rel_error {100 * f['fit_rel_error']:.3g} %",
-        f"  the acceptance ({f['fit_method']}): the {f['base_carrying']} parameters carrying >= 1 % of a joint's torque "
-        f"within {100 * f['base_worst_error']:.2g} % ({f['base_worst_name']} the worst), the others adding under "
-        f"{100 * f['base_others_add']:.2g} % of a joint's torque; diagnose from rigid,viscous,coulomb: "
-        f"{f['diagnose_verdict']} on joint {f['diagnose_joint']} (the hidden: offset on joint 4) in {f['diagnose_s']:.1f} s",
-    ] if "fit_s" in f else []))
+    return "\n".join(
+        [
+            f"regressor of the {r['robot']} ({r['joints']} joints, {r['columns']} standard parameters), float64",
+            f"  JAX, vmapped over {r['states']} states:    {f['jax_rows_per_s']:.3g} rows/s "
+            f"(compile {f['jax_compile_s']:.2g} s, {r['devices']} device(s))",
+            f"  pinocchio, Python loop, {r['pinocchio_states']} states: {f['pinocchio_rows_per_s']:.3g} rows/s",
+            f"  speedup: {r['speedup']:.3g}x; the two agree within {r['agreement']:.2g}; "
+            f"load average {r['load_average']:.2f} at the start",
+        ]
+        + (
+            [
+                "the Panda simulated at 1 kHz (2 sub-steps, friction per joint, coupled stick-slip), fitted by manus "
+                "fit:",
+                f"  one trial of {r['fit_seconds']:g} s: {f['simulate_one_trial_steps_per_s']:.3g} steps/s "
+                "(compilation included)",
+                f"  batch of {r['trials']} trials of {r['batch_seconds']:g} s, vmapped: "
+                f"{f['batch_trial_steps_per_s']:.3g} trial-steps/s",
+                f"  manus fit on the {r['fit_seconds']:g} s: {f['fit_s']:.2f} s (first call "
+                f"{f['fit_first_call_s']:.2f} s), "
+                f"rel_error {100 * f['fit_rel_error']:.3g} %",
+                f"  the acceptance ({f['fit_method']}): the {f['base_carrying']} parameters carrying >= 1 % of a "
+                "joint's torque "
+                f"within {100 * f['base_worst_error']:.2g} % ({f['base_worst_name']} the worst), the others adding "
+                "under "
+                f"{100 * f['base_others_add']:.2g} % of a joint's torque; diagnose from rigid,viscous,coulomb: "
+                f"{f['diagnose_verdict']} on joint {f['diagnose_joint']} (the hidden: offset on joint 4) in "
+                f"{f['diagnose_s']:.1f} s",
+            ]
+            if "fit_s" in f
+            else []
+        )
+    )

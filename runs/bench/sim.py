@@ -134,9 +134,13 @@ def run(args) -> dict:
         keys = jax.random.split(jax.random.PRNGKey(0), args.trials)
 
         def batch(every):
-            return simulate_batch(plant, controllers, reference, args.seconds, keys, batched=("controller",), every=every)
+            return simulate_batch(
+                plant, controllers, reference, args.seconds, keys, batched=("controller",), every=every
+            )
 
-        note(f"{args.trials} trials of {args.seconds:g} s on {devices} device(s), recording every {args.every} ticks ...")
+        note(
+            f"{args.trials} trials of {args.seconds:g} s on {devices} device(s), recording every {args.every} ticks ..."
+        )
         light, light_cpu = _best(lambda: batch(args.every), args.repeats)
         note("... and recording every tick ...")
         full, _ = _best(lambda: batch(1), args.repeats)
@@ -149,30 +153,47 @@ def run(args) -> dict:
     numpy_time = time.perf_counter() - t0
     numpy_steps = len(baseline) / numpy_time
     batch_steps = args.trials * steps / light
-    return {"figures": {"single_trial_steps_per_s": steps / single, "batch_trial_steps_per_s": batch_steps,
-                        "batch_full_record_trial_steps_per_s": args.trials * steps / full,
-                        "numpy_steps_per_s": numpy_steps},
-            "speedup": batch_steps / numpy_steps,
-            # on a shared machine the wall figures suffer; CPU time (all threads) much less
-            "batch_cpu_ns_per_trial_step": light_cpu / (args.trials * steps) * 1e9, "load_average": load,
-            "agreement_counts": float(np.abs(check - baseline).max() / (2 * np.pi / 131072)),
-            "plant": PLANT, "controller": "impedance K=30 B=1 (batch: K from 10 to 60)", "reference": "complex",
-            "trials": args.trials, "seconds": args.seconds, "numpy_seconds": args.numpy_seconds,
-            "record_every": args.every, "substeps": plant.substeps, "rate_hz": plant.rate_hz,
-            "dtype": dtype, "devices": devices}
+    return {
+        "figures": {
+            "single_trial_steps_per_s": steps / single,
+            "batch_trial_steps_per_s": batch_steps,
+            "batch_full_record_trial_steps_per_s": args.trials * steps / full,
+            "numpy_steps_per_s": numpy_steps,
+        },
+        "speedup": batch_steps / numpy_steps,
+        # on a shared machine the wall figures suffer; CPU time (all threads) much less
+        "batch_cpu_ns_per_trial_step": light_cpu / (args.trials * steps) * 1e9,
+        "load_average": load,
+        "agreement_counts": float(np.abs(check - baseline).max() / (2 * np.pi / 131072)),
+        "plant": PLANT,
+        "controller": "impedance K=30 B=1 (batch: K from 10 to 60)",
+        "reference": "complex",
+        "trials": args.trials,
+        "seconds": args.seconds,
+        "numpy_seconds": args.numpy_seconds,
+        "record_every": args.every,
+        "substeps": plant.substeps,
+        "rate_hz": plant.rate_hz,
+        "dtype": dtype,
+        "devices": devices,
+    }
 
 
 def render(r: dict) -> str:
     f = r["figures"]
-    return "\n".join([
-        f"closed-loop simulation of the MANUS-2 arm ({r['plant']}, {r['rate_hz']:g} Hz control, "
-        f"{r['substeps']} sub-steps, {r['dtype']}, {r['devices']} device(s))",
-        f"  one trial ({r['seconds']:g} s):                 {f['single_trial_steps_per_s']:.3g} steps/s",
-        f"  batch of {r['trials']}, record every {r['record_every']} ticks: {f['batch_trial_steps_per_s']:.3g} trial-steps/s",
-        f"  batch of {r['trials']}, record every tick:     {f['batch_full_record_trial_steps_per_s']:.3g} trial-steps/s",
-        f"  numpy loop ({r['numpy_seconds']:g} s, float64):     {f['numpy_steps_per_s']:.3g} steps/s",
-        f"  speedup of the batch over numpy: {r['speedup']:.3g}x; numpy and JAX positions agree "
-        f"within {r['agreement_counts']:.3g} encoder counts",
-        f"  batch CPU time {r['batch_cpu_ns_per_trial_step']:.3g} ns per trial-step (all threads); "
-        f"load average {r['load_average']:.2f} at the start",
-    ])
+    return "\n".join(
+        [
+            f"closed-loop simulation of the MANUS-2 arm ({r['plant']}, {r['rate_hz']:g} Hz control, "
+            f"{r['substeps']} sub-steps, {r['dtype']}, {r['devices']} device(s))",
+            f"  one trial ({r['seconds']:g} s):                 {f['single_trial_steps_per_s']:.3g} steps/s",
+            f"  batch of {r['trials']}, record every {r['record_every']} ticks: {f['batch_trial_steps_per_s']:.3g} "
+            "trial-steps/s",
+            f"  batch of {r['trials']}, record every tick:     {f['batch_full_record_trial_steps_per_s']:.3g} "
+            "trial-steps/s",
+            f"  numpy loop ({r['numpy_seconds']:g} s, float64):     {f['numpy_steps_per_s']:.3g} steps/s",
+            f"  speedup of the batch over numpy: {r['speedup']:.3g}x; numpy and JAX positions agree "
+            f"within {r['agreement_counts']:.3g} encoder counts",
+            f"  batch CPU time {r['batch_cpu_ns_per_trial_step']:.3g} ns per trial-step (all threads); "
+            f"load average {r['load_average']:.2f} at the start",
+        ]
+    )

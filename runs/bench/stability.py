@@ -23,10 +23,10 @@ def add_arguments(p) -> None:
 def run(args) -> dict:
     import jax
 
-    from manus.plants.errors import ManusError
     from manus.experiments.stability import sweep
-    from manus.runs.text import note
     from manus.experiments.stability.steptest import StepTest
+    from manus.plants.errors import ManusError
+    from manus.runs.text import note
 
     if args.points < 1 or args.loop_points < 1 or args.repeats < 1:
         raise ManusError("--points, --loop-points and --repeats must be positive")
@@ -49,20 +49,32 @@ def run(args) -> dict:
 
     vmapped, looped = args.points / batch, args.loop_points / loop
     substeps = test.ticks * round(test.physics_hz / test.rate_hz)
-    return {"figures": {"vmapped_points_per_s": vmapped, "loop_points_per_s": looped,
-                        "vmapped_substeps_per_s": vmapped * substeps, "loop_substeps_per_s": looped * substeps,
-                        "compile_vmapped_s": compile_batch, "compile_single_s": compile_one},
-            "speedup": vmapped / looped, "points": args.points, "loop_points": args.loop_points,
-            "ticks_per_point": test.ticks, "substeps_per_tick": round(test.physics_hz / test.rate_hz),
-            "devices": len(jax.devices())}
+    return {
+        "figures": {
+            "vmapped_points_per_s": vmapped,
+            "loop_points_per_s": looped,
+            "vmapped_substeps_per_s": vmapped * substeps,
+            "loop_substeps_per_s": looped * substeps,
+            "compile_vmapped_s": compile_batch,
+            "compile_single_s": compile_one,
+        },
+        "speedup": vmapped / looped,
+        "points": args.points,
+        "loop_points": args.loop_points,
+        "ticks_per_point": test.ticks,
+        "substeps_per_tick": round(test.physics_hz / test.rate_hz),
+        "devices": len(jax.devices()),
+    }
 
 
 def render(r: dict) -> str:
     f = r["figures"]
-    return (f"stability step tests ({r['ticks_per_point']} ticks x {r['substeps_per_tick']} sub-steps each), "
-            f"{r['devices']} device(s)\n"
-            f"  vmapped ({r['points']} points per call): {f['vmapped_points_per_s']:.0f} points/s "
-            f"({f['vmapped_substeps_per_s']:.3g} sub-steps/s; compile {f['compile_vmapped_s']:.1f} s)\n"
-            f"  Python loop over points ({r['loop_points']}): {f['loop_points_per_s']:.1f} points/s "
-            f"({f['loop_substeps_per_s']:.3g} sub-steps/s; compile {f['compile_single_s']:.1f} s)\n"
-            f"  speedup {r['speedup']:.0f}x")
+    return (
+        f"stability step tests ({r['ticks_per_point']} ticks x {r['substeps_per_tick']} sub-steps each), "
+        f"{r['devices']} device(s)\n"
+        f"  vmapped ({r['points']} points per call): {f['vmapped_points_per_s']:.0f} points/s "
+        f"({f['vmapped_substeps_per_s']:.3g} sub-steps/s; compile {f['compile_vmapped_s']:.1f} s)\n"
+        f"  Python loop over points ({r['loop_points']}): {f['loop_points_per_s']:.1f} points/s "
+        f"({f['loop_substeps_per_s']:.3g} sub-steps/s; compile {f['compile_single_s']:.1f} s)\n"
+        f"  speedup {r['speedup']:.0f}x"
+    )

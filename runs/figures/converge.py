@@ -55,7 +55,7 @@ def plot_estimates(tr, path: Path, title: str = "") -> str:
     ax.semilogy(tr.t_gram, np.maximum(np.median(lam, 0), 1e-12), color="C3")
     ax.set_title("excitation: λ_min(∫₀ᵗ YᵀY dt)", fontsize=9)
     ax.set_xlabel("t [s]")
-    for a in axes[P + 1:]:
+    for a in axes[P + 1 :]:
         a.set_visible(False)
     fig.suptitle(f"parameter estimates ({ok.sum()} trials) — {title}", fontsize=9)
     fig.tight_layout()

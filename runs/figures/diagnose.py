@@ -24,8 +24,9 @@ def _xcorr(a: np.ndarray, b: np.ndarray, lags: int) -> np.ndarray:
     a, b = a - a.mean(), b - b.mean()
     N = a.size
     den = N * a.std() * b.std() or 1.0
-    return np.array([np.sum(a[max(k, 0):N + min(k, 0)] * b[max(-k, 0):N - max(k, 0)]) / den
-                     for k in range(-lags, lags + 1)])
+    return np.array(
+        [np.sum(a[max(k, 0) : N + min(k, 0)] * b[max(-k, 0) : N - max(k, 0)]) / den for k in range(-lags, lags + 1)]
+    )
 
 
 def _binned(x: np.ndarray, y: np.ndarray, bins: int = BINS, edges=None):
@@ -86,8 +87,12 @@ def resid_figure(d, out: Path, name: str = "resid.png", title: str = "") -> str:
         ax = axes[2 * i, 2]
         ax.plot(t, e, color="C3", lw=0.6, label="residual")
         ax.fill_between(t, -2 * np.std(e), 2 * np.std(e), color="0.85", lw=0, label="± 2 RMS")
-        ax.set_title(f"residual against time (RMS {np.sqrt(np.mean(e**2)):.3g}, "
-                     f"{100 * np.linalg.norm(e) / np.linalg.norm(tau[:, i]):.1f} % of the torque)", fontsize=9, loc="left")
+        ax.set_title(
+            f"residual against time (RMS {np.sqrt(np.mean(e**2)):.3g}, "
+            f"{100 * np.linalg.norm(e) / np.linalg.norm(tau[:, i]):.1f} % of the torque)",
+            fontsize=9,
+            loc="left",
+        )
         ax.set_xlabel("t [s]")
         ax.legend(fontsize=7, loc="upper right")
         for ax, x, label in ((axes[2 * i + 1, 0], qd[:, i], f"q̇{i + 1}"), (axes[2 * i + 1, 1], q[:, i], f"q{i + 1}")):
@@ -110,13 +115,17 @@ def resid_figure(d, out: Path, name: str = "resid.png", title: str = "") -> str:
         ax.set_xlabel("frequency [Hz] (dotted: identification cut-off)")
         ax.set_title("spectrum", fontsize=9, loc="left")
         ax.legend(fontsize=7, loc="upper right")
-    fig.suptitle(f"{title or Path(data.rec.path).name}: residual of {f.model.spec} (rel_error {100 * f.rel_error:.2f} %), "
-                 f"{rows.size} rows, one per {h * 1e3:.3g} ms", fontsize=10)
+    fig.suptitle(
+        f"{title or Path(data.rec.path).name}: residual of {f.model.spec} (rel_error {100 * f.rel_error:.2f} %), "
+        f"{rows.size} rows, one per {h * 1e3:.3g} ms",
+        fontsize=10,
+    )
     fig.tight_layout()
     return save(fig, out, name)
 
 
 # -- evidence per candidate -----------------------------------------------------------------
+
 
 def _term(c, data) -> np.ndarray:
     """The candidate's fitted torque (its own effect and what it brought) on the used rows,
@@ -139,8 +148,10 @@ def _headline(c, verdict) -> str:
     tag = "VERDICT" if c is verdict else ("significant" if c.significant else "not significant")
     if c.overlaps:
         tag += f", overlaps {c.overlaps}"
-    return (f"{c.spec} [{tag}]: removes {100 * c.error_reduction:.1f} % of the error "
-            f"({100 * c.cv_error_reduction:.1f} % held out, p = {c.p_value:.2g})")
+    return (
+        f"{c.spec} [{tag}]: removes {100 * c.error_reduction:.1f} % of the error "
+        f"({100 * c.cv_error_reduction:.1f} % held out, p = {c.p_value:.2g})"
+    )
 
 
 def _search_panel(ax, c):
@@ -168,11 +179,13 @@ def _search_panel(ax, c):
     ax.set_title(f"search over the whole record: best {x[best]:.4g}", fontsize=9, loc="left")
 
 
-HOW = {"velocity": "residual binned against velocity: friction is a function of q̇ (a sign step, a slope, a V)",
-       "position": "residual against position: a load that depends on where the joint is",
-       "time": "residual against time: a constant or slowly varying torque",
-       "shift": "a late torque leaves residual ≈ delay × dτ/dt",
-       "acceleration": "residual against acceleration: inertia"}
+HOW = {
+    "velocity": "residual binned against velocity: friction is a function of q̇ (a sign step, a slope, a V)",
+    "position": "residual against position: a load that depends on where the joint is",
+    "time": "residual against time: a constant or slowly varying torque",
+    "shift": "a late torque leaves residual ≈ delay × dτ/dt",
+    "acceleration": "residual against acceleration: inertia",
+}
 
 
 def evidence_figure(d, c, out: Path, name: str, title: str = "") -> str:
@@ -205,9 +218,12 @@ def evidence_figure(d, c, out: Path, name: str, title: str = "") -> str:
             how = "residual against position modulo the period"
             y = term[:, i]
         else:
-            x, xl = {"velocity": (qd[:, i], f"q̇{i + 1}"), "position": (q[:, i], f"q{i + 1}"),
-                     "time": (data.rec.t[rows], "t [s]"),
-                     "acceleration": (data.qdd[rows, i], f"q̈{i + 1}")}[effect.evidence]
+            x, xl = {
+                "velocity": (qd[:, i], f"q̇{i + 1}"),
+                "position": (q[:, i], f"q{i + 1}"),
+                "time": (data.rec.t[rows], "t [s]"),
+                "acceleration": (data.qdd[rows, i], f"q̈{i + 1}"),
+            }[effect.evidence]
             y = term[:, i]
         ax.plot(x, e[:, i], ".", ms=1.5, color="0.65", alpha=0.45, rasterized=True)
         bc, bm, bse = _binned(x, e[:, i])
@@ -218,7 +234,9 @@ def evidence_figure(d, c, out: Path, name: str, title: str = "") -> str:
         lim = np.percentile(np.abs(e[:, i]), 99.5) * 1.1
         ax.set_ylim(-lim, lim)
         red = c.detail.get("per_joint_error_reduction", [None] * n)[i]
-        ax.set_title(f"joint {i + 1}" + (f": removes {100 * red:.1f} %" if red is not None else ""), fontsize=9, loc="left")
+        ax.set_title(
+            f"joint {i + 1}" + (f": removes {100 * red:.1f} %" if red is not None else ""), fontsize=9, loc="left"
+        )
         ax.set_xlabel(xl)
         ax.set_ylabel("residual")
         ax.legend(fontsize=7, loc="upper right")
@@ -246,14 +264,19 @@ def _compliance_panel(ax, c, i: int):
     lo, hi = band(2 * m.freq[-1])
     ax.axvspan(lo, hi, color="C2", alpha=0.08, lw=0, label="band fitted (coherence-weighted)")
     ax.set_xlabel("frequency [Hz]")
-    ax.set_title(f"joint {i + 1}: frequency response (resonance peak: {'yes' if m.resonant else 'no'})", fontsize=9, loc="left")
+    ax.set_title(
+        f"joint {i + 1}: frequency response (resonance peak: {'yes' if m.resonant else 'no'})", fontsize=9, loc="left"
+    )
     ax.legend(fontsize=7, loc="lower left")
 
 
 def evidence_figures(d, out: Path, prefix: str = "", title: str = "") -> dict[str, str]:
     """One evidence figure per candidate: {effect: path}."""
-    return {c.effect: evidence_figure(d, c, out, f"{prefix}evidence_{c.effect}.png", title)
-            for c in d.candidates if c.fit is not None or c.mode is not None}
+    return {
+        c.effect: evidence_figure(d, c, out, f"{prefix}evidence_{c.effect}.png", title)
+        for c in d.candidates
+        if c.fit is not None or c.mode is not None
+    }
 
 
 def unexplained_figure(d, out: Path, name: str, title: str = "") -> str | None:
@@ -269,8 +292,12 @@ def unexplained_figure(d, out: Path, name: str, title: str = "") -> str | None:
     i = (u.get("of_joint") or u["joint"]) - 1
     e = f.residual[:, j]
     what = u.get("variable") or "time"
-    x = {"position": data.q[rows, i], "velocity": data.qd[rows, i], "position x direction": data.q[rows, i],
-         RIPPLE: data.q[rows, i]}.get(what, data.rec.t[rows])
+    x = {
+        "position": data.q[rows, i],
+        "velocity": data.qd[rows, i],
+        "position x direction": data.q[rows, i],
+        RIPPLE: data.q[rows, i],
+    }.get(what, data.rec.t[rows])
     fig, ax = plt.subplots(1, 1, figsize=(7, 4))
     if what == RIPPLE:  # the residual per unit of the model's torque: the ripple ε(q) where the torque is not small
         fitted = f.predicted()[:, i]
@@ -280,19 +307,23 @@ def unexplained_figure(d, out: Path, name: str, title: str = "") -> str | None:
     if what == "position x direction":
         for sel, col, lab in ((data.qd[rows, i] > 0, "C3", "moving +"), (data.qd[rows, i] <= 0, "C0", "moving −")):
             bc, bm, bse = _binned(x[sel], e[sel])
-            ax.errorbar(bc, bm, yerr=2 * bse, fmt="o-", ms=2.5, color=col, lw=1.0, label=f"residual {lab}, binned ± 2 se")
+            ax.errorbar(
+                bc, bm, yerr=2 * bse, fmt="o-", ms=2.5, color=col, lw=1.0, label=f"residual {lab}, binned ± 2 se"
+            )
     else:
         bc, bm, bse = _binned(x, e)
         ax.errorbar(bc, bm, yerr=2 * bse, fmt="o-", ms=2.5, color="C3", lw=1.0, label="residual, binned mean ± 2 se")
     ax.axhline(0, color="k", lw=0.6)
     ax.set_xlabel(f"position of joint {i + 1}" if what == RIPPLE else u["against"] if what != "frequency" else "t [s]")
     ax.set_ylabel(f"residual, joint {j + 1}" + (f" / the model's torque, joint {i + 1}" if what == RIPPLE else ""))
-    verdict = ("something no effect of the vocabulary explains" if u["significant"]
-               else "no structure beyond noise")
+    verdict = "something no effect of the vocabulary explains" if u["significant"] else "no structure beyond noise"
     how = what_removes(u)
-    ax.set_title(f"{title or Path(data.rec.path).name}: left after {f.model.spec}: {verdict}\n"
-                 f"{how} removes {100 * u['fraction']:.0f} % held out "
-                 f"(p = {u['p_value']:.2g}, {u.get('tests', 0)} variables tested)", fontsize=9)
+    ax.set_title(
+        f"{title or Path(data.rec.path).name}: left after {f.model.spec}: {verdict}\n"
+        f"{how} removes {100 * u['fraction']:.0f} % held out "
+        f"(p = {u['p_value']:.2g}, {u.get('tests', 0)} variables tested)",
+        fontsize=9,
+    )
     ax.legend(fontsize=7)
     fig.tight_layout()
     return save(fig, out, name)
@@ -300,6 +331,8 @@ def unexplained_figure(d, out: Path, name: str, title: str = "") -> str | None:
 
 def diagnosis_figures(d, out: Path, stem: str) -> dict:
     """A diagnosis's figures: the residual, one evidence figure per candidate, what is left."""
-    return {"resid": resid_figure(d, out, f"{stem}_resid.png"),
-            "evidence": evidence_figures(d, out, prefix=f"{stem}_"),
-            "unexplained": unexplained_figure(d, out, f"{stem}_unexplained.png")}
+    return {
+        "resid": resid_figure(d, out, f"{stem}_resid.png"),
+        "evidence": evidence_figures(d, out, prefix=f"{stem}_"),
+        "unexplained": unexplained_figure(d, out, f"{stem}_unexplained.png"),
+    }

@@ -34,25 +34,36 @@ def estimates_figure(t: np.ndarray, estimates: dict, report: dict, out: Path, jo
     start, stop = report["scored_samples"]
     zoom = zoom_window(ref, report["dt"], start, stop)
     label = "true velocity" if report["truth"] else "offline reference"
-    fig, axes = plt.subplots(len(rows), 2, figsize=(11, 1.55 * len(rows) + 0.6), sharex="col", squeeze=False,
-                             gridspec_kw={"width_ratios": (2.2, 1)})
-    for ax, row in zip(axes, rows):
+    fig, axes = plt.subplots(
+        len(rows),
+        2,
+        figsize=(11, 1.55 * len(rows) + 0.6),
+        sharex="col",
+        squeeze=False,
+        gridspec_kw={"width_ratios": (2.2, 1)},
+    )
+    for ax, row in zip(axes, rows, strict=True):
         v = estimates[row["name"]][:, joint]
         for a, sl in ((ax[0], slice(None)), (ax[1], zoom)):
             a.plot(t[sl], v[sl], lw=0.6, color="C0", label="estimate")
             a.plot(t[sl], ref[sl, joint], lw=0.9, color="k", ls="--", label=label)
         knob = row.get("knob")
         text = f"{row['name']}" + (f"  {knob['name']}={knob['value']:.3g}" if knob else "")
-        ax[0].set_title(f"{text}   RMS {_number(row['rms_error'], '.3g')}, lag {_number(row['lag_ms'], '.2f')} ms",
-                        fontsize=8, loc="left")
+        ax[0].set_title(
+            f"{text}   RMS {_number(row['rms_error'], '.3g')}, lag {_number(row['lag_ms'], '.2f')} ms",
+            fontsize=8,
+            loc="left",
+        )
         ax[0].set_ylabel("q̇")
         ax[0].axvspan(t[zoom][0], t[zoom][-1], color="0.9", zorder=-1)  # where the zoom is
     axes[0, 0].legend(loc="upper right", fontsize=7)
     axes[-1, 0].set_xlabel("t [s]")
     axes[-1, 1].set_xlabel("t [s] (zoom)")
-    fig.suptitle(f"{Path(report['recording']).name}: velocity estimates of joint {joint + 1}, "
-                 f"{1 / report['dt']:g} Hz, encoder step {report['step']['value']:.3g} ({report['step']['source']})",
-                 fontsize=9)
+    fig.suptitle(
+        f"{Path(report['recording']).name}: velocity estimates of joint {joint + 1}, "
+        f"{1 / report['dt']:g} Hz, encoder step {report['step']['value']:.3g} ({report['step']['source']})",
+        fontsize=9,
+    )
     fig.tight_layout()
     return save(fig, out, f"estimates_joint{joint + 1}.png")
 
@@ -90,8 +101,10 @@ def estimator_figures(rec, report: dict, estimates: dict, out) -> dict:
     responses = {}
     for row in report["estimators"]:
         knob = {row["knob"]["name"]: row["knob"]["value"]} if "knob" in row else {}
-        responses[row["name"]] = frequency_response(row["name"], freqs, rec.dt, amplitude,
-                                                    step=report["step"]["value"], **knob)
+        responses[row["name"]] = frequency_response(
+            row["name"], freqs, rec.dt, amplitude, step=report["step"]["value"], **knob
+        )
     paths["frequency_response"] = response_figure(
-        freqs, responses, out, f"frequency response at amplitude {amplitude:.3g} (model-based: model exact)")
+        freqs, responses, out, f"frequency response at amplitude {amplitude:.3g} (model-based: model exact)"
+    )
     return paths

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from manus.runs.figures.common import pyplot, save
 from manus.experiments.freerun import nrmse_fit
+from manus.runs.figures.common import pyplot, save
 
 ZOOM_S = 2.0  # the zoom on the tracking error: this many seconds in the middle of the recording
 
@@ -39,7 +39,16 @@ def compare_figure(f, run, out: Path, name: str = "compare.png", title: str = ""
         ax.legend(loc="upper right", fontsize=7)
         ax = axes[1, i]
         if isinstance(run, str):
-            ax.text(0.5, 0.5, f"no free run:\n{run}", ha="center", va="center", transform=ax.transAxes, fontsize=8, wrap=True)
+            ax.text(
+                0.5,
+                0.5,
+                f"no free run:\n{run}",
+                ha="center",
+                va="center",
+                transform=ax.transAxes,
+                fontsize=8,
+                wrap=True,
+            )
             ax.set_axis_off()
             continue
         ax.plot(run.t, run.q[:, i], color="k", lw=0.8, label="measured")
@@ -54,14 +63,19 @@ def compare_figure(f, run, out: Path, name: str = "compare.png", title: str = ""
             sl = slice(max(0, mid - half), mid + half)
             ax.plot(run.t[sl], (run.q - run.q_ref)[sl, i], color="k", lw=0.8, label="measured")
             ax.plot(run.t[sl], (run.q_sim - run.q_ref)[sl, i], color="C0", lw=0.8, ls="--", label="free run")
-            ax.set_title(f"tracking error q{i + 1} − q_ref{i + 1} (zoom): fit {run.fit_tracking[i]:.1f} % "
-                         f"over the whole run", fontsize=9, loc="left")
+            ax.set_title(
+                f"tracking error q{i + 1} − q_ref{i + 1} (zoom): fit {run.fit_tracking[i]:.1f} % over the whole run",
+                fontsize=9,
+                loc="left",
+            )
             ax.legend(loc="upper right", fontsize=7)
         axes[-1, i].set_xlabel("t [s]")
     how = run if isinstance(run, str) else run.how
-    fig.suptitle(f"{title or Path(d.rec.path).name}: model {f.model.spec}, rel_error {100 * f.rel_error:.2f} %, "
-                 f"torque low-passed at {d.cutoff_hz:.0f} Hz\nfree run (JAX simulator, fitted parameters): {how}",
-                 fontsize=9)
+    fig.suptitle(
+        f"{title or Path(d.rec.path).name}: model {f.model.spec}, rel_error {100 * f.rel_error:.2f} %, "
+        f"torque low-passed at {d.cutoff_hz:.0f} Hz\nfree run (JAX simulator, fitted parameters): {how}",
+        fontsize=9,
+    )
     fig.tight_layout()
     return save(fig, out, name)
 

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from manus.runs.figures.common import pyplot, save
 from manus.experiments.stability.steptest import SAMPLES_1KHZ, THESIS_PSD, TYPE1, TYPE2, periodogram
+from manus.runs.figures.common import pyplot, save
 
 COLORS = {0: "#d9f0d3", TYPE1: "#9ecae1", TYPE2: "#fdae6b"}  # stable, Type 1, Type 2
 
@@ -66,7 +66,7 @@ def step_response(traj, test, k: float, b_c: float, out, name: str = "type2_resp
     last = t >= t[-1] - 0.2
     axes[1].plot(t[last], 1e3 * x[last], lw=0.7, drawstyle="steps-post")
     axes[1].set(xlabel="t [s]", ylabel="x [mm]", title="close-up: the last 0.2 s (measured)")
-    tail = x[-test.tail:]
+    tail = x[-test.tail :]
     f, p = periodogram(tail, test.rate_hz)
     axes[2].semilogy(f[1:], np.maximum(np.asarray(p)[1:], 1e-16), lw=0.7)
     axes[2].axhline(THESIS_PSD, color="C3", ls="--", lw=0.8, label="1e-6 (Type 2)")
@@ -81,12 +81,13 @@ def appendix_d(maps: dict, summary: dict, out, name: str = "appendix_d_100hz.png
     """Figs. D-1 to D-3: the maps at 100 Hz, uncoupled and against the springs."""
     plt = pyplot()
     fig, axes = plt.subplots(1, len(maps), figsize=(4.6 * len(maps), 4), squeeze=False)
-    for ax, (spring, smap) in zip(axes[0], maps.items()):
+    for ax, (spring, smap) in zip(axes[0], maps.items(), strict=True):
         _kinds(ax, smap)
         s = summary["springs"][f"{spring:g}"]
         ax.plot(smap.b_cs, _nan(s["linear_sampled"]), "k--", lw=1, label="Type 1, linear, sampled")
-        ax.set_title(f"{summary['rate_hz']:g} Hz, " + ("uncoupled" if spring == 0 else f"k_env = {spring:g} N/m"),
-                     fontsize=9)
+        ax.set_title(
+            f"{summary['rate_hz']:g} Hz, " + ("uncoupled" if spring == 0 else f"k_env = {spring:g} N/m"), fontsize=9
+        )
         ax.legend(fontsize=7, loc="upper left")
     fig.tight_layout()
     return save(fig, out, name)
@@ -97,15 +98,15 @@ def sensitivity(sens: dict, out, name: str = "sensitivity.png") -> str:
     plt = pyplot()
     tables = sens["tables"]
     fig, axes = plt.subplots(1, len(tables), figsize=(3.6 * len(tables), 3.6), squeeze=False)
-    for ax, table in zip(axes[0], tables):
+    for ax, table in zip(axes[0], tables, strict=True):
         values = [r["value"] for r in table["rows"]]
         for j, probe in enumerate(table["rows"][0]["probes"]):
             if probe["probe"].startswith("b_c"):
                 continue
             lim = [r["probes"][j]["limit"] for r in table["rows"]]
             kinds = [r["probes"][j]["kind"] for r in table["rows"]]
-            line, = ax.plot(values, lim, "-", lw=0.8, label=probe["probe"])
-            for v, k, kd in zip(values, lim, kinds):
+            (line,) = ax.plot(values, lim, "-", lw=0.8, label=probe["probe"])
+            for v, k, kd in zip(values, lim, kinds, strict=True):
                 ax.plot(v, k, "o", color=line.get_color(), mfc=line.get_color() if kd == "type1" else "none")
         ax.set(xlabel=table["parameter"], ylabel="largest stable k [N/m]")
         ax.set_title(table["label"], fontsize=8)

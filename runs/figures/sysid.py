@@ -15,7 +15,7 @@ def oscillations(traces: dict, replays: dict, out) -> str:
 
     plt = pyplot()
     fig, axes = plt.subplots(1, len(traces), figsize=(4.2 * len(traces), 3.2), squeeze=False)
-    for ax, test in zip(axes[0], lock_tests()):
+    for ax, test in zip(axes[0], lock_tests(), strict=True):
         traj, model = traces[test.name], replays[test.name]
         ax.plot(traj.t, traj.q[:, test.joint], lw=0.9, label=f"q{test.joint + 1}, simulated arm")
         ax.plot(model.t, model.q[:, 0], "--", lw=0.9, label="fitted 1-DOF model")
@@ -32,11 +32,14 @@ def workspace(points, cart, out) -> str:
     theta = np.linspace(0, 2 * np.pi, 80)
     unit = np.stack([np.cos(theta), np.sin(theta)])
     spacing = 0.5 * np.min(np.diff(np.unique(points[:, 0])))
-    for ax, key, title in zip(axes, ("inertia", "damping", "friction"),
-                              ("inertia ellipses [kg]", "viscous damping ellipses [N·s/m]",
-                               "Coulomb friction parallelograms [N]")):
+    for ax, key, title in zip(
+        axes,
+        ("inertia", "damping", "friction"),
+        ("inertia ellipses [kg]", "viscous damping ellipses [N·s/m]", "Coulomb friction parallelograms [N]"),
+        strict=True,
+    ):
         size = max(np.abs(c[key]).max() for c in cart)
-        for p, c in zip(points, cart):
+        for p, c in zip(points, cart, strict=True):
             shape = (c[key] @ unit).T if key != "friction" else np.vstack([c[key], c[key][:1]])
             ax.plot(*(p + spacing * shape / size).T, lw=0.9)
             ax.plot(*p, "k.", ms=2)
@@ -46,7 +49,13 @@ def workspace(points, cart, out) -> str:
         ax.add_patch(plt.Circle((0, 0), 0.05, fill=False, lw=1.5))  # the actuators
         lo, hi = points.min(0) - spacing, points.max(0) + spacing
         ax.add_patch(plt.Rectangle(lo, *(hi - lo), fill=False, lw=1.2))  # the workspace
-        ax.set(aspect="equal", xlabel="x [m]", ylabel="y [m]", title=title, xlim=(lo[0] - 0.05, hi[0] + 0.05),
-               ylim=(-0.08, hi[1] + 0.05))
+        ax.set(
+            aspect="equal",
+            xlabel="x [m]",
+            ylabel="y [m]",
+            title=title,
+            xlim=(lo[0] - 0.05, hi[0] + 0.05),
+            ylim=(-0.08, hi[1] + 0.05),
+        )
     fig.tight_layout()
     return save(fig, out, "sysid_cartesian.png")

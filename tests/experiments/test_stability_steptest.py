@@ -7,8 +7,17 @@ from scipy import signal
 
 from manus.experiments.stability.linear import LinearAxis
 from manus.experiments.stability.search import edge, stability_map
-from manus.experiments.stability.steptest import (STABLE, TYPE1, TYPE2, Metrics, StepTest, batched, line_amplitude, periodogram,
-                                     verdict)
+from manus.experiments.stability.steptest import (
+    STABLE,
+    TYPE1,
+    TYPE2,
+    Metrics,
+    StepTest,
+    batched,
+    line_amplitude,
+    periodogram,
+    verdict,
+)
 
 
 def test_periodogram_is_the_fft_periodogram_and_reads_lines_the_same_at_any_rate():
@@ -28,9 +37,14 @@ def test_periodogram_is_the_fft_periodogram_and_reads_lines_the_same_at_any_rate
 
 def test_verdict_rules():
     test = StepTest(spring=1050.0)
-    m = Metrics(amplitude=np.array([1e-3, 2.6e-3, 2.6e-3, 1e-5, 1e-4, np.nan]),
-                move=np.full(6, 0.005 * 1000 / 2050), psd=np.array([0, 0, 0, 2e-6, 0, 0]),
-                psd_hz=np.full(6, 219.0), dominant_hz=np.array([20, 20, 219, 219, 20, 20]), samples=np.full(6, 1000))
+    m = Metrics(
+        amplitude=np.array([1e-3, 2.6e-3, 2.6e-3, 1e-5, 1e-4, np.nan]),
+        move=np.full(6, 0.005 * 1000 / 2050),
+        psd=np.array([0, 0, 0, 2e-6, 0, 0]),
+        psd_hz=np.full(6, 219.0),
+        dominant_hz=np.array([20, 20, 219, 219, 20, 20]),
+        samples=np.full(6, 1000),
+    )
     # decaying; sustained at the spring's share of the step (2.4 mm, not 5 mm) at 20 Hz, or at
     # 219 Hz; a 200 Hz line above 1e-6; a tiny move below one encoder step; a blow-up
     np.testing.assert_array_equal(verdict(m, test), [STABLE, TYPE1, TYPE2, TYPE2, STABLE, TYPE1])
@@ -54,8 +68,9 @@ def test_rigid_step_test_meets_the_sampled_linear_threshold():
 @pytest.fixture(scope="module")
 def thesis_map():
     test = StepTest()
-    return test, stability_map(test, [0.0, 5.0, 15.0, 25.0], [300.0, 600.0, 1200.0, 2400.0, 4800.0, 9600.0],
-                               progress=False)
+    return test, stability_map(
+        test, [0.0, 5.0, 15.0, 25.0], [300.0, 600.0, 1200.0, 2400.0, 4800.0, 9600.0], progress=False
+    )
 
 
 def test_map_has_the_thesis_shape(thesis_map):

@@ -4,10 +4,10 @@ worker, each vmapped) give the same result; trials do not depend on the batch th
 import numpy as np
 import pytest
 
-from manus.plants.errors import ManusError
 from manus.experiments.stability import sweep
 from manus.experiments.stability.search import read_map
 from manus.experiments.stability.steptest import StepTest, verdict
+from manus.plants.errors import ManusError
 
 TEST = StepTest(seconds=2.5, at=1.0)  # a shorter step test: the same code, cheaper
 B_CS = np.array([0.0, 12.0, 24.0, 36.0])
@@ -24,7 +24,7 @@ def test_distributed_sweep_equals_the_local_one(local_grid):
 
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
         remote = sweep.grid(TEST, B_CS, KS, cluster=cluster.scheduler_address, chunk=8, progress=True)
-    for name, a, b in zip(local_grid._fields, local_grid, remote):
+    for name, a, b in zip(local_grid._fields, local_grid, remote, strict=True):
         assert a.shape == (len(B_CS), len(KS)), name
         if name == "psd":  # the FFT's rounding may depend on its batch: equal to 1e-12
             np.testing.assert_allclose(a, b, rtol=1e-10, atol=0)

@@ -10,8 +10,21 @@ pytest.importorskip("pinocchio")
 
 
 def test_bench_robot_reports_rows_per_second_beside_pinocchio(capsys):
-    code = main(["bench", "robot", "--states", "20", "--pinocchio-states", "5", "--repeats", "1", "--fit-seconds", "0",
-                 "--json"])
+    code = main(
+        [
+            "bench",
+            "robot",
+            "--states",
+            "20",
+            "--pinocchio-states",
+            "5",
+            "--repeats",
+            "1",
+            "--fit-seconds",
+            "0",
+            "--json",
+        ]
+    )
     captured = capsys.readouterr()
     assert code == 0, captured.err
     r = json.loads(captured.out)
@@ -22,8 +35,25 @@ def test_bench_robot_reports_rows_per_second_beside_pinocchio(capsys):
 
 def test_bench_robot_times_the_simulated_panda_and_its_fit(capsys):
     """The loop's figures on tiny sizes: 2 s simulated, fitted; a batch of 2 trials of 50 ms."""
-    code = main(["bench", "robot", "--states", "4", "--pinocchio-states", "2", "--repeats", "1", "--fit-seconds", "2",
-                 "--trials", "2", "--batch-seconds", "0.05", "--json"])
+    code = main(
+        [
+            "bench",
+            "robot",
+            "--states",
+            "4",
+            "--pinocchio-states",
+            "2",
+            "--repeats",
+            "1",
+            "--fit-seconds",
+            "2",
+            "--trials",
+            "2",
+            "--batch-seconds",
+            "0.05",
+            "--json",
+        ]
+    )
     captured = capsys.readouterr()
     assert code == 0, captured.err
     f = json.loads(captured.out)["figures"]

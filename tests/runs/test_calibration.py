@@ -54,8 +54,9 @@ def test_calibration_nothing_missing_gives_a_null_verdict(index):
 def test_calibration_a_hidden_effect_is_named(effect):
     c = calibration.case(SEED + 100 + HIDDEN.index(effect), effect, **_easy(effect))
     d = diagnose(c.rec, c.start)
-    assert d.verdict is not None and d.verdict.effect == effect, \
+    assert d.verdict is not None and d.verdict.effect == effect, (
         f"{c.describe()} ({c.condition}): verdict {_verdict(d)}"
+    )
     if c.joint is not None:
         assert d.verdict.joint == c.joint, f"{c.describe()}: named on joint {d.verdict.joint}"
 
@@ -68,8 +69,11 @@ def test_calibration_a_hidden_effect_is_named(effect):
 # the spring (seed 2020960705) are named without it; of the named hidden effects of seeds 0 and 5,
 # this asymmetry is the one that still needs it.
 ENCOMPASSED = [
-    (557679455, "asymmetry", dict(structure="axis", rate=200, excitation="multisine", torque="coloured",
-                                  hold="not stated")),
+    (
+        557679455,
+        "asymmetry",
+        dict(structure="axis", rate=200, excitation="multisine", torque="coloured", hold="not stated"),
+    ),
 ]
 
 
@@ -108,7 +112,8 @@ def _swing(seconds=6.0, rate=200, amplitude=0.3):
 def test_calibration_distinct_share_of_a_hidden_effect():
     """A tilted plane on a ±0.3 rad swing is nearly a constant plus a spring: what sets it apart
     is its curvature, which a least-squares line in q leaves (numpy, per joint): the distinct
-    share is that (the spring with its preload is the closest rival). A 39/rev cogging has no rival: its distinct share is nearly all of it."""
+    share is that (the spring with its preload is the closest rival). A 39/rev cogging has no
+    rival: its distinct share is nearly all of it."""
     import numpy as np
 
     from manus.plants.effects import Cogging, Gravity
@@ -124,8 +129,9 @@ def test_calibration_distinct_share_of_a_hidden_effect():
     assert got == pytest.approx(curvature, rel=1e-4) and curvature < 0.05 * whole  # the spring's line is the best rival
     c = {"A1": 0.01, "B1": 0.005, "A2": 0.008, "B2": -0.004}
     cogging = sizing.distinct(calibration.ARM, Cogging(order=39.0), c, "", traj, dt)
-    size = float(np.sqrt(np.mean(sizing.effect_torque(calibration.ARM, Cogging(order=39.0), c, q, traj.qd_true,
-                                                           0 * q) ** 2)))
+    size = float(
+        np.sqrt(np.mean(sizing.effect_torque(calibration.ARM, Cogging(order=39.0), c, q, traj.qd_true, 0 * q) ** 2))
+    )
     assert cogging == pytest.approx(size, rel=0.2)
 
 
@@ -137,7 +143,9 @@ def test_calibration_bench_runs_in_worker_processes(calibrate_args):
     args = calibrate_args(recordings=1, effects="offset", seed=3, alpha=None, blocks=None, jobs=2)
     r = bench.calibrate(args)
     assert [x["hidden"] for x in r["results"]] == [None, "offset"]
-    assert all(x["outcome"] in ("quiet", "false alarm", "named", "reading", "missed", "wrong") for x in r["results"]), r["results"]
+    assert all(x["outcome"] in ("quiet", "false alarm", "named", "reading", "missed", "wrong") for x in r["results"]), (
+        r["results"]
+    )
     from manus.adaptive import ALPHA
 
     assert r["crashes"] == {} and r["jobs"] == 2 and r["alpha"] == pytest.approx(ALPHA)
@@ -160,8 +168,9 @@ def test_calibration_at_a_rate_of_the_users_choice():
     outside 100 Hz–20 kHz, is refused by name."""
     import numpy as np
 
-    c = calibration.case(SEED, "delay", rates=(2000,), structure="axis", excitation="reaching", torque="exact",
-                         hold="stated")
+    c = calibration.case(
+        SEED, "delay", rates=(2000,), structure="axis", excitation="reaching", torque="exact", hold="stated"
+    )
     assert c.condition["rate"] == 2000 and np.median(np.diff(c.rec.t)) == pytest.approx(5e-4)
     assert len(c.rec) == pytest.approx(12.0 * 2000, abs=2) and c.condition["delay_ms"] > 1.0
     assert c.condition["hidden_fraction"][0] == pytest.approx(calibration.AMPLITUDE, rel=calibration.TOLERANCE)

@@ -1,8 +1,12 @@
 """The `manus` command's contract: --json prints one object on stdout; errors are one line."""
 
+import importlib.metadata
 import json
+import subprocess
+import sys
 
 import numpy as np
+import pytest
 
 from manus.plants import recording
 from manus.runs.cli import main
@@ -33,10 +37,12 @@ def test_errors_are_one_line_and_non_zero(tmp_path, capsys):
 
 def test_a_plant_that_breaks_physics_is_refused_by_name(tmp_path, capsys):
     """Options that describe no physical plant: one line naming the rule, no simulation."""
-    for argv, message in ((["--param", "a1=-1"], "H(q) is not positive definite"),
-                          (["--param", "b2=-0.1"], "viscous friction dissipates"),
-                          (["--structure", "axis", "--joints", "0"], "at least one joint"),
-                          (["--torque-noise", "-1"], "neither can be negative")):
+    for argv, message in (
+        (["--param", "a1=-1"], "H(q) is not positive definite"),
+        (["--param", "b2=-0.1"], "viscous friction dissipates"),
+        (["--structure", "axis", "--joints", "0"], "at least one joint"),
+        (["--torque-noise", "-1"], "neither can be negative"),
+    ):
         code = main(["simulate", *argv, "--seconds", "0.1", "--out", str(tmp_path / "x.csv")])
         err = capsys.readouterr().err.strip()
         assert code == 2 and "\n" not in err and message in err, err
@@ -71,3 +77,18 @@ def test_what_was_done_to_a_recording_as_it_was_read_is_one_line(tmp_path, capsy
     assert main(["fit", "--model", "rigid,viscous,coulomb", str(wrapped), "--no-figures", "--json"]) == 0
     err = capsys.readouterr().err
     assert "manus fit: note: " in err and "q2 wraps" in err and "unwrapped" in err and "Warning" not in err, err
+
+
+def test_version_is_the_installed_one(capsys):
+    with pytest.raises(SystemExit) as exit_:
+        main(["--version"])
+    assert exit_.value.code == 0
+    assert capsys.readouterr().out.strip() == f"manus {importlib.metadata.version('manus')}"
+
+
+def test_importing_the_command_sets_no_environment(tmp_path):
+    """The environment numpy and JAX read (threads, XLA flags) is set when `main` runs, not on import."""
+    code = "import os; before = dict(os.environ); import manus.runs.cli; print(dict(os.environ) == before)"
+    out = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip() == "True"

@@ -10,11 +10,11 @@ import json
 
 import pytest
 
+from manus.experiments import convergence
+from manus.experiments.convergence import controller_for, run_trials, summarize
 from manus.plants import Model, Simulator
 from manus.plants.structures import Manus2
 from manus.runs.cli import main
-from manus.experiments import convergence
-from manus.experiments.convergence import controller_for, run_trials, summarize
 
 TRUTH = "rigid,viscous,coulomb"
 RIGID = ("a1", "a2", "a3")
@@ -79,7 +79,7 @@ def test_composite_adaptation_converges_faster_than_the_gradient_law_on_the_same
 
 
 def test_the_benign_trajectory_does_not_determine_the_parameters(rigid_only):
-    tr, s = trials("rigid", trajectory="benign", n=6)
+    _, s = trials("rigid", trajectory="benign", n=6)
     assert s["excitation"]["lambda_min"] < 0.01 * rigid_only[0]["excitation"]["lambda_min"]
     # the estimates wander: they end where their different starts and gains left them
     assert max(p["final_std"] / p["truth"] for p in s["params"].values()) > 0.05

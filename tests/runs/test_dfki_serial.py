@@ -70,8 +70,11 @@ def test_rigid_base_parameters_match_dfki_published(comparison):
 def test_to_relative_writes_a_urdf_recording(files, tmp_path):
     """The converter, as a user runs it: a recording of the chain that `manus fit` reads (its
     URDF named relative to the file), and a one-line error for a file that is not a DFKI export."""
-    out = subprocess.run([sys.executable, str(EXAMPLE / "to_relative.py"), str(files[1]), "-o", str(tmp_path)],
-                         capture_output=True, text=True)
+    out = subprocess.run(
+        [sys.executable, str(EXAMPLE / "to_relative.py"), str(files[1]), "-o", str(tmp_path)],
+        capture_output=True,
+        text=True,
+    )
     assert out.returncode == 0, out.stderr
     from manus.plants import recording
 
@@ -82,7 +85,8 @@ def test_to_relative_writes_a_urdf_recording(files, tmp_path):
     np.testing.assert_allclose(rel.tau @ np.array([[1.0, 0.0], [-1.0, 1.0]]), src.tau, atol=1e-9)  # motors -> absolute
     bad = tmp_path / "plain.csv"
     bad.write_text("# sample_rate_hz: 500\nt,q1,q2,tau1,tau2\n0,0,0,0,0\n0.002,0,0,0,0\n")
-    out = subprocess.run([sys.executable, str(EXAMPLE / "to_relative.py"), str(bad), "-o", str(tmp_path)],
-                         capture_output=True, text=True)
+    out = subprocess.run(
+        [sys.executable, str(EXAMPLE / "to_relative.py"), str(bad), "-o", str(tmp_path)], capture_output=True, text=True
+    )
     assert out.returncode == 2 and "not one of the DFKI double pendulum's exports" in out.stderr
     assert "Traceback" not in out.stderr

@@ -121,15 +121,25 @@ def test_bad_input_is_one_line_and_a_non_zero_exit(capsys, hidden_cogging, tmp_p
     # too short: 0.1 s
     t = np.arange(100) * 1e-3
     short = tmp_path / "short.csv"
-    np.savetxt(short, np.c_[t, 0.4 + 0.1 * t, 2.4 + 0 * t, np.sin(t), np.cos(t)], delimiter=",",
-               header="t,q1,q2,tau1,tau2", comments="# sample_rate_hz: 1000\n")
+    np.savetxt(
+        short,
+        np.c_[t, 0.4 + 0.1 * t, 2.4 + 0 * t, np.sin(t), np.cos(t)],
+        delimiter=",",
+        header="t,q1,q2,tau1,tau2",
+        comments="# sample_rate_hz: 1000\n",
+    )
     _fails(capsys, ["fit", str(short), "--model", NOMINAL], "too short")
     # motionless: 5 s at rest, torque noise only
     t = np.arange(5000) * 1e-3
     still = tmp_path / "still.csv"
     noise = np.random.default_rng(0).normal(0, 0.1, (t.size, 2))
-    np.savetxt(still, np.c_[t, 0.4 + 0 * t, 2.4 + 0 * t, noise], delimiter=",", header="t,q1,q2,tau1,tau2",
-               comments="# sample_rate_hz: 1000\n# counts_per_rev: 131072\n")
+    np.savetxt(
+        still,
+        np.c_[t, 0.4 + 0 * t, 2.4 + 0 * t, noise],
+        delimiter=",",
+        header="t,q1,q2,tau1,tau2",
+        comments="# sample_rate_hz: 1000\n# counts_per_rev: 131072\n",
+    )
     line = _fails(capsys, ["diagnose", str(still), "--model", NOMINAL], "")
     assert "motion" in line or "too short" in line
     _fails(capsys, ["demo", "--seconds", "1"], "at least 5 s")
@@ -146,8 +156,18 @@ def test_bench_diagnose_times_diagnose_beside_a_scipy_fit_of_the_same_model(caps
 
 
 def test_fit_on_emps_gives_the_published_model(capsys, emps_dir):
-    r = _json(capsys, ["fit", str(emps_dir / "DATA_EMPS.mat"), "--model", "rigid,viscous,coulomb,offset", "--no-figures",
-                       "--cutoff", "100"])  # the reference's band
+    r = _json(
+        capsys,
+        [
+            "fit",
+            str(emps_dir / "DATA_EMPS.mat"),
+            "--model",
+            "rigid,viscous,coulomb,offset",
+            "--no-figures",
+            "--cutoff",
+            "100",
+        ],
+    )  # the reference's band
     published = {"M1": 95.1089, "b1": 203.5034, "Fc1": 20.3935, "off1": -3.1648}  # ../shared/data/emps/README.md
     for k, v in published.items():
         assert abs(r["params"][k]["value"] / v - 1) < 0.01, (k, r["params"][k])

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from manus.adaptive import diagnose, fit, prepare
+from manus.experiments import independent
 from manus.plants.effects import Model
 from manus.plants.structures import Manus2
-from manus.experiments import independent
 
 
 def test_independent_arm_dynamics_match_manus_model():
@@ -20,18 +20,45 @@ def test_independent_arm_dynamics_match_manus_model():
     rng = np.random.default_rng(0)
     cfg = independent.ARM
     zero = np.zeros(2)
-    p = dict(b=np.array(cfg["b"]), fc=np.array(cfg["fc"]), dfs=zero, db=zero, off=zero, k=zero, q0=zero,
-             gc=zero, gs=zero, ca=zero, cb=zero, order=zero)
+    p = dict(
+        b=np.array(cfg["b"]),
+        fc=np.array(cfg["fc"]),
+        dfs=zero,
+        db=zero,
+        off=zero,
+        k=zero,
+        q0=zero,
+        gc=zero,
+        gs=zero,
+        ca=zero,
+        cb=zero,
+        order=zero,
+    )
     model = Model(Manus2(), "rigid,viscous,coulomb")
-    params = {"a1": independent.A1, "a2": independent.A2, "a3": independent.A3, "b1": cfg["b"][0], "b2": cfg["b"][1],
-              "Fc1": cfg["fc"][0], "Fc2": cfg["fc"][1]}
+    params = {
+        "a1": independent.A1,
+        "a2": independent.A2,
+        "a3": independent.A3,
+        "b1": cfg["b"][0],
+        "b2": cfg["b"][1],
+        "Fc1": cfg["fc"][0],
+        "Fc2": cfg["fc"][1],
+    }
     with jax.enable_x64(True):
         for _ in range(20):
             q = rng.uniform(-3, 3, 2)
             v = rng.uniform(0.2, 2.0, 2) * rng.choice([-1, 1], 2)
             tau = rng.uniform(-2, 2, 2)
-            a = np.asarray(independent._acceleration(True, cfg, {k: jnp.asarray(x) for k, x in p.items()},
-                                                     jnp.asarray(q), jnp.asarray(v), jnp.asarray(tau)))
+            a = np.asarray(
+                independent._acceleration(
+                    True,
+                    cfg,
+                    {k: jnp.asarray(x) for k, x in p.items()},
+                    jnp.asarray(q),
+                    jnp.asarray(v),
+                    jnp.asarray(tau),
+                )
+            )
             back = np.asarray(model.torque(jnp.asarray(q), jnp.asarray(v), jnp.asarray(a), params))
             np.testing.assert_allclose(back, tau, rtol=0, atol=1e-9)
 
@@ -41,9 +68,15 @@ def test_independent_null_recording_fits_its_truth():
     inertias and friction of the arm: 1 kHz, multi-sine, torque exact."""
     c = independent.case(1, None, structure="arm", rate=1000, excitation="multisine", torque="exact", hold="stated")
     f = fit(c.rec, c.start)
-    truth = {"a1": independent.A1, "a2": independent.A2, "a3": independent.A3,
-             "b1": independent.ARM["b"][0], "b2": independent.ARM["b"][1],
-             "Fc1": independent.ARM["fc"][0], "Fc2": independent.ARM["fc"][1]}
+    truth = {
+        "a1": independent.A1,
+        "a2": independent.A2,
+        "a3": independent.A3,
+        "b1": independent.ARM["b"][0],
+        "b2": independent.ARM["b"][1],
+        "Fc1": independent.ARM["fc"][0],
+        "Fc2": independent.ARM["fc"][1],
+    }
     for k, v in truth.items():
         assert f.params[k] == pytest.approx(v, rel=0.05 if k.startswith("a") else 0.15), k
     assert f.rel_error < 0.05
@@ -79,8 +112,9 @@ def test_independent_bench_path(calibrate_args):
     from manus.plants.errors import ManusError
     from manus.runs.bench import diagnose as bench
 
-    args = calibrate_args(recordings=1, effects="viscous", seed=4, alpha=None, blocks=None, jobs=1,
-                           simulator="independent")
+    args = calibrate_args(
+        recordings=1, effects="viscous", seed=4, alpha=None, blocks=None, jobs=1, simulator="independent"
+    )
     r = bench.calibrate(args)
     assert [x["hidden"] for x in r["results"]] == [None, "viscous"] and r["simulator"] == "independent"
     assert all(x["condition"]["simulator"] == "independent" for x in r["results"])

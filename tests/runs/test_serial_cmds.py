@@ -8,10 +8,9 @@ parameters of the URDF to rounding."""
 import json
 import pathlib
 
+import jax
 import numpy as np
 import pytest
-
-import jax
 
 from manus.plants import Serial, recording
 from manus.plants.recording import Recording
@@ -36,7 +35,9 @@ def pendulum(tmp_path_factory):
     q = np.einsum("jk,tjk->tj", a, np.sin(w[None] * t[:, None, None] + 0.3))
     qd = np.einsum("jk,tjk->tj", a * w, np.cos(w[None] * t[:, None, None] + 0.3))
     qdd = np.einsum("jk,tjk->tj", -a * w**2, np.sin(w[None] * t[:, None, None] + 0.3))
-    tau = np.asarray(jax.jit(jax.vmap(lambda *x: serial.rnea(*x, serial.defaults)))(q, qd, qdd)) + np.array(VISCOUS) * qd
+    tau = (
+        np.asarray(jax.jit(jax.vmap(lambda *x: serial.rnea(*x, serial.defaults)))(q, qd, qdd)) + np.array(VISCOUS) * qd
+    )
     rec = Recording(t, q, tau, qd, {"sample_rate_hz": "1000", "command_hold": "none"})
     path = recording.write(rec, folder / "swing.csv")
     return path, robot, serial
@@ -50,20 +51,35 @@ def _run(capsys, argv):
 
 def test_fit_with_robot_reports_the_base_parameters(capsys, pendulum):
     path, robot, serial = pendulum
-    code, out, err = _run(capsys, ["fit", str(path), "--robot", str(robot), "--model", "rigid,viscous", "--method", "ls",
-                                   "--no-figures", "--json"])
+    code, out, err = _run(
+        capsys,
+        [
+            "fit",
+            str(path),
+            "--robot",
+            str(robot),
+            "--model",
+            "rigid,viscous",
+            "--method",
+            "ls",
+            "--no-figures",
+            "--json",
+        ],
+    )
     assert code == 0, err
     r = json.loads(out)
     base = serial.base()
     assert set(r) >= {"model", "params", "rel_error", "samples", "method", "base_parameters"}
-    assert list(r["base_parameters"]) == list(base.rigid_names) and list(r["base_parameters"].values()) == list(base.combinations)
+    assert list(r["base_parameters"]) == list(base.rigid_names) and list(r["base_parameters"].values()) == list(
+        base.combinations
+    )
     assert set(r["params"]) == {*base.rigid_names, "b1", "b2"}
     assert all(p["std"] is not None and p["std"] >= 0 for p in r["params"].values())
-    truth = dict(zip(base.rigid_names, base.rigid_defaults), b1=VISCOUS[0], b2=VISCOUS[1])
+    truth = dict(zip(base.rigid_names, base.rigid_defaults, strict=True), b1=VISCOUS[0], b2=VISCOUS[1])
     for k, v in truth.items():
         assert r["params"][k]["value"] == pytest.approx(v, rel=1e-3, abs=1e-5), k
     assert r["rel_error"] < 1e-3
-    assert r["urdf_values"] == pytest.approx(dict(zip(base.rigid_names, base.rigid_defaults)))
+    assert r["urdf_values"] == pytest.approx(dict(zip(base.rigid_names, base.rigid_defaults, strict=True)))
     c = r["consistent"]  # the physically consistent stage: the exact truth is consistent, nothing moves
     assert c["already"] and max(abs(v) for v in c["moved_std"].values()) < 0.1
     assert all(x["min_eigenvalue"] > -1e-9 for x in c["links"]) and len(c["armature"]) == 2
@@ -71,22 +87,28 @@ def test_fit_with_robot_reports_the_base_parameters(capsys, pendulum):
     rec = recording.read(path, robot=robot)
     named = recording.write(rec, path.parent / "named" / "swing.csv")
     assert "# robot: ../pendulum.urdf" in named.read_text()
-    code, out, err = _run(capsys, ["fit", str(named), "--model", "rigid,viscous", "--method", "ls", "--no-figures", "--json"])
+    code, out, err = _run(
+        capsys, ["fit", str(named), "--model", "rigid,viscous", "--method", "ls", "--no-figures", "--json"]
+    )
     assert code == 0, err
     assert json.loads(out)["params"] == r["params"]
 
 
 @pytest.mark.parametrize("command", ["fit", "diagnose", "discover", "estimators"])
 def test_bad_robots_are_one_line_errors(capsys, pendulum, tmp_path, command):
-    path, robot, _ = pendulum
+    path, _, _ = pendulum
     model = [] if command == "estimators" else ["--model", "rigid,viscous"]
     three = tmp_path / "three.urdf"
     three.write_text(PENDULUM.replace('<joint name="tip" type="fixed">', '<joint name="tip" type="prismatic">'))
     floating = tmp_path / "floating.urdf"
-    floating.write_text(PENDULUM.replace('<joint name="elbow" type="revolute">', '<joint name="elbow" type="floating">'))
-    for urdf, words in ((tmp_path / "missing.urdf", "no such URDF file"),
-                        (three, "the URDF's chain has 3 joints (shoulder, elbow, tip), not 2"),
-                        (floating, "joint elbow is floating; a serial chain takes revolute, continuous, prismatic and fixed")):
+    floating.write_text(
+        PENDULUM.replace('<joint name="elbow" type="revolute">', '<joint name="elbow" type="floating">')
+    )
+    for urdf, words in (
+        (tmp_path / "missing.urdf", "no such URDF file"),
+        (three, "the URDF's chain has 3 joints (shoulder, elbow, tip), not 2"),
+        (floating, "joint elbow is floating; a serial chain takes revolute, continuous, prismatic and fixed"),
+    ):
         code, out, err = _run(capsys, [command, str(path), "--robot", str(urdf), *model, "--json"])
         assert code == 2 and out == "" and "Traceback" not in err, err
         last = err.strip().splitlines()[-1]
@@ -99,8 +121,25 @@ def test_simulate_a_robot_then_fit_it(capsys, tmp_path):
     `manus fit` on it returns the URDF's base parameters and friction."""
     urdf = pathlib.Path(__file__).resolve().parents[2] / "examples" / "dfki_double_pendulum" / "double_pendulum_a0.urdf"
     out_file = tmp_path / "sim" / "swing.csv"
-    code, out, err = _run(capsys, ["simulate", "--robot", str(urdf), "--truth", "rigid,viscous,coulomb", "--seconds", "4",
-                                   "--amplitude", "0.8", "--substeps", "4", "--out", str(out_file), "--json"])
+    code, out, err = _run(
+        capsys,
+        [
+            "simulate",
+            "--robot",
+            str(urdf),
+            "--truth",
+            "rigid,viscous,coulomb",
+            "--seconds",
+            "4",
+            "--amplitude",
+            "0.8",
+            "--substeps",
+            "4",
+            "--out",
+            str(out_file),
+            "--json",
+        ],
+    )
     assert code == 0, err
     r = json.loads(out)
     assert r["samples"] == 4000 and max(r["tracking_rms"]) < 0.01
@@ -114,17 +153,47 @@ def test_simulate_a_robot_then_fit_it(capsys, tmp_path):
             assert f["params"][k]["value"] == pytest.approx(v, rel=0.01), k
     assert f["params"]["Fc1"]["value"] == pytest.approx(0.093, rel=0.01)
     assert f["params"]["Fc2"]["value"] == pytest.approx(0.078, rel=0.01)
-    code, out, err = _run(capsys, ["simulate", "--robot", str(tmp_path / "none.urdf"), "--seconds", "1",
-                                   "--out", str(tmp_path / "x.csv")])
+    code, out, err = _run(
+        capsys, ["simulate", "--robot", str(tmp_path / "none.urdf"), "--seconds", "1", "--out", str(tmp_path / "x.csv")]
+    )
     assert code == 2 and "no such URDF file" in err and "Traceback" not in err
-    code, out, err = _run(capsys, ["simulate", "--robot", str(urdf), "--truth", "rigid,gravity", "--seconds", "1",
-                                   "--out", str(tmp_path / "y.csv")])
+    code, out, err = _run(
+        capsys,
+        [
+            "simulate",
+            "--robot",
+            str(urdf),
+            "--truth",
+            "rigid,gravity",
+            "--seconds",
+            "1",
+            "--out",
+            str(tmp_path / "y.csv"),
+        ],
+    )
     assert code == 2 and "gravity is part of rigid" in err and "Traceback" not in err  # not twice
     # a PD far too stiff for 200 Hz on the light pendulum (K T² / J ≫ 4): the discrete loop diverges
     # within a few ticks; said, and no recording of NaN written
-    code, out, err = _run(capsys, ["simulate", "--robot", str(urdf), "--truth", "rigid,viscous,coulomb", "--seconds", "1",
-                                   "--stiffness", "100000", "--damping", "100", "--rate", "200",
-                                   "--out", str(tmp_path / "z.csv")])
+    code, out, err = _run(
+        capsys,
+        [
+            "simulate",
+            "--robot",
+            str(urdf),
+            "--truth",
+            "rigid,viscous,coulomb",
+            "--seconds",
+            "1",
+            "--stiffness",
+            "100000",
+            "--damping",
+            "100",
+            "--rate",
+            "200",
+            "--out",
+            str(tmp_path / "z.csv"),
+        ],
+    )
     assert code == 2 and "the closed loop diverged" in err and "unstable at 200 Hz" in err and "Traceback" not in err
     assert not (tmp_path / "z.csv").exists()
 
@@ -134,19 +203,50 @@ def test_converge_on_a_robot(capsys, tmp_path):
     pseudo-inertia coordinates; the report adds the base parameters of the final estimates beside
     the URDF's (the truth), which the torque determines where the standard ones are not."""
     urdf = pathlib.Path(__file__).resolve().parents[2] / "examples" / "dfki_double_pendulum" / "double_pendulum_a0.urdf"
-    code, out, err = _run(capsys, ["converge", "--robot", str(urdf), "--trajectory", "multisine", "--model", "rigid,viscous",
-                                   "--trials", "2", "--seconds", "1", "--out", str(tmp_path), "--json"])
+    code, out, err = _run(
+        capsys,
+        [
+            "converge",
+            "--robot",
+            str(urdf),
+            "--trajectory",
+            "multisine",
+            "--model",
+            "rigid,viscous",
+            "--trials",
+            "2",
+            "--seconds",
+            "1",
+            "--out",
+            str(tmp_path),
+            "--json",
+        ],
+    )
     assert code == 0, err
     r = json.loads(out)
     assert r["stopped_trials"] == 0 and max(r["tracking_rms"]) < 0.01
     assert {"J1m", "J2zz", "Ia2", "b1"} <= set(r["params"]) and r["params"]["J2m"]["truth"] == pytest.approx(0.6043)
     base = Serial.from_urdf(urdf).base()
-    truth = dict(zip(base.base_names, base.rigid_defaults))
+    truth = dict(zip(base.base_names, base.rigid_defaults, strict=True))
     assert set(r["base_params"]) == set(truth)
     for k, v in truth.items():
         assert r["base_params"][k]["truth"] == pytest.approx(v, abs=1e-12)
-    code, out, err = _run(capsys, ["converge", "--robot", str(urdf), "--trajectory", "complex", "--trials", "1",
-                                   "--seconds", "0.1", "--out", str(tmp_path)])
+    code, out, err = _run(
+        capsys,
+        [
+            "converge",
+            "--robot",
+            str(urdf),
+            "--trajectory",
+            "complex",
+            "--trials",
+            "1",
+            "--seconds",
+            "0.1",
+            "--out",
+            str(tmp_path),
+        ],
+    )
     assert code == 2 and "the complex trajectory is the thesis's for the manus2 arm" in err
 
 
@@ -161,9 +261,27 @@ def test_hardware_loop_on_a_robot(capsys, tmp_path):
 
     urdf = pathlib.Path(__file__).resolve().parents[2] / "examples" / "dfki_double_pendulum" / "double_pendulum_a0.urdf"
     err_file = tmp_path / "emu.err"
-    emu = subprocess.Popen([sys.executable, "-m", "manus.runs.cli", "emulate", "--port", "0", "--robot", str(urdf),
-                            "--truth", "rigid,viscous,coulomb", "--watchdog-ms", "300", "--seconds", "120"],
-                           stdout=subprocess.DEVNULL, stderr=open(err_file, "w"))
+    with open(err_file, "w") as log:  # the emulator writes into its own copy of the handle
+        emu = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "manus.runs.cli",
+                "emulate",
+                "--port",
+                "0",
+                "--robot",
+                str(urdf),
+                "--truth",
+                "rigid,viscous,coulomb",
+                "--watchdog-ms",
+                "300",
+                "--seconds",
+                "120",
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=log,
+        )
     try:
         port, end = None, time.monotonic() + 90
         while port is None and time.monotonic() < end:
@@ -173,10 +291,30 @@ def test_hardware_loop_on_a_robot(capsys, tmp_path):
             time.sleep(0.05)
         assert port is not None, "the emulator did not start"
         record = tmp_path / "run.csv"
-        code, out, err = _run(capsys, ["run-hardware", "--device", f"udp://127.0.0.1:{port}", "--robot", str(urdf),
-                                       "--controller", "slotine-li", "--model", "rigid,viscous,coulomb",
-                                       "--reference", "multisine", "--seconds", "3", "--torque", "--record", str(record),
-                                       "--watchdog-ms", "300", "--json"])
+        code, out, err = _run(
+            capsys,
+            [
+                "run-hardware",
+                "--device",
+                f"udp://127.0.0.1:{port}",
+                "--robot",
+                str(urdf),
+                "--controller",
+                "slotine-li",
+                "--model",
+                "rigid,viscous,coulomb",
+                "--reference",
+                "multisine",
+                "--seconds",
+                "3",
+                "--torque",
+                "--record",
+                str(record),
+                "--watchdog-ms",
+                "300",
+                "--json",
+            ],
+        )
         assert code == 0, err
         r = json.loads(out)
     finally:
@@ -185,16 +323,19 @@ def test_hardware_loop_on_a_robot(capsys, tmp_path):
     assert r["stopped_by"] == "end" and r["ticks"] >= 2900 and recording.read(record).structure_name == "urdf"
     kept = r["deadline_misses"] < 0.1 * r["ticks"] and r["lost_samples"] < 0.01 * r["ticks"]
     if not kept:  # a real-time loop on a starved machine: what it tracked says nothing of the controller
-        pytest.skip(f"the machine starved the 1 kHz loop ({r['deadline_misses']} deadline misses, {r['device_late']} "
-                    f"late commands at the device in {r['ticks']} ticks): tracking and fit not judged")
+        pytest.skip(
+            f"the machine starved the 1 kHz loop ({r['deadline_misses']} deadline misses, {r['device_late']} "
+            f"late commands at the device in {r['ticks']} ticks): tracking and fit not judged"
+        )
     assert max(r["tracking_rms"]) < 0.005, r["tracking_rms"]
     code, out, err = _run(capsys, ["fit", str(record), "--model", "rigid,viscous,coulomb", "--no-figures", "--json"])
     assert code == 0, err
     f = json.loads(out)
     for k in ("mz1R", "Iyy1R", "mz2", "Iyy2"):
         assert f["params"][k]["value"] == pytest.approx(f["urdf_values"][k], rel=0.02), k
-    code, out, err = _run(capsys, ["run-hardware", "--device", "udp://127.0.0.1:9", "--robot", str(urdf),
-                                   "--seconds", "1"])
+    code, out, err = _run(
+        capsys, ["run-hardware", "--device", "udp://127.0.0.1:9", "--robot", str(urdf), "--seconds", "1"]
+    )
     assert code == 2 and "Traceback" not in err
 
 
@@ -216,7 +357,7 @@ def panda_recording():
     serial, sim, reference, truth = robot_bench.panda_case(urdf(ROBOTS["panda"][0]))
     rec = record(sim, reference, PANDA_SECONDS)
     base = serial.base()
-    truth.update(zip(base.rigid_names, base.values(serial.defaults)))
+    truth.update(zip(base.rigid_names, base.values(serial.defaults), strict=True))
     return truth, rec
 
 
@@ -242,10 +383,13 @@ def test_fit_recovers_the_pandas_base_parameters(panda_data):
     base = f.model.structure
     assert list(report["base_parameters"]) == list(base.rigid_names) and len(base.rigid_names) == 48
     a = robot_bench.accuracy(f, truth, cols)
-    print(f"Panda {PANDA_SECONDS:g} s: rel_error {f.rel_error:.2e}, {data.rows.size} rows, {100 * data.standstill:.0f} % of "
-          f"the equations left out near reversals; {len(a['carrying'])} parameters carry >= 1 % of a joint's torque, "
-          f"worst {a['worst']:.2%} off ({a['worst_name']}); the {a['others']} others add at most "
-          f"{a['others_add']:.3%} of a joint's torque in error")
+    print(
+        f"Panda {PANDA_SECONDS:g} s: rel_error {f.rel_error:.2e}, {data.rows.size} rows, {100 * data.standstill:.0f} "
+        "% of "
+        f"the equations left out near reversals; {len(a['carrying'])} parameters carry >= 1 % of a joint's torque, "
+        f"worst {a['worst']:.2%} off ({a['worst_name']}); the {a['others']} others add at most "
+        f"{a['others_add']:.3%} of a joint's torque in error"
+    )
     assert a["worst"] < 0.01, [r for r in a["rows"] if r["share"] >= 0.01 and r["error"] >= 0.01]
     assert a["others_add"] < 0.001, [r for r in a["rows"] if r["share"] < 0.01 and r["adds"] >= 0.001]
     assert set(a["carrying"]) >= {f"{p}{i}" for p in ("b", "Fc") for i in range(1, 8)} | {"off4"}
@@ -272,8 +416,16 @@ def test_diagnose_names_the_hidden_offset(panda_diagnosis):
     r = panda_diagnosis
     verdict = next(c for c in r["candidates"] if c["effect"] == r["verdict"])
     offsets = {k: v for k, v in verdict["detail"].items() if k.startswith("off")}
-    print("verdict", r["verdict_spec"], "joint", verdict["joint"], "offsets", offsets,
-          "per-joint error reduction", verdict["detail"]["per_joint_error_reduction"])
+    print(
+        "verdict",
+        r["verdict_spec"],
+        "joint",
+        verdict["joint"],
+        "offsets",
+        offsets,
+        "per-joint error reduction",
+        verdict["detail"]["per_joint_error_reduction"],
+    )
     assert r["verdict"] == "offset"
     assert any("gravity: not tried: a serial chain's gravity is part of rigid" in n for n in r["notes"])
     # the verdict's own parameters single out joint 4: 0.5 N·m there, next to nothing elsewhere

@@ -5,14 +5,30 @@ import json
 
 import pytest
 
-from manus.runs import cli
 from manus.experiments.stability.sensitivity import check
 from manus.experiments.stability.steptest import TYPE2
+from manus.runs import cli
 
 
 def test_stability_command_json(tmp_path, capsys):
-    code = cli.main(["stability", "--json", "--b-c", "0", "35", "5", "--k", "500", "4500", "1000",
-                     "--no-sensitivity", "--no-appendix-d", "--out", str(tmp_path)])
+    code = cli.main(
+        [
+            "stability",
+            "--json",
+            "--b-c",
+            "0",
+            "35",
+            "5",
+            "--k",
+            "500",
+            "4500",
+            "1000",
+            "--no-sensitivity",
+            "--no-appendix-d",
+            "--out",
+            str(tmp_path),
+        ]
+    )
     assert code == 0
     r = json.loads(capsys.readouterr().out)
     poles = sorted(r["eq41_poles"]["poles"])
@@ -48,11 +64,16 @@ def test_claim_check_reads_exact_values_and_bounds():
     bound = [_row(2, 2000.0, "type2"), _row(3, 5000.0, "type1")]
     assert check(bound, "x raises", TYPE2, "up", "up")["probes"] == {"k at b_c=20": "as claimed"}
     # ... but a bound below the other value decides nothing
-    assert check([_row(2, 2000.0, "type2"), _row(3, 1500.0, "type1")], "", TYPE2, "up", "up")["verdict"] == "not comparable"
+    assert (
+        check([_row(2, 2000.0, "type2"), _row(3, 1500.0, "type1")], "", TYPE2, "up", "up")["verdict"]
+        == "not comparable"
+    )
     mixed = [_row(0, 6000.0, "type2"), _row(1, 2500.0, "type2"), _row(2, 2800.0, "type2")]
     assert check(mixed, "less x raises", TYPE2, "down", "up")["verdict"] == "not reproduced"
-    two = [{"value": r["value"], "probes": r["probes"] + [u["probes"][0] | {"probe": "k at b_c=30"}]}
-           for r, u in zip(mixed, up)]
+    two = [
+        {"value": r["value"], "probes": r["probes"] + [u["probes"][0] | {"probe": "k at b_c=30"}]}
+        for r, u in zip(mixed, up, strict=False)
+    ]
     assert check(two, "", TYPE2, "up", "up")["verdict"] == "partly"  # one probe rises, one is mixed
 
 

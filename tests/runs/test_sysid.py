@@ -19,8 +19,21 @@ THESIS = {"a1": 0.349, "a2": 0.241, "a3": 0.246, "b1": 0.222, "b2": 0.181, "Fc1"
 def result(tmp_path_factory):
     out = io.StringIO()
     with contextlib.redirect_stdout(out):
-        assert main(["sysid", "--displacement", "0.3", "--seconds", "6", "--out", str(tmp_path_factory.mktemp("sysid")),
-                     "--json"]) == 0
+        assert (
+            main(
+                [
+                    "sysid",
+                    "--displacement",
+                    "0.3",
+                    "--seconds",
+                    "6",
+                    "--out",
+                    str(tmp_path_factory.mktemp("sysid")),
+                    "--json",
+                ]
+            )
+            == 0
+        )
     return json.loads(out.getvalue())
 
 
