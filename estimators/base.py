@@ -17,6 +17,9 @@ import jax.numpy as jnp
 from jax import Array
 from jax.typing import ArrayLike
 
+from manus.plants.effects import Model
+from manus.plants.errors import ManusError
+
 
 class Estimate(NamedTuple):
     q: Array  # filtered position (n,)
@@ -34,6 +37,16 @@ class Estimator(eqx.Module):
 
     @abc.abstractmethod
     def step(self, state: Any, q: Array, tau: Array | None = None) -> tuple[Any, Estimate]: ...
+
+    @property
+    def model(self) -> Model | None:
+        """The plant model this estimator predicts with, whose parameters `with_params` sets (an
+        adaptive controller's estimates, every tick); None for a kinematic estimator."""
+        return None
+
+    def with_params(self, state: Any, params: dict | ArrayLike) -> Any:
+        """The state with the model's parameters replaced (see `model`); a kinematic estimator has none."""
+        raise ManusError(f"{type(self).__name__} has no model: nothing to set parameters of")
 
 
 def run(estimator: Estimator, q: ArrayLike, tau: ArrayLike | None = None) -> Estimate:

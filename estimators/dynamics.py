@@ -113,6 +113,10 @@ class ModelBased(Estimator):
 
     dynamics: eqx.AbstractVar[ModelDynamics | None]
 
+    @property
+    def model(self) -> Model | None:
+        return None if self.dynamics is None else self.dynamics.model
+
     def with_params(self, state, params: dict | ArrayLike):
         """The state with the model's parameters replaced: pure, jit-able, once per tick if need be.
 
@@ -124,5 +128,5 @@ class ModelBased(Estimator):
 
     def params(self, state) -> dict:
         """The model parameters the state holds, by name."""
-        return self.dynamics.model.unvector(state.theta)
         assert self.dynamics is not None, f"{type(self).__name__} has no model"
+        return self.dynamics.model.unvector(state.theta)

@@ -26,9 +26,9 @@ from manus.estimators.linear import THESIS_STEP, quantization_variance
 from manus.estimators.luenberger import Luenberger
 from manus.estimators.model_kalman import ModelKalman
 from manus.estimators.sliding import Levant
+from manus.plants.catalog import structure_named
 from manus.plants.effects import Model
 from manus.plants.errors import ManusError
-from manus.plants.structures import structure_named
 
 NOMINAL_MODEL = "rigid,viscous,coulomb"  # the thesis's nominal model (§3.5)
 

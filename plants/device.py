@@ -39,6 +39,7 @@ class Device(abc.ABC):
     """A rig seen from the host: connect, receive samples, send commands, stop."""
 
     info: P.Info | None = None
+    url: str = "device"  # where the device is (its address), for messages
 
     def __init__(self):
         self.refused: Counter = Counter()
@@ -149,9 +150,9 @@ class UdpDevice(Device):
 
     def receive(self, deadline_ns: int, expect_ns: int | None = None, idle=None) -> P.Sensor | None:
         sock, clock = self.sock, time.perf_counter_ns
-        warm_until = (expect_ns - WARM_GAP_NS) if (idle is not None and expect_ns is not None) else 0
         info = self.info
         assert info is not None, f"{self.url}: receive before connect"
+        warm_until = (expect_ns - WARM_GAP_NS) if (idle is not None and expect_ns is not None) else 0
         next_warm = 0
         while True:
             packet = self._packet()

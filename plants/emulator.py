@@ -331,5 +331,5 @@ class Emulator:
 
 def _robot_of(structure) -> dict:
     """A serial chain's log names its URDF (absolute: the log may go anywhere)."""
-    source = getattr(getattr(structure, "serial", structure), "source", "")
+    source = structure.urdf_file
     return {"robot": str(Path(source).absolute())} if source else {}

@@ -30,8 +30,9 @@ from typing import NoReturn
 
 import numpy as np
 
+from manus.plants.catalog import structure_named
 from manus.plants.errors import RecordingError, RecordingNote
-from manus.plants.structures import Structure, structure_named
+from manus.plants.structures import Structure
 
 STRUCTURES = ("manus2", "axis", "urdf")
 
@@ -664,15 +665,15 @@ def from_trajectory(
     n = traj.q.shape[1]
     serial = None
     if not isinstance(structure, str):
-        serial = getattr(structure, "serial", structure)  # a base form's chain
+        serial = structure.standard_form  # a base form's chain
         structure = serial.name
     m = {"sample_rate_hz": f"{rate_hz:g}", "structure": structure, "command_hold": "zoh"}
     if counts_per_rev:
         m["counts_per_rev"] = f"{counts_per_rev:g}"
     if serial is not None and structure == "urdf":
-        if not serial.source:
+        if not serial.urdf_file:
             raise RecordingError("a serial chain's recording names its URDF file: this chain was not read from one")
-        m["robot"] = str(Path(serial.source).absolute())
+        m["robot"] = str(Path(serial.urdf_file).absolute())
     else:
         serial = None
     m.update(meta or {})

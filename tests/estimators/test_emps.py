@@ -1,7 +1,6 @@
 """The EMPS rig's real data (Janot, Gautier, Brunot 2019): its own velocity estimator rebuilds
 the recorded controller output (`manus estimators` on both files: tests/runs/test_estimators_cmd.py)."""
 
-
 import numpy as np
 import pytest
 from scipy.io import loadmat
