@@ -135,7 +135,6 @@ class Sampled(PositionReference):
         return jnp.stack([jnp.interp(t, self.t, self.q[:, i]) for i in range(self.q.shape[1])])
 
 
-REFERENCES = {"benign": Benign, "complex": Complex, "multisine": MultiSine}
 NAMES = ("benign", "complex", "hold", "multisine")
 THESIS_ARM_ONLY = ("benign", "complex")  # the thesis's trajectories, about MANUS-2's workspace centre
 
