@@ -39,15 +39,15 @@ viscous, coulomb comes within 2 % in under 2 s on the complex trajectory (measur
 
 Discretization, at the control rate T: each filter is exact for an input held over the period
 before each sample, x_f ← x_f + (1 − e^{−λ_f T}) (x − x_f); d/dt(f·Z₁) is the difference of
-consecutive filter outputs over T and f·Z₂ their mean, both at the middle of the period (W and
-τ_f then share one discrete filter, so the inertias come out unscaled; taking f·Z₂ half a period
-late instead biased b2 and Fc2 by ∓1.7 %, measured). The information update R ← R + T κ WᵀW is done on P by the Woodbury identity (an
-n×n inverse). Timing: the command of tick k acts over the period after it, from `lead` − T/2 on,
-while the filters put each sample over the period before it; the filtered torque that explains
-the motion at tick k is therefore τ_f taken back by `lead` + T/2, done along its own derivative
-λ_f (τ − τ_f) (first order, λ_f (lead + T/2) ≪ 1). With these, the prediction error of the true
-parameters on a simulated run is about 1e-3 N·m (tested); one period off, several times more,
-and the viscous estimate biased by −δ a ω² as in the tracking term.
+consecutive filter outputs over T and f·Z₂ their mean, both at the middle of the period (W and τ_f
+then share one discrete filter, so the inertias come out unscaled; taking f·Z₂ half a period late
+instead biased b2 and Fc2 by ∓1.7 %, measured). The information update R ← R + T κ WᵀW is done on P
+by the Woodbury identity (an n×n inverse). Timing: the command of tick k acts over the period after
+it, from `lead` − T/2 on, while the filters put each sample over the period before it; the filtered
+torque that explains the motion at tick k is therefore τ_f taken back by `lead` + T/2, done along
+its own derivative λ_f (τ − τ_f) (first order, λ_f (lead + T/2) ≪ 1). With these, the prediction
+error of the true parameters on a simulated run is about 1e-3 N·m (tested); one period off, several
+times more, and the viscous estimate biased by −δ a ω² as in the tracking term.
 
 Vectorization: the state keeps every entry of f·Z₁, f·Z₂ and of P's upper triangle as its own
 array, and the step works on them as scalars (sums of products, the n×n inverse in closed form,
@@ -95,14 +95,14 @@ class CompositeState(NamedTuple):
     def diagonal(self) -> Array:
         """The gain's diagonal (P,), without forming the matrix."""
         m = int(round((math.sqrt(8 * len(self.gain) + 1) - 1) / 2))
-        return jnp.stack([g for g, (i, j) in zip(self.gain, _upper(m)) if i == j], -1)
+        return jnp.stack([g for g, (i, j) in zip(self.gain, _upper(m), strict=True) if i == j], -1)
 
 
 def symmetric(upper: tuple, axis: int = 0) -> Array:
     """The symmetric m×m matrix whose upper triangle, row by row (`_upper`), is `upper`; its two
     axes at `axis` and `axis` + 1 of the result (a non-negative position among the entries' axes)."""
     m = int(round((math.sqrt(8 * len(upper) + 1) - 1) / 2))
-    e = dict(zip(_upper(m), upper))
+    e = dict(zip(_upper(m), upper, strict=True))
     return jnp.stack([jnp.stack([e[min(i, j), max(i, j)] for j in range(m)], axis) for i in range(m)], axis)
 
 
@@ -123,7 +123,7 @@ def _gain_update(gain: tuple, w: list, c) -> tuple:
     """P − P Wᵀ (c I + W P Wᵀ)⁻¹ W P (Woodbury) entry by entry, for P symmetric given by its upper
     triangle and W (n, m) as nested lists of scalars; the upper triangle of the result."""
     n, m = len(w), len(w[0])
-    entry = dict(zip(_upper(m), gain))
+    entry = dict(zip(_upper(m), gain, strict=True))
     p = lambda i, j: entry[min(i, j), max(i, j)]
     pw = [[sum(p(i, k) * w[a][k] for k in range(m)) for a in range(n)] for i in range(m)]  # P Wᵀ (m, n)
     S = [[sum(w[a][k] * pw[k][b] for k in range(m)) + (c if a == b else 0.0) for b in range(n)] for a in range(n)]
@@ -141,11 +141,15 @@ class Composite(eqx.Module):
     forgetting: float = 0.0  # β₀ [1/s] of bounded-gain forgetting; 0: none
 
     def __check_init__(self):
-        for name, value, ok in (("bandwidth", self.bandwidth, lambda x: x > 0), ("weight", self.weight, lambda x: x > 0),
-                                ("forgetting", self.forgetting, lambda x: x >= 0)):
+        for name, value, ok in (
+            ("bandwidth", self.bandwidth, lambda x: x > 0),
+            ("weight", self.weight, lambda x: x > 0),
+            ("forgetting", self.forgetting, lambda x: x >= 0),
+        ):
             if isinstance(value, (int, float)) and not (ok(value) and math.isfinite(value)):
-                raise ModelError(f"composite {name} must be {'>= 0' if name == 'forgetting' else 'positive'} "
-                                 f"and finite, got {value}")
+                raise ModelError(
+                    f"composite {name} must be {'>= 0' if name == 'forgetting' else 'positive'} and finite, got {value}"
+                )
 
     @staticmethod
     def _z(regressor: Regressor, q, qd, theta):
@@ -182,10 +186,14 @@ class Composite(eqx.Module):
         z1, z2 = written
         zero = jnp.zeros_like(q[0])  # Z₁ of the other effects: they hold no momentum
         if any(not e.inertial for e in model.effects):
+
             def rest(th):
                 p = model.unvector(th)
-                return sum(e.torque(s, q, qd, jnp.zeros_like(qd), p, regressor.boundary) for e in model.effects
-                           if not e.inertial)
+                return sum(
+                    e.torque(s, q, qd, jnp.zeros_like(qd), p, regressor.boundary)
+                    for e in model.effects
+                    if not e.inertial
+                )
 
             Zo = jax.jacfwd(rest)(theta0)
             z2.update({k: (Zo[0, i], Zo[1, i]) for i, k in enumerate(names) if k not in z2})
@@ -196,8 +204,9 @@ class Composite(eqx.Module):
         n, m = regressor.n_joints, len(regressor.names)
         gamma = jnp.asarray(gamma, float)
         zeros = (jnp.zeros((), gamma.dtype),) * (n * m)
-        return CompositeState(zeros, zeros, jnp.zeros(n), tuple(gamma[i] if i == j else 0.0 * gamma[i]
-                                                               for i, j in _upper(m)))
+        return CompositeState(
+            zeros, zeros, jnp.zeros(n), tuple(gamma[i] if i == j else 0.0 * gamma[i] for i, j in _upper(m))
+        )
 
     def step(self, state: CompositeState, regressor: Regressor, q, qd, tau, gamma: Array, lead: float, dt: float):
         """Advance the filters and the gain by one tick -> (state, W (n, P), τ_f (n,)).
@@ -205,17 +214,22 @@ class Composite(eqx.Module):
         q, q̇: the motion now; tau: the command of this tick, which acts `lead` s from now;
         gamma: the controller's Γ (P(0), and the bound of the forgetting)."""
         n, m = regressor.n_joints, len(regressor.names)
-        z1, z2 = (sum(z, []) for z in self.columns(regressor, q, qd))  # row by row
+        z1, z2 = ([x for row in z for x in row] for z in self.columns(regressor, q, qd))  # row by row
         k = 1.0 - jnp.exp(-self.bandwidth * dt)
-        z1f = tuple(old + k * (new - old) for old, new in zip(state.z1, z1))
-        z2f = tuple(old + k * (new - old) for old, new in zip(state.z2, z2))
+        z1f = tuple(old + k * (new - old) for old, new in zip(state.z1, z1, strict=True))
+        z2f = tuple(old + k * (new - old) for old, new in zip(state.z2, z2, strict=True))
         tau_f = state.tau + k * (tau - state.tau)
         # both at the middle of the period
-        w = [[(z1f[a * m + i] - state.z1[a * m + i]) / dt + 0.5 * (z2f[a * m + i] + state.z2[a * m + i])
-              for i in range(m)] for a in range(n)]
+        w = [
+            [
+                (z1f[a * m + i] - state.z1[a * m + i]) / dt + 0.5 * (z2f[a * m + i] + state.z2[a * m + i])
+                for i in range(m)
+            ]
+            for a in range(n)
+        ]
         # R = P⁻¹ gains T κ WᵀW (Woodbury: an n×n inverse), then bounded-gain forgetting
         gain = _gain_update(state.gain, w, 1.0 / (dt * self.weight))
-        trace = sum(g for g, (i, j) in zip(gain, _upper(m)) if i == j)
+        trace = sum(g for g, (i, j) in zip(gain, _upper(m), strict=True) if i == j)
         beta = self.forgetting * jnp.maximum(0.0, 1.0 - trace / jnp.sum(gamma))
         gain = tuple(g * (1.0 + dt * beta) for g in gain)
         W = jnp.stack([jnp.stack(row) for row in w])
@@ -227,5 +241,5 @@ class Composite(eqx.Module):
         n, m = W.shape
         e = [sum(W[a, k] * theta[k] for k in range(m)) - tau_f[a] for a in range(n)]  # prediction error
         g = [grad[k] + self.weight * sum(W[a, k] * e[a] for a in range(n)) for k in range(m)]
-        entry = dict(zip(_upper(m), state.gain))
+        entry = dict(zip(_upper(m), state.gain, strict=True))
         return jnp.stack([sum(entry[min(i, k), max(i, k)] * g[k] for k in range(m)) for i in range(m)])

@@ -66,8 +66,9 @@ def _onto_elliptic_cone(p0, m0, v0, r):
     am, av = jnp.abs(m0), jnp.sqrt(r) * jnp.abs(v0)
     tiny = jnp.finfo(jnp.result_type(p0, float)).tiny
     # the roots with M alone and with V alone: left of the root of both together
-    mu = jnp.maximum(0.0, jnp.maximum((am - p0) / jnp.maximum(am + p0, tiny),
-                                      (av - p0) / jnp.maximum(r * p0 + av, tiny)))
+    mu = jnp.maximum(
+        0.0, jnp.maximum((am - p0) / jnp.maximum(am + p0, tiny), (av - p0) / jnp.maximum(r * p0 + av, tiny))
+    )
 
     def newton(_, mu):
         a, b = 1.0 / (1.0 + mu), 1.0 / (1.0 + r * mu)
@@ -82,8 +83,7 @@ def _onto_elliptic_cone(p0, m0, v0, r):
     mu = jax.lax.fori_loop(0, NEWTON_STEPS, newton, mu, unroll=True)
     m, v = m0 / (1.0 + mu), v0 / (1.0 + r * mu)
     inside = m0 * m0 + r * v0 * v0 <= p0 * p0
-    return (jnp.where(inside, p0, jnp.sqrt(m * m + r * v * v)), jnp.where(inside, m0, m),
-            jnp.where(inside, v0, v))
+    return (jnp.where(inside, p0, jnp.sqrt(m * m + r * v * v)), jnp.where(inside, m0, m), jnp.where(inside, v0, v))
 
 
 def project_psd2(u, v, w, g1, g2, g3):
@@ -98,8 +98,11 @@ def project_psd2(u, v, w, g1, g2, g3):
     p, m, n = _onto_elliptic_cone(sign * p0, sign * m0, sign * v0, jnp.where(dual, 1.0 / r, r))
     p, m, n = (jnp.where(dual, x0 + x, x) for x0, x in ((p0, p), (m0, m), (v0, n)))
     inside = (u >= 0) & (w >= 0) & (u * w >= v * v)
-    return (jnp.where(inside, u, s1 * (p + m) * _SQRT_HALF), jnp.where(inside, v, s2 * n),
-            jnp.where(inside, w, s3 * (p - m) * _SQRT_HALF))
+    return (
+        jnp.where(inside, u, s1 * (p + m) * _SQRT_HALF),
+        jnp.where(inside, v, s2 * n),
+        jnp.where(inside, w, s3 * (p - m) * _SQRT_HALF),
+    )
 
 
 class Projection(eqx.Module):
@@ -152,8 +155,10 @@ class Projection(eqx.Module):
 
         @onto_cone.def_vmap
         def onto_cone_batched(axis_size, in_batched, theta, gamma):
-            theta, gamma = (x if batched else jnp.broadcast_to(x, (axis_size,) + x.shape)
-                            for x, batched in zip((theta, gamma), in_batched))
+            theta, gamma = (
+                x if batched else jnp.broadcast_to(x, (axis_size,) + x.shape)
+                for x, batched in zip((theta, gamma), in_batched, strict=True)
+            )
             # entries first (the batch vectors contiguous, as the batch keeps them)
             theta, gamma = theta.T, gamma.T
             any_outside = jnp.any(outside(theta))

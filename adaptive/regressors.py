@@ -72,8 +72,9 @@ class Regressor(eqx.Module):
             raise ModelError(f"model {model.spec!r} has no 'rigid' effect: adaptive control needs the inertia")
         other = [e.spec for e in model.effects if not e.linear]
         if other:
-            raise ModelError(f"effect(s) {', '.join(other)} are not linear in parameters: "
-                             "leave them out of an adaptive model")
+            raise ModelError(
+                f"effect(s) {', '.join(other)} are not linear in parameters: leave them out of an adaptive model"
+            )
         if not boundary >= 0:
             raise ModelError(f"boundary layer must be >= 0 rad/s, got {boundary}")
         self.model = model
@@ -113,10 +114,10 @@ class Regressor(eqx.Module):
         if columns is None:
             return jax.jacfwd(lambda th: self.torque(q, qd, qd_r, qdd_r, th))(theta0)
         if len(self.model.effects) > 1:  # the other effects' columns (elementwise in the joints)
+
             def rest(th):
                 p = self.model.unvector(th)
-                return sum(e.torque(s, q, qd_r, qdd_r, p, self.boundary) for e in self.model.effects
-                           if not e.inertial)
+                return sum(e.torque(s, q, qd_r, qdd_r, p, self.boundary) for e in self.model.effects if not e.inertial)
 
             Yo = jax.jacfwd(rest)(theta0)
             columns.update({k: (Yo[0, i], Yo[1, i]) for i, k in enumerate(self.names) if k not in columns})

@@ -59,10 +59,10 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from manus import estimators
 from manus.adaptive.composite import Composite, CompositeState, _upper, symmetric
 from manus.adaptive.projection import Projection
 from manus.adaptive.regressors import DEFAULT_BOUNDARY, Regressor
-from manus import estimators
 from manus.estimators.base import Estimator, run
 from manus.plants.effects import Model
 from manus.plants.errors import ManusError
@@ -146,8 +146,11 @@ def _per(what: str, value, names: tuple[str, ...], default=None) -> np.ndarray:
         for k, v in value.items():
             out[names.index(k)] = v
     else:
-        out = np.broadcast_to(np.asarray(value, float), np.shape(default)).copy() if np.ndim(value) == 0 \
+        out = (
+            np.broadcast_to(np.asarray(value, float), np.shape(default)).copy()
+            if np.ndim(value) == 0
             else np.asarray(value, float)
+        )
         if out.shape != np.shape(default):
             raise ManusError(f"{what}: expected {len(names)} values ({', '.join(names)}), got shape {out.shape}")
     return out
@@ -156,8 +159,9 @@ def _per(what: str, value, names: tuple[str, ...], default=None) -> np.ndarray:
 def _positive(what: str, x: np.ndarray, names: tuple[str, ...]) -> np.ndarray:
     bad = [f"{names[i]}={x[i]:g}" for i in range(x.size) if not (np.isfinite(x[i]) and x[i] > 0)]
     if bad:
-        raise ManusError(f"gain {what} must be positive definite (every diagonal entry finite and > 0): "
-                         f"{', '.join(bad)}")
+        raise ManusError(
+            f"gain {what} must be positive definite (every diagonal entry finite and > 0): {', '.join(bad)}"
+        )
     return x
 
 
@@ -184,20 +188,38 @@ class SlotineLi(Controller):
     limit: float  # |τ| ≤ limit [N·m]
     dt: float = eqx.field(static=True)
 
-    def __init__(self, model: Model, dt: float = 1e-3, estimator: Estimator | None = None, *, gamma=None,
-                 lam=LAMBDA, kd=None, theta0=None, form: str = "slotine-li", boundary: float = DEFAULT_BOUNDARY,
-                 project: bool = True, min_inertia: float = 1e-3, composite: Composite | None = None,
-                 lead: float | None = None, velocity_lag: float | None = None, limit: float = LIMIT):
+    def __init__(
+        self,
+        model: Model,
+        dt: float = 1e-3,
+        estimator: Estimator | None = None,
+        *,
+        gamma=None,
+        lam=LAMBDA,
+        kd=None,
+        theta0=None,
+        form: str = "slotine-li",
+        boundary: float = DEFAULT_BOUNDARY,
+        project: bool = True,
+        min_inertia: float = 1e-3,
+        composite: Composite | None = None,
+        lead: float | None = None,
+        velocity_lag: float | None = None,
+        limit: float = LIMIT,
+    ):
         self.regressor = Regressor(model, form, boundary)
         names, joints = model.names, tuple(f"joint{i + 1}" for i in range(model.n_joints))
         if not dt > 0:
             raise ManusError(f"control period dt must be positive, got {dt}")
         self.estimator = estimators.make(DEFAULT_ESTIMATOR, dt) if estimator is None else estimator
         if not isinstance(self.estimator, Estimator):
-            raise ManusError(f"estimator must be a manus.estimators.base.Estimator, not {type(self.estimator).__name__}")
+            raise ManusError(
+                f"estimator must be a manus.estimators.base.Estimator, not {type(self.estimator).__name__}"
+            )
         if not np.isclose(self.estimator.dt, dt):
-            raise ManusError(f"the velocity estimator runs at dt = {self.estimator.dt:g} s but the controller "
-                             f"at {dt:g} s")
+            raise ManusError(
+                f"the velocity estimator runs at dt = {self.estimator.dt:g} s but the controller at {dt:g} s"
+            )
         self.gamma = jnp.asarray(_positive("gamma", _per("gamma", gamma, names, default_gains(model)), names))
         self.lam = jnp.asarray(_positive("lam", _per("lam", lam, joints, [LAMBDA] * len(joints)), joints))
         self.kd = jnp.asarray(_positive("kd", _per("kd", kd, joints, default_kd(model)), joints))
@@ -235,14 +257,25 @@ class SlotineLi(Controller):
         q0 = jnp.asarray(q0, float)
         n, P = self.n_joints, len(self.names)
         if q0.shape != (n,):
-            raise ManusError(f"the controller's model {self.regressor.model.spec!r} has {n} joint(s) but the "
-                             f"plant measures {q0.shape[-1] if q0.ndim else 1}")
+            raise ManusError(
+                f"the controller's model {self.regressor.model.spec!r} has {n} joint(s) but the "
+                f"plant measures {q0.shape[-1] if q0.ndim else 1}"
+            )
         zeros = jnp.zeros(n)
         comp = self.composite.init(self.regressor, self.gamma) if self.composite is not None else None
         theta0 = self.theta0 if self.projection is None else self.projection(self.theta0, self.gamma)
-        return SlotineLiState(self.estimator.init(q0), theta0, zeros, zeros, zeros,
-                              jnp.zeros((n, P)), comp, jnp.array(False),
-                              jnp.array(0), zeros)
+        return SlotineLiState(
+            self.estimator.init(q0),
+            theta0,
+            zeros,
+            zeros,
+            zeros,
+            jnp.zeros((n, P)),
+            comp,
+            jnp.array(False),
+            jnp.array(0),
+            zeros,
+        )
 
     def _feed(self, est_state, theta):
         """A model-based estimator gets the current estimates of the parameters its model shares
@@ -272,27 +305,37 @@ class SlotineLi(Controller):
         per = lambda x: [x[a] for a in J]
         qj, qdj, qddj, qdd_prev = per(q), per(ref.qd), per(ref.qdd), per(state.qdd_ref)
         lam, kd = per(self.lam), per(self.kd)
-        v = [x + self.velocity_lag * a for x, a in zip(per(est.qd), qddj)]  # the estimate is `velocity_lag` s old
-        q_err = [x - d for x, d in zip(qj, per(ref.q))]
-        v_err = [x - d for x, d in zip(v, qdj)]
-        s = [ev + l * e for ev, l, e in zip(v_err, lam, q_err)]
+        v = [
+            x + self.velocity_lag * a for x, a in zip(per(est.qd), qddj, strict=True)
+        ]  # the estimate is `velocity_lag` s old
+        q_err = [x - d for x, d in zip(qj, per(ref.q), strict=True)]
+        v_err = [x - d for x, d in zip(v, qdj, strict=True)]
+        s = [ev + l * e for ev, l, e in zip(v_err, lam, q_err, strict=True)]
         # the command acts `lead` s from now: aim the regressor there (reference jerk by differencing)
         started = state.ticks > 0
-        jerk = [jnp.where(started, (a - b) / self.dt, 0.0) for a, b in zip(qddj, qdd_prev)]
-        qd_r = [d + lead * (a + 0.5 * lead * j) - l * e for d, a, j, l, e in zip(qdj, qddj, jerk, lam, q_err)]
-        qdd_r = [a + lead * j - l * ev for a, j, l, ev in zip(qddj, jerk, lam, v_err)]
-        Y = regressor_entries(self.regressor, jnp.stack([x + lead * w for x, w in zip(qj, v)]), jnp.stack(v),
-                              jnp.stack(qd_r), jnp.stack(qdd_r))
+        jerk = [jnp.where(started, (a - b) / self.dt, 0.0) for a, b in zip(qddj, qdd_prev, strict=True)]
+        qd_r = [
+            d + lead * (a + 0.5 * lead * j) - l * e for d, a, j, l, e in zip(qdj, qddj, jerk, lam, q_err, strict=True)
+        ]
+        qdd_r = [a + lead * j - l * ev for a, j, l, ev in zip(qddj, jerk, lam, v_err, strict=True)]
+        Y = regressor_entries(
+            self.regressor,
+            jnp.stack([x + lead * w for x, w in zip(qj, v, strict=True)]),
+            jnp.stack(v),
+            jnp.stack(qd_r),
+            jnp.stack(qdd_r),
+        )
         Y, s = fusion_boundary((Y, s))  # each entry computed once (see fusion_boundary)
         th = [state.theta[k] for k in range(m)]
         tau = [jnp.clip(sum(Y[a][k] * th[k] for k in range(m)) - kd[a] * s[a], -self.limit, self.limit) for a in J]
         grad = [sum(Y[a][k] * s[a] for a in J) for k in range(m)]
         comp, metric, gamma = state.composite, self.gamma, [self.gamma[k] for k in range(m)]
         if self.composite is None:
-            new_theta = jnp.stack([t - self.dt * g * d for t, g, d in zip(th, gamma, grad)])
+            new_theta = jnp.stack([t - self.dt * g * d for t, g, d in zip(th, gamma, grad, strict=True)])
         else:
-            comp, W, tau_f = self.composite.step(comp, self.regressor, q, jnp.stack(v), jnp.stack(tau), self.gamma,
-                                                 lead, self.dt)
+            comp, W, tau_f = self.composite.step(
+                comp, self.regressor, q, jnp.stack(v), jnp.stack(tau), self.gamma, lead, self.dt
+            )
             new_theta = state.theta - self.dt * self.composite.direction(comp, jnp.stack(grad), W, tau_f, state.theta)
             metric = comp.diagonal
         if self.projection is not None:
@@ -304,8 +347,13 @@ class SlotineLi(Controller):
         tau = jnp.stack([jnp.where(stopped, 0.0, x) for x in tau])
         theta = jnp.where(stopped, state.theta, new_theta)
         Ya = jnp.stack([jnp.stack(row) for row in Y])
-        return (SlotineLiState(est_state, theta, tau, jnp.stack(v), jnp.stack(s), Ya, comp, stopped, state.ticks + 1,
-                               ref.qdd), tau, Y)
+        return (
+            SlotineLiState(
+                est_state, theta, tau, jnp.stack(v), jnp.stack(s), Ya, comp, stopped, state.ticks + 1, ref.qdd
+            ),
+            tau,
+            Y,
+        )
 
 
 def fusion_boundary(tree):
@@ -318,16 +366,20 @@ def fusion_boundary(tree):
     branches once on one trial's value (the first entry equal to itself: always, but XLA cannot
     tell); the other branch returns the same values (NaN stays NaN) in a form XLA does not
     recognize as the same, so it keeps the conditional. One trial (no vmap): nothing."""
+
     @jax.custom_batching.custom_vmap
     def same(leaves):
         return leaves
 
     @same.def_vmap
     def same_batched(axis_size, in_batched, leaves):
-        leaves = [x if b else jnp.broadcast_to(x, (axis_size,) + x.shape) for x, b in zip(leaves, in_batched[0])]
+        leaves = [
+            x if b else jnp.broadcast_to(x, (axis_size,) + x.shape) for x, b in zip(leaves, in_batched[0], strict=True)
+        ]
         first = leaves[0].ravel()[0]
-        out = jax.lax.cond(first == first, lambda xs: list(xs), lambda xs: [jnp.where(x == x, x, x + 1) for x in xs],
-                           leaves)
+        out = jax.lax.cond(
+            first == first, lambda xs: list(xs), lambda xs: [jnp.where(x == x, x, x + 1) for x in xs], leaves
+        )
         return out, [True] * len(out)
 
     leaves, treedef = jax.tree.flatten(tree)
@@ -381,11 +433,12 @@ def _gram_step(gram: tuple, Y: list, dt: float) -> tuple:
     a (P, n) × (n, P) product per trial is a tiny batched matmul, and a (P, P) broadcast-and-sum
     took as long as the whole controller, measured)."""
     n, m = len(Y), len(Y[0])
-    return tuple(g + dt * sum(Y[a][i] * Y[a][j] for a in range(n)) for g, (i, j) in zip(gram, _upper(m)))
+    return tuple(g + dt * sum(Y[a][i] * Y[a][j] for a in range(n)) for g, (i, j) in zip(gram, _upper(m), strict=True))
 
 
-def rollout(plant: Plant, controller: SlotineLi, reference: Reference, steps: int, key=None,
-            every: int = 50) -> tuple[Log, Array]:
+def rollout(
+    plant: Plant, controller: SlotineLi, reference: Reference, steps: int, key=None, every: int = 50
+) -> tuple[Log, Array]:
     """`steps` closed-loop ticks in one `lax.scan` (pure: jit and vmap go through), logging the
     estimates -> (Log, G): G (steps // every, P, P) holds ∫₀ᵗ YᵀY dt at every `every`-th tick,
     the excitation the adaptation has seen so far (its smallest eigenvalue: how well the
@@ -439,6 +492,7 @@ def _trial_steps(plant: Plant, reference: Reference, truth: Array):
     """(start, tick) of one trial, as `rollout_batch` and `trial` run it: the carry is the plant's
     and controller's states, the measurement, ∫YᵀY dt entry by entry (`_gram_step`) and the
     statistics of every tick (Σ (q − q_d)², max |τ|, the last tick with â outside its band)."""
+
     def start(controller: SlotineLi, key):
         pstate, q = plant.reset(key, q0=reference(0.0).q)
         n, m = controller.n_joints, len(controller.names)
@@ -461,6 +515,7 @@ def _trial_steps(plant: Plant, reference: Reference, truth: Array):
 def _scan_ticks(tick, carry, steps: int, every: int, record: int, gram_of):
     """`steps` ticks of `tick(carry, k) -> (carry, row)` in nested scans: blocks of `record` ticks
     (the row of the last kept), chunks of `every` ticks (`gram_of(carry)` kept at their end)."""
+
     def block(carry, k0):
         if record > 1:
             carry, _ = jax.lax.scan(lambda c, k: (tick(c, k)[0], None), carry, k0 + jnp.arange(record - 1))
@@ -482,26 +537,45 @@ def _outputs(carry, rows, grams, steps: int):
     return (*rows, cstate.stopped, symmetric(grams, 1), cstate.theta, sq / steps, tau_max, last_out)
 
 
-def trial(plant: Plant, controller: SlotineLi, reference: Reference, steps: int, key: Array, truth: Array,
-          every: int = 50, record: int = 1) -> tuple:
+def trial(
+    plant: Plant,
+    controller: SlotineLi,
+    reference: Reference,
+    steps: int,
+    key: Array,
+    truth: Array,
+    every: int = 50,
+    record: int = 1,
+) -> tuple:
     """One trial of `rollout_batch`, unbatched: the same ticks in the same scans (the one-by-one
     baseline of `manus bench converge`) -> its arrays in `BatchLog` order after t, without the trial
     axis, the settle statistic as the last tick outside the band (−1: none)."""
     _check(steps, every, record)
     start, tick = _trial_steps(plant, reference, jnp.asarray(truth))
-    carry, rows, grams = _scan_ticks(lambda c, k: tick(controller, c, k), start(controller, key), steps, every,
-                                     record, lambda c: c[3])
+    carry, rows, grams = _scan_ticks(
+        lambda c, k: tick(controller, c, k), start(controller, key), steps, every, record, lambda c: c[3]
+    )
     return _outputs(carry, rows, grams, steps)
 
 
 def _check(steps: int, every: int, record: int) -> None:
     if every < 1 or record < 1 or steps % every or every % record:
-        raise ManusError(f"rollout: {steps} steps in chunks of every={every} recorded every {record}: need "
-                         "whole multiples")
+        raise ManusError(
+            f"rollout: {steps} steps in chunks of every={every} recorded every {record}: need whole multiples"
+        )
 
 
-def rollout_batch(plant: Plant, controller: SlotineLi, reference: Reference, per_trial: tuple, keys: Array,
-                  steps: int, every: int = 50, record: int = 1, truth: Array | None = None) -> BatchLog:
+def rollout_batch(
+    plant: Plant,
+    controller: SlotineLi,
+    reference: Reference,
+    per_trial: tuple,
+    keys: Array,
+    steps: int,
+    every: int = 50,
+    record: int = 1,
+    truth: Array | None = None,
+) -> BatchLog:
     """Many closed-loop trials at once: trial i runs `controller` with per_trial = (â(0), Γ, Λ, K_D),
     each with a leading trial axis, and the plant's noise key keys[i]; `truth` (P,) the parameters'
     true values for the settle statistic (default: the plant's, 0 where it has none). Compiled once
@@ -518,8 +592,17 @@ def rollout_batch(plant: Plant, controller: SlotineLi, reference: Reference, per
     if truth is None:
         params = plant.params
         truth = [float(params.get(k, 0.0)) for k in controller.names]
-    out = _batch(plant, controller, reference, tuple(per_trial), keys, jnp.asarray(truth, float), int(steps),
-                 int(every), int(record))
+    out = _batch(
+        plant,
+        controller,
+        reference,
+        tuple(per_trial),
+        keys,
+        jnp.asarray(truth, float),
+        int(steps),
+        int(every),
+        int(record),
+    )
     *arrays, last_out = (np.moveaxis(np.asarray(x), -1, 0) for x in out)
     settle = np.where(last_out < steps - 1, (last_out + 1) * plant.dt, np.nan)
     t = (np.arange(steps // record) * record + record - 1) * plant.dt
@@ -539,7 +622,7 @@ def _rebuild(vectors: tuple, spec: tuple):
     leaves, i = [], 0
     for shape in shapes:
         size = math.prod(shape[:-1])
-        leaves.append(jnp.stack(vectors[i:i + size]).reshape(shape))
+        leaves.append(jnp.stack(vectors[i : i + size]).reshape(shape))
         i += size
     return jax.tree.unflatten(treedef, leaves)
 
@@ -564,6 +647,7 @@ def _batch(plant, controller, reference, per_trial, keys, truth, steps: int, eve
         def flat_tick(carry, k):
             carry, row = ticks(_rebuild(cs, cs_spec), _rebuild(carry, spec), k)
             return _entries(carry)[0], row
+
         carry, rows, grams = _scan_ticks(flat_tick, carry, steps, every, record, lambda c: _rebuild(c, spec)[3])
         return _outputs(_rebuild(carry, spec), rows, grams, steps)
 
@@ -575,9 +659,13 @@ def _batch(plant, controller, reference, per_trial, keys, truth, steps: int, eve
     rows, last = Ps(None, None, "trials"), Ps(None, "trials")
     out = (rows, rows, rows, Ps("trials"), Ps(None, None, None, "trials"), last, last, last, last)
     # no collectives inside: every device runs its own trials
-    local = jax.shard_map(lambda arrays, per_trial, keys, truth: run(*eqx.combine(arrays, rest), per_trial, keys, truth),
-                          mesh=jax.sharding.Mesh(np.array(devices), ("trials",)),
-                          in_specs=(Ps(), Ps("trials"), Ps("trials"), Ps()), out_specs=out, check_vma=False)
+    local = jax.shard_map(
+        lambda arrays, per_trial, keys, truth: run(*eqx.combine(arrays, rest), per_trial, keys, truth),
+        mesh=jax.sharding.Mesh(np.array(devices), ("trials",)),
+        in_specs=(Ps(), Ps("trials"), Ps("trials"), Ps()),
+        out_specs=out,
+        check_vma=False,
+    )
     return local(arrays, per_trial, keys, truth)
 
 

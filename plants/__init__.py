@@ -9,7 +9,25 @@ from manus.plants.stepper import Controller, Plant, Reference, RefSample
 from manus.plants.structures import Axis, Manus2, Structure
 
 __all__ = [
-    "VOCABULARY", "Effect", "Model", "parse_effects", "ManusError", "ModelError", "RecordingError",
-    "Actuator", "Encoder", "Simulator", "Controller", "Plant", "Reference", "RefSample",
-    "Axis", "Manus2", "Serial", "SerialBase", "SerialPseudo", "Structure", "structure_named",
+    "VOCABULARY",
+    "Effect",
+    "Model",
+    "parse_effects",
+    "ManusError",
+    "ModelError",
+    "RecordingError",
+    "Actuator",
+    "Encoder",
+    "Simulator",
+    "Controller",
+    "Plant",
+    "Reference",
+    "RefSample",
+    "Axis",
+    "Manus2",
+    "Serial",
+    "SerialBase",
+    "SerialPseudo",
+    "Structure",
+    "structure_named",
 ]

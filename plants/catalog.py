@@ -8,6 +8,7 @@ from manus.plants.errors import ModelError
 from manus.plants.serial import Serial
 from manus.plants.structures import Axis, Manus2, Structure
 
+
 def structure_named(name: str, n_joints: int, robot=None) -> Structure:
     """The structure called `name` with `n_joints` joints: "manus2", "axis", or "urdf" (a serial
     chain read from the URDF file `robot`, `manus.plants.serial.Serial`; a URDF whose chain has
@@ -20,10 +21,14 @@ def structure_named(name: str, n_joints: int, robot=None) -> Structure:
         return Axis(n_joints=n_joints)
     if name == "urdf":
         if robot is None:
-            raise ModelError("structure urdf needs the robot's URDF file (a recording's '# robot: PATH', or --robot FILE.urdf)")
+            raise ModelError(
+                "structure urdf needs the robot's URDF file (a recording's '# robot: PATH', or --robot FILE.urdf)"
+            )
         serial = Serial.from_urdf(robot)
         if serial.n_joints != n_joints:
-            raise ModelError(f"{robot}: the URDF's chain has {serial.n_joints} joints ({', '.join(serial.joint_names)}), "
-                             f"not {n_joints}")
+            raise ModelError(
+                f"{robot}: the URDF's chain has {serial.n_joints} joints ({', '.join(serial.joint_names)}), "
+                f"not {n_joints}"
+            )
         return serial
     raise ValueError(f"unknown structure {name!r}: expected 'manus2', 'axis' or 'urdf'")

@@ -8,7 +8,8 @@ delay) and returns q_{k+1}. This is the thesis's sampling order: read, compute, 
 from __future__ import annotations
 
 import sys
-from typing import Callable, NamedTuple
+from collections.abc import Callable
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -62,8 +63,15 @@ def _chunk(plant, controller, reference, carry, ks):
     return jax.lax.scan(_tick(plant, controller, reference), carry, ks)
 
 
-def simulate(plant: Plant, controller: Controller, reference: Reference, seconds: float, key=None,
-             progress: bool | Callable[[float], None] = False, chunk_seconds: float = 1.0) -> Trajectory:
+def simulate(
+    plant: Plant,
+    controller: Controller,
+    reference: Reference,
+    seconds: float,
+    key=None,
+    progress: bool | Callable[[float], None] = False,
+    chunk_seconds: float = 1.0,
+) -> Trajectory:
     """Run the closed loop for `seconds`; returns numpy arrays.
 
     With `progress=True` a progress bar goes to stderr (the run is then scanned in chunks of
@@ -71,7 +79,9 @@ def simulate(plant: Plant, controller: Controller, reference: Reference, seconds
     """
     steps = int(round(seconds / plant.dt))
     if not progress:
-        traj = eqx.filter_jit(rollout, )(plant, controller, reference, steps, key)
+        traj = eqx.filter_jit(
+            rollout,
+        )(plant, controller, reference, steps, key)
         return _finite(Trajectory(*map(np.asarray, traj)), plant.dt)
     chunk = max(1, int(round(chunk_seconds / plant.dt)))
     carry = eqx.filter_jit(start)(plant, controller, reference, key)
@@ -94,7 +104,7 @@ def simulate(plant: Plant, controller: Controller, reference: Reference, seconds
             progress(done / steps)
     if bar is not None:
         bar.close()
-    return _finite(Trajectory(*(np.concatenate(x)[:steps] for x in zip(*parts))), plant.dt)
+    return _finite(Trajectory(*(np.concatenate(x)[:steps] for x in zip(*parts, strict=True))), plant.dt)
 
 
 def _finite(traj: Trajectory, dt: float) -> Trajectory:
@@ -105,15 +115,24 @@ def _finite(traj: Trajectory, dt: float) -> Trajectory:
     if bad.any():
         k = int(np.argmax(bad))
         peak = float(np.nanmax(np.abs(traj.tau[:k]))) if k else float("nan")
-        raise ModelError(f"the closed loop diverged: positions or torques are not finite from t = {k * dt:.4g} s "
-                         f"(tick {k}; the largest torque before, {peak:.3g}): the loop is unstable at {1 / dt:g} Hz, "
-                         "its gains too stiff for the sample rate or the plant too light for them (lower the "
-                         "stiffness and damping, raise the rate or the physics sub-steps, or limit the torque)")
+        raise ModelError(
+            f"the closed loop diverged: positions or torques are not finite from t = {k * dt:.4g} s "
+            f"(tick {k}; the largest torque before, {peak:.3g}): the loop is unstable at {1 / dt:g} Hz, "
+            "its gains too stiff for the sample rate or the plant too light for them (lower the "
+            "stiffness and damping, raise the rate or the physics sub-steps, or limit the torque)"
+        )
     return traj
 
 
-def simulate_batch(plant: Plant, controller: Controller, reference: Reference, seconds: float, keys: Array,
-                   batched: tuple[str, ...] = (), every: int = 1) -> Trajectory:
+def simulate_batch(
+    plant: Plant,
+    controller: Controller,
+    reference: Reference,
+    seconds: float,
+    keys: Array,
+    batched: tuple[str, ...] = (),
+    every: int = 1,
+) -> Trajectory:
     """Many trials at once: one per key in `keys` (B, 2). `batched` names which of "plant",
     "controller", "reference" carry a leading batch axis on their array leaves (e.g.
     different gains or initial estimates per trial); the others are shared. Returns numpy
@@ -142,13 +161,15 @@ def _batch(plant, controller, reference, keys, steps: int, batched: tuple[str, .
     axes = tuple(eqx.if_array(0) if name in batched else None for name in parts)
 
     def run(plant, controller, reference, keys):
-        tick = eqx.filter_vmap(lambda p, c, r, carry, k: _tick(p, c, r)(carry, k),
-                               in_axes=(*axes, 0, None), out_axes=(0, -1))
+        tick = eqx.filter_vmap(
+            lambda p, c, r, carry, k: _tick(p, c, r)(carry, k), in_axes=(*axes, 0, None), out_axes=(0, -1)
+        )
 
         def chunk(carry, k0):  # record the first of `every` ticks
             carry, row = tick(plant, controller, reference, carry, k0)
-            carry, _ = jax.lax.scan(lambda c, k: (tick(plant, controller, reference, c, k)[0], None),
-                                    carry, k0 + jnp.arange(1, every))
+            carry, _ = jax.lax.scan(
+                lambda c, k: (tick(plant, controller, reference, c, k)[0], None), carry, k0 + jnp.arange(1, every)
+            )
             return carry, row
 
         carry = eqx.filter_vmap(start, in_axes=(*axes, 0))(plant, controller, reference, keys)
@@ -163,6 +184,11 @@ def _batch(plant, controller, reference, keys, steps: int, batched: tuple[str, .
     arrays, rest = eqx.partition((plant, controller, reference, keys), eqx.is_array)
     # no collectives inside: every device runs its own trials (check_vma would object to the
     # sub-step loop's carry starting shared and ending per trial)
-    local = jax.shard_map(lambda arrays: run(*eqx.combine(arrays, rest)), mesh=jax.sharding.Mesh(np.array(devices), ("trials",)),
-                          in_specs=(specs,), out_specs=out, check_vma=False)
+    local = jax.shard_map(
+        lambda arrays: run(*eqx.combine(arrays, rest)),
+        mesh=jax.sharding.Mesh(np.array(devices), ("trials",)),
+        in_specs=(specs,),
+        out_specs=out,
+        check_vma=False,
+    )
     return local(arrays)

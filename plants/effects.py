@@ -53,11 +53,10 @@ import math
 import re
 from typing import ClassVar, NamedTuple
 
-import numpy as np
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import Array
 
 from manus.plants import fastmath
@@ -139,12 +138,12 @@ class Effect(eqx.Module):
         """None when the effect can act on these joints, else why not."""
         return None
 
-    def space(self, span: Span) -> tuple["Effect", ...]:
+    def space(self, span: Span) -> tuple[Effect, ...]:
         """The values of its non-linear parameter worth trying on a recording (in order, for a
         grid search); () when it has none to search."""
         return ()
 
-    def grow(self, span: Span) -> tuple["Effect", ...]:
+    def grow(self, span: Span) -> tuple[Effect, ...]:
         """For an effect already in the model: larger versions of it worth trying (cogging: one
         more order); () for most."""
         return ()
@@ -169,7 +168,7 @@ class Effect(eqx.Module):
         deviations."""
         std = std or {}
         out = []
-        for k, lo in zip(self.names(s), self.lower_bounds(s)):
+        for k, lo in zip(self.names(s), self.lower_bounds(s), strict=True):
             v, sd = params.get(k), std.get(k)
             sd = sd if sd is not None and np.isfinite(sd) else 0.0
             if v is not None and np.isfinite(lo) and v + 2 * sd < lo:
@@ -179,14 +178,16 @@ class Effect(eqx.Module):
     def violations(self, s: Structure, params: dict, std: dict | None = None) -> list[str]:
         """The physical rules the fitted parameters break (beyond two standard deviations)."""
         std = std or {}
-        lows = dict(zip(self.names(s), self.lower_bounds(s)))
-        return [f"{k} = {params[k]:.4g} ± {std.get(k) or 0:.2g} < {lows[k]:g}: {self.name} {self.rule}"
-                for k in self.beyond_bounds(s, params, std)]
+        lows = dict(zip(self.names(s), self.lower_bounds(s), strict=True))
+        return [
+            f"{k} = {params[k]:.4g} ± {std.get(k) or 0:.2g} < {lows[k]:g}: {self.name} {self.rule}"
+            for k in self.beyond_bounds(s, params, std)
+        ]
 
     rule: ClassVar[str] = ""  # what the lower bounds mean, for `violations`
 
     @classmethod
-    def parse(cls, arg: str) -> "Effect":
+    def parse(cls, arg: str) -> Effect:
         """This effect from the argument of its spec, `name:arg` ("" : none, the defaults); an
         effect with no argument of its own refuses any."""
         if arg:
@@ -421,7 +422,10 @@ class Gravity(Effect):
         if s.rigid_gravity:  # a structure whose rigid effect holds gravity says why
             return s.rigid_gravity
         if any(prismatic):
-            return "gravity is a cos/sin of a joint angle: it does not apply to a prismatic axis (a constant load there is an offset)"
+            return (
+                "gravity is a cos/sin of a joint angle: it does not apply to a prismatic axis (a constant load "
+                "there is an offset)"
+            )
         return None
 
 
@@ -492,7 +496,7 @@ class Cogging(Effect):
         th = stack(p, self.names(s))
         total = 0 * q
         for k, N in enumerate(self.orders):
-            a, b = th[2 * n * k:2 * n * k + n], th[2 * n * k + n:2 * n * (k + 1)]
+            a, b = th[2 * n * k : 2 * n * k + n], th[2 * n * k + n : 2 * n * (k + 1)]
             total = total + a * fastmath.sin(N * q) + b * fastmath.cos(N * q)
         return total
 
@@ -542,19 +546,24 @@ class Cogging(Effect):
     def space(self, span):
         return tuple(Cogging(order=float(N)) for N in self._grid(span))
 
-    def grow(self, span: Span) -> tuple["Effect", ...]:
+    def grow(self, span: Span) -> tuple[Effect, ...]:
         """This cogging plus one more order (several at once: the 39/rev cogging and the 6/rev
         ripple), orders it already holds left out."""
         held = [float(N) for N in self.orders]
-        return tuple(Cogging(order=self.order, more=(*self.more, float(N))) for N in self._grid(span)
-                     if min(abs(float(N) - h) for h in held) > 0.5 * min(1.0, float(N) * 1e-3 + 0.5))
+        return tuple(
+            Cogging(order=self.order, more=(*self.more, float(N)))
+            for N in self._grid(span)
+            if min(abs(float(N) - h) for h in held) > 0.5 * min(1.0, float(N) * 1e-3 + 0.5)
+        )
 
     def edge(self, span):
         grid = self._grid(span)
         N = float(self.orders[-1])
         if grid.size >= 3 and (np.isclose(N, grid[0]) or np.isclose(N, grid[-1])):
-            return (f"order {N:.6g} lies on the edge of its search range ({grid[0]:.6g} to {grid[-1]:.6g}): "
-                    "a period as long as half the travel or as short as a few encoder counts")
+            return (
+                f"order {N:.6g} lies on the edge of its search range ({grid[0]:.6g} to {grid[-1]:.6g}): "
+                "a period as long as half the travel or as short as a few encoder counts"
+            )
         return None
 
 
@@ -599,8 +608,10 @@ class Delay(Effect):
         if any(v < 0 for v in values):
             raise ModelError(f"delay: {arg!r}: a delay cannot be negative")
         if not all(v <= MAX_DELAY_S for v in values):
-            raise ModelError(f"delay: {arg!r}: longer than {MAX_DELAY_S:g} s, no amplifier's or bus's delay "
-                             "(a delay in milliseconds is written 2ms)")
+            raise ModelError(
+                f"delay: {arg!r}: longer than {MAX_DELAY_S:g} s, no amplifier's or bus's delay "
+                "(a delay in milliseconds is written 2ms)"
+            )
         return cls(seconds=values[0] if len(values) == 1 else tuple(values))
 
     def describe(self):
@@ -624,8 +635,12 @@ class Delay(Effect):
         if n < 2:
             return ()
         d = self.per_joint(n)
-        return tuple(Delay(seconds=tuple(float(v.seconds) if i == j else float(d[i]) for i in range(n)))
-                     for j in range(n) for v in self.space(span) if v.seconds != d[j])
+        return tuple(
+            Delay(seconds=tuple(float(v.seconds) if i == j else float(d[i]) for i in range(n)))
+            for j in range(n)
+            for v in self.space(span)
+            if v.seconds != d[j]
+        )
 
     def edge(self, span):
         if not isinstance(self.seconds, tuple):
@@ -633,7 +648,8 @@ class Delay(Effect):
         top = self.space(span)[-1].seconds
         at = [i + 1 for i, d in enumerate(self.seconds) if d >= top]
         if at:  # (a joint at 0 while the others are late is a value, not an edge)
-            return f"{self.spec}: joint {', '.join(map(str, at))} lies on the upper edge of its search range ({top * 1e3:.4g} ms)"
+            joints = ", ".join(map(str, at))
+            return f"{self.spec}: joint {joints} lies on the upper edge of its search range ({top * 1e3:.4g} ms)"
         return None
 
 
@@ -685,7 +701,9 @@ def is_load(e: Effect) -> bool:
     return e.linear and not (e.inertial or e.dry)
 
 
-ORDER = tuple(VOCABULARY)  # rigid, viscous, coulomb, stribeck, asymmetry, offset, gravity, spring, cogging, delay, compliance
+ORDER = tuple(
+    VOCABULARY
+)  # rigid, viscous, coulomb, stribeck, asymmetry, offset, gravity, spring, cogging, delay, compliance
 
 
 def parse_effect(text: str) -> Effect:
@@ -702,7 +720,9 @@ def parse_effect(text: str) -> Effect:
 def parse_effects(text: str | list[str] | tuple) -> tuple[Effect, ...]:
     """`"rigid,viscous,coulomb"` -> effects in the vocabulary's order, each at most once."""
     items = text.split(",") if isinstance(text, str) else list(text)
-    effects = [e if isinstance(e, Effect) else parse_effect(e) for e in items if not (isinstance(e, str) and not e.strip())]
+    effects = [
+        e if isinstance(e, Effect) else parse_effect(e) for e in items if not (isinstance(e, str) and not e.strip())
+    ]
     if not effects:
         raise ModelError("empty effect list: name at least one of " + ", ".join(ORDER))
     seen = [e.name for e in effects]
@@ -746,11 +766,11 @@ class Model(eqx.Module):
     def has(self, name: str) -> bool:
         return self.get(name) is not None
 
-    def with_effect(self, effect: Effect) -> "Model":
+    def with_effect(self, effect: Effect) -> Model:
         kept = tuple(e for e in self.effects if e.name != effect.name)
         return Model(self.structure, parse_effects(kept + (effect,)))
 
-    def without(self, name: str) -> "Model":
+    def without(self, name: str) -> Model:
         return Model(self.structure, tuple(e for e in self.effects if e.name != name))
 
     @property

@@ -65,8 +65,15 @@ class CompiledTick:
     keeps one: `Controller.velocity`), and whether every number was finite and the controller
     has not stopped itself (`Controller.stopped`)."""
 
-    def __init__(self, controller: Controller, reference: Reference, dt: float, counts_per_rev: float,
-                 n_joints: int, torque_limit: float):
+    def __init__(
+        self,
+        controller: Controller,
+        reference: Reference,
+        dt: float,
+        counts_per_rev: float,
+        n_joints: int,
+        torque_limit: float,
+    ):
         import jax
         import jax.numpy as jnp
         from jax.flatten_util import ravel_pytree
@@ -80,7 +87,9 @@ class CompiledTick:
         self.size = int(flat0.size)
         velocity = controller.velocity(probe)
         has_v = velocity is not None and np.shape(velocity) == (n_joints,)
-        self.extras = [f"qref{i + 1}" for i in range(n_joints)] + ([f"vhat{i + 1}" for i in range(n_joints)] if has_v else [])
+        self.extras = [f"qref{i + 1}" for i in range(n_joints)] + (
+            [f"vhat{i + 1}" for i in range(n_joints)] if has_v else []
+        )
 
         def finite(tree):
             leaves = [x for x in jax.tree.leaves(tree) if jnp.issubdtype(jnp.asarray(x).dtype, jnp.inexact)]
@@ -126,7 +135,7 @@ class CompiledTick:
         self._last = (k, counts)
         s, n = self.size, self.n
         self.flat = out[:s]
-        return out[s:s + n], out[s + n:-1], bool(out[-1])
+        return out[s : s + n], out[s + n : -1], bool(out[-1])
 
 
 @dataclass
@@ -193,8 +202,11 @@ class HardwarePlant(Plant):
         if not np.all(np.isfinite(tau)):
             self.close()
             raise ManusError(f"non-finite command {tau.tolist()} at sample {state.seq} (zero torque sent)")
-        volts = np.clip(np.clip(tau, -self.limit, self.limit) / self.info.torque_per_volt, -self.info.volt_limit,
-                        self.info.volt_limit)
+        volts = np.clip(
+            np.clip(tau, -self.limit, self.limit) / self.info.torque_per_volt,
+            -self.info.volt_limit,
+            self.info.volt_limit,
+        )
         self.device.send(state.seq, volts, P.CMD_VOLTS)
         sample = self._next(self.watchdog)
         return sample, sample.counts * self.q_step
@@ -212,8 +224,11 @@ def percentiles(x) -> dict:
     x = np.asarray(x, float)
     if x.size == 0:
         return {"p50": None, "p99": None, "max": None}
-    return {"p50": round(float(np.percentile(x, 50)), 1), "p99": round(float(np.percentile(x, 99)), 1),
-            "max": round(float(x.max()), 1)}
+    return {
+        "p50": round(float(np.percentile(x, 50)), 1),
+        "p99": round(float(np.percentile(x, 99)), 1),
+        "max": round(float(x.max()), 1),
+    }
 
 
 class _Stop:
@@ -238,12 +253,25 @@ class _Stop:
 
 
 def columns(n: int, extras: list[str]) -> list[str]:
-    return (["t"] + [f"q{i + 1}" for i in range(n)] + [f"tau{i + 1}" for i in range(n)] + list(extras)
-            + ["compute_us", "period_us", "latency_us", "late", "flags", "seq"])
+    return (
+        ["t"]
+        + [f"q{i + 1}" for i in range(n)]
+        + [f"tau{i + 1}" for i in range(n)]
+        + list(extras)
+        + ["compute_us", "period_us", "latency_us", "late", "flags", "seq"]
+    )
 
 
-def run_loop(device: Device, stepper: CompiledTick, seconds: float, record: str | Path | None = None, watchdog: float = 0.02,
-             torque_limit: float | None = None, volts: bool = True, meta: dict | None = None) -> Result:
+def run_loop(
+    device: Device,
+    stepper: CompiledTick,
+    seconds: float,
+    record: str | Path | None = None,
+    watchdog: float = 0.02,
+    torque_limit: float | None = None,
+    volts: bool = True,
+    meta: dict | None = None,
+) -> Result:
     """Run `stepper` (a `CompiledTick`: n, dt, q_step, extras, start, step, keep_warm) against
     `device` for `seconds`; see the module docstring. Connects the device itself."""
     if not seconds > 0:
@@ -257,8 +285,14 @@ def run_loop(device: Device, stepper: CompiledTick, seconds: float, record: str 
     ticks = int(round(seconds / stepper.dt))
     writer = None
     if record is not None:
-        m = {"sample_rate_hz": f"{info.rate_hz:g}", "counts_per_rev": f"{info.counts_per_rev:g}",
-             "command_hold": "zoh", "source": "manus run-hardware", "streamed": "true", **(meta or {})}
+        m = {
+            "sample_rate_hz": f"{info.rate_hz:g}",
+            "counts_per_rev": f"{info.counts_per_rev:g}",
+            "command_hold": "zoh",
+            "source": "manus run-hardware",
+            "streamed": "true",
+            **(meta or {}),
+        }
         writer = RecordingWriter(record, columns(n, stepper.extras), m)
     width = 1 + 2 * n + len(stepper.extras) + 6
     rows = np.zeros((LOG_EVERY, width))
@@ -304,9 +338,15 @@ def run_loop(device: Device, stepper: CompiledTick, seconds: float, record: str 
                 result.device_late += bool(sample.flags & P.STATUS_LATE)
                 q_log[i], tau_log[i], ref_log[i] = q, tau, extras[:n]
                 prev = t_in[i - 1] if i and seqs[i - 1] == k - 1 else t0 - period
-                rows[nrow] = np.concatenate([[k * stepper.dt], q, tau, extras,
-                                             [(t1 - t0) / 1e3, (t0 - prev) / 1e3, latency / 1e3, late[i], sample.flags,
-                                              sample.seq]])
+                rows[nrow] = np.concatenate(
+                    [
+                        [k * stepper.dt],
+                        q,
+                        tau,
+                        extras,
+                        [(t1 - t0) / 1e3, (t0 - prev) / 1e3, latency / 1e3, late[i], sample.flags, sample.seq],
+                    ]
+                )
                 nrow += 1
                 i += 1
                 if nrow == LOG_EVERY:
@@ -320,7 +360,10 @@ def run_loop(device: Device, stepper: CompiledTick, seconds: float, record: str 
                     result.stopped_by, result.reason = "fault", "the device reports a fault (it refused a command)"
                     break
                 if sample.flags & P.STATUS_WATCHDOG:
-                    result.stopped_by, result.reason = "watchdog", "the device's watchdog fired (a command came too late)"
+                    result.stopped_by, result.reason = (
+                        "watchdog",
+                        "the device's watchdog fired (a command came too late)",
+                    )
                     break
                 if stop.requested:
                     result.stopped_by, result.reason = "user", "interrupted"
@@ -339,7 +382,9 @@ def run_loop(device: Device, stepper: CompiledTick, seconds: float, record: str 
             if nrow:
                 writer.append(rows[:nrow])
             writer.close()
-    return _summary(result, device, period, t_in[:i], seqs[:i], compute[:i], late[:i], q_log[:i], ref_log[:i], tau_log[:i])
+    return _summary(
+        result, device, period, t_in[:i], seqs[:i], compute[:i], late[:i], q_log[:i], ref_log[:i], tau_log[:i]
+    )
 
 
 def _check(device, info, stepper) -> None:
@@ -349,7 +394,9 @@ def _check(device, info, stepper) -> None:
         raise ManusError(f"{where}: the device has {info.n_joints} joint(s), the controller {stepper.n}")
     if abs(info.rate_hz * stepper.dt - 1) > 1e-6:
         device.stop()
-        raise ManusError(f"{where}: the device samples at {info.rate_hz:g} Hz, the controller runs at {1 / stepper.dt:g} Hz")
+        raise ManusError(
+            f"{where}: the device samples at {info.rate_hz:g} Hz, the controller runs at {1 / stepper.dt:g} Hz"
+        )
 
 
 def _summary(result, device, period, t_in, seqs, compute, late, q, ref, tau) -> Result:
@@ -369,10 +416,12 @@ def _summary(result, device, period, t_in, seqs, compute, late, q, ref, tau) -> 
 def report(r: dict) -> str:
     """The figures of a run, as printed at its end."""
     c, j = r["compute_us"], r["jitter_us"]
-    lines = [f"stopped by {r['stopped_by']}" + (f": {r['reason']}" if r.get("reason") else ""),
-             f"  ticks {r['ticks']}, deadline misses {r['deadline_misses']}, lost samples {r['lost_samples']}",
-             f"  compute µs  p50 {c['p50']}  p99 {c['p99']}  max {c['max']}",
-             f"  jitter  µs  p50 {j['p50']}  p99 {j['p99']}  max {j['max']}"]
+    lines = [
+        f"stopped by {r['stopped_by']}" + (f": {r['reason']}" if r.get("reason") else ""),
+        f"  ticks {r['ticks']}, deadline misses {r['deadline_misses']}, lost samples {r['lost_samples']}",
+        f"  compute µs  p50 {c['p50']}  p99 {c['p99']}  max {c['max']}",
+        f"  jitter  µs  p50 {j['p50']}  p99 {j['p99']}  max {j['max']}",
+    ]
     if r.get("refused"):
         lines.append("  refused packets: " + ", ".join(f"{k} {v}" for k, v in sorted(r["refused"].items())))
     if r.get("tracking_rms"):

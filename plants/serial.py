@@ -19,7 +19,9 @@ gripper's fingers) are merged into it. Its *standard inertial parameters*, in it
 |---|---|---|
 | `m{j}` | mass | kg |
 | `mx{j}`, `my{j}`, `mz{j}` | first moment m·c (c: centre of mass) | kg m |
-| `Ixx{j}`, `Ixy{j}`, `Ixz{j}`, `Iyy{j}`, `Iyz{j}`, `Izz{j}` | inertia tensor about the link frame's *origin* (not the centre of mass); `Ixy` is the tensor entry, as in the URDF | kg m² |
+| `Ixx{j}`, `Ixy{j}`, `Ixz{j}`, `Iyy{j}`, `Iyz{j}`, `Izz{j}` | inertia tensor about the frame's *origin* (1) | kg m² |
+
+(1) The link frame's origin, not the centre of mass; `Ixy` is the tensor entry, as in the URDF.
 
 followed by one armature per joint, `Ia{j}` [kg m² or kg]: the motor's rotor inertia reflected
 through the gear, a torque Ia_j q̈_j on joint j alone. Parameter order (`rigid_names`): the ten of
@@ -52,11 +54,10 @@ from __future__ import annotations
 
 from typing import ClassVar, NamedTuple
 
-import numpy as np
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import Array
 
 from manus.plants import urdf
@@ -67,18 +68,26 @@ from manus.plants.structures import Admissible, Structure
 
 LINK_PARAMETERS = ("m", "mx", "my", "mz", "Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz")
 GRAVITY = (0.0, 0.0, -9.81)  # m/s², the world's z axis up
-GRAVITY_IN_RIGID = ("a serial chain's gravity is part of rigid (the links' masses and first moments in the "
-                    "world's gravity): a cos/sin of each relative joint angle is not a physical effect there")
+GRAVITY_IN_RIGID = (
+    "a serial chain's gravity is part of rigid (the links' masses and first moments in the "
+    "world's gravity): a cos/sin of each relative joint angle is not a physical effect there"
+)
 
 
 # -- the structure ----------------------------------------------------------------------------------
 
+
 def _cross_matrix(x: Array) -> Array:
     """[x]× (..., 3, 3): [x]× y = x × y, for x (..., 3)."""
     z = jnp.zeros_like(x[..., 0])
-    return jnp.stack([jnp.stack([z, -x[..., 2], x[..., 1]], -1),
-                      jnp.stack([x[..., 2], z, -x[..., 0]], -1),
-                      jnp.stack([-x[..., 1], x[..., 0], z], -1)], -2)
+    return jnp.stack(
+        [
+            jnp.stack([z, -x[..., 2], x[..., 1]], -1),
+            jnp.stack([x[..., 2], z, -x[..., 0]], -1),
+            jnp.stack([-x[..., 1], x[..., 0], z], -1),
+        ],
+        -2,
+    )
 
 
 def _rotation(axis: Array, angle: Array) -> Array:
@@ -101,9 +110,14 @@ def _times_inertia(x: Array) -> Array:
     """L(x) (..., 3, 6) with I x = L(x) (Ixx, Ixy, Ixz, Iyy, Iyz, Izz)."""
     x0, x1, x2 = x[..., 0], x[..., 1], x[..., 2]
     z = jnp.zeros_like(x0)
-    return jnp.stack([jnp.stack([x0, x1, x2, z, z, z], -1),
-                      jnp.stack([z, x0, z, x1, x2, z], -1),
-                      jnp.stack([z, z, x0, z, x1, x2], -1)], -2)
+    return jnp.stack(
+        [
+            jnp.stack([x0, x1, x2, z, z, z], -1),
+            jnp.stack([z, x0, z, x1, x2, z], -1),
+            jnp.stack([z, z, x0, z, x1, x2], -1),
+        ],
+        -2,
+    )
 
 
 class Motion(NamedTuple):
@@ -142,7 +156,7 @@ class _Configuration(Structure):
         return tuple(dq)
 
     def moved(self, pose, shift):
-        return tuple(a + b for a, b in zip(pose, shift))
+        return tuple(a + b for a, b in zip(pose, shift, strict=True))
 
 
 class Serial(_Configuration):
@@ -170,7 +184,7 @@ class Serial(_Configuration):
     friction: tuple[float, ...] = eqx.field(default=(), static=True)
 
     @classmethod
-    def from_urdf(cls, path, tip: str | None = None, armature=None, gravity=GRAVITY) -> "Serial":
+    def from_urdf(cls, path, tip: str | None = None, armature=None, gravity=GRAVITY) -> Serial:
         """The serial chain of a URDF file.
 
         The chain runs from the root link down the movable joints; fixed joints merge their child
@@ -188,13 +202,15 @@ class Serial(_Configuration):
             raise ModelError(f"{path}: not a well-formed URDF ({type(e).__name__}: {what})") from None
 
     @classmethod
-    def _from_urdf(cls, path, tip, armature, gravity) -> "Serial":
+    def _from_urdf(cls, path, tip, armature, gravity) -> Serial:
         links, joints = urdf.read(path)
         children = {name: [] for name in links}
         for j in joints.values():
             if j.kind not in ("revolute", "continuous", "prismatic", "fixed"):
-                raise ModelError(f"{path}: joint {j.name} is {j.kind}; a serial chain takes revolute, "
-                                 "continuous, prismatic and fixed joints")
+                raise ModelError(
+                    f"{path}: joint {j.name} is {j.kind}; a serial chain takes revolute, "
+                    "continuous, prismatic and fixed joints"
+                )
             if j.parent not in links or j.child not in links:
                 missing = j.parent if j.parent not in links else j.child
                 raise ModelError(f"{path}: joint {j.name} names the link {missing!r}, which the URDF does not have")
@@ -225,7 +241,9 @@ class Serial(_Configuration):
             chain.append(candidates[0])
             body = candidates[0].child
         if not chain:
-            branches = f" (it branches into {', '.join(j.name for j in candidates)}: name the tip link)" if candidates else ""
+            branches = (
+                f" (it branches into {', '.join(j.name for j in candidates)}: name the tip link)" if candidates else ""
+            )
             raise ModelError(f"{path}: no chain of movable joints from the root link{branches}")
 
         def collect(link: str, R: np.ndarray, p: np.ndarray, stop: set) -> np.ndarray:
@@ -248,19 +266,28 @@ class Serial(_Configuration):
         stop = {j.name for j in chain}
         for j in chain:
             if j.mimic:
-                raise ModelError(f"{path}: joint {j.name} mimics another joint; a serial chain takes independent joints")
+                raise ModelError(
+                    f"{path}: joint {j.name} mimics another joint; a serial chain takes independent joints"
+                )
             inertials.append(collect(j.child, np.eye(3), np.zeros(3), stop))
         n = len(chain)
         arm = np.array([j.armature for j in chain] if armature is None else armature, dtype=float)
         if arm.shape != (n,):
             raise ModelError(f"armature: expected {n} values (one per joint), got {arm.shape}")
         placements = [placement(j) for j in chain]
-        return cls(n_joints=n, joint_names=tuple(j.name for j in chain),
-                   prismatic=tuple(j.kind == "prismatic" for j in chain),
-                   rotation=np.stack([R for R, _ in placements]), translation=np.stack([p for _, p in placements]),
-                   axis=np.stack([j.axis for j in chain]), gravity=np.asarray(gravity, dtype=float),
-                   defaults=np.concatenate([*inertials, arm]), source=str(path),
-                   damping=tuple(j.damping for j in chain), friction=tuple(j.friction for j in chain))
+        return cls(
+            n_joints=n,
+            joint_names=tuple(j.name for j in chain),
+            prismatic=tuple(j.kind == "prismatic" for j in chain),
+            rotation=np.stack([R for R, _ in placements]),
+            translation=np.stack([p for _, p in placements]),
+            axis=np.stack([j.axis for j in chain]),
+            gravity=np.asarray(gravity, dtype=float),
+            defaults=np.concatenate([*inertials, arm]),
+            source=str(path),
+            damping=tuple(j.damping for j in chain),
+            friction=tuple(j.friction for j in chain),
+        )
 
     # -- parameters -------------------------------------------------------------------------
     @property
@@ -328,7 +355,7 @@ class Serial(_Configuration):
         zero = jnp.zeros(3, f.dtype)
         slide = jnp.asarray(self.prismatic)
         _, tau = jax.lax.scan(inward, (zero, zero), (M.R, M.p, f, torque, self.axis, slide), reverse=True)
-        return tau + theta[10 * n:] * qdd
+        return tau + theta[10 * n :] * qdd
 
     def mass_matrix(self, q: Array, theta: Array) -> Array:
         """H(q) (n, n), armature included, by composite inertias in the root frame.
@@ -347,7 +374,7 @@ class Serial(_Configuration):
         Rh = _mv(M.R0, h)
         Io = M.R0 @ I @ jnp.swapaxes(M.R0, -1, -2)
         So, Sh = _cross_matrix(M.o0), _cross_matrix(Rh)
-        T = lambda A: jnp.swapaxes(A, -1, -2)  # noqa: E731
+        T = lambda A: jnp.swapaxes(A, -1, -2)
         I0 = Io + T(So) @ Sh + T(Sh) @ So + m[:, None, None] * (T(So) @ So)  # parallel axes to the root's origin
         h0 = Rh + m[:, None] * M.o0
         H0 = _cross_matrix(h0)
@@ -359,7 +386,7 @@ class Serial(_Configuration):
         S = jnp.concatenate([jnp.where(slide, s0, jnp.cross(M.o0, s0)), jnp.where(slide, 0.0, s0)], -1)  # (n, 6)
         beyond = np.maximum.outer(np.arange(n), np.arange(n))  # max(i, j)
         H = jnp.einsum("ia,ijab,jb->ij", S, composite[beyond], S)
-        return H + jnp.diag(theta[10 * n:])
+        return H + jnp.diag(theta[10 * n :])
 
     def coriolis_times(self, q: Array, qd: Array, v: Array, theta: Array) -> Array:
         """C(q, q̇) v (n,) for the C of the Christoffel symbols of the first kind, C_ij = Σ_k c_ijk q̇_k,
@@ -370,7 +397,7 @@ class Serial(_Configuration):
         gives it from two RNEAs without gravity: C(q, q̇) v = ¼ [c(q, q̇ + v) − c(q, q̇ − v)].
         """
         zero = jnp.zeros_like(q)
-        c = lambda u: self.rnea(q, u, zero, theta, gravity=False)  # noqa: E731
+        c = lambda u: self.rnea(q, u, zero, theta, gravity=False)
         return 0.25 * (c(qd + v) - c(qd - v))
 
     def slotine_li(self, q: Array, qd: Array, qd_r: Array, qdd_r: Array, theta: Array) -> Array:
@@ -392,10 +419,20 @@ class Serial(_Configuration):
         M = self.motion(q, qd, qdd, gravity)
         Ww, Wdw = _cross_matrix(M.w), _cross_matrix(M.dw)
         zeros = jnp.zeros((n, 3, 6), M.a.dtype)
-        A = jnp.concatenate([
-            jnp.concatenate([M.a[:, :, None], Wdw + Ww @ Ww, zeros], -1),
-            jnp.concatenate([jnp.zeros_like(M.a)[:, :, None], -_cross_matrix(M.a),
-                             _times_inertia(M.dw) + Ww @ _times_inertia(M.w)], -1)], -2)  # (n, 6, 10)
+        A = jnp.concatenate(
+            [
+                jnp.concatenate([M.a[:, :, None], Wdw + Ww @ Ww, zeros], -1),
+                jnp.concatenate(
+                    [
+                        jnp.zeros_like(M.a)[:, :, None],
+                        -_cross_matrix(M.a),
+                        _times_inertia(M.dw) + Ww @ _times_inertia(M.w),
+                    ],
+                    -1,
+                ),
+            ],
+            -2,
+        )  # (n, 6, 10)
         force, moment = M.R0 @ A[:, :3], M.R0 @ A[:, 3:]
         W = jnp.concatenate([force, moment + _cross_matrix(M.o0) @ force], -2)  # (n, 6, 10)
         s0 = _mv(M.R0, self.axis)
@@ -409,7 +446,7 @@ class Serial(_Configuration):
         """Y (n, 11 n) with H(q) q̈_r + C(q, q̇) q̇_r + g(q) = Y θ: three regressors, as in
         `coriolis_times` (H q̈_r + g = Y(q, 0, q̈_r); C q̇_r by polarization)."""
         zero = jnp.zeros_like(q)
-        velocity = lambda u: self.regressor(q, u, zero, gravity=False)  # noqa: E731
+        velocity = lambda u: self.regressor(q, u, zero, gravity=False)
         return self.regressor(q, zero, qdd_r) + 0.25 * (velocity(qd + qd_r) - velocity(qd - qd_r))
 
     # -- the Structure interface (matrix form) --------------------------------------------------
@@ -432,14 +469,19 @@ class Serial(_Configuration):
         semidefinite (a mass distribution exists), armatures non-negative."""
         theta, n, out = np.asarray(self.theta(p), dtype=float), self.n_joints, []
         for j in range(n):
-            t = theta[10 * j: 10 * j + 10]
+            t = theta[10 * j : 10 * j + 10]
             I = np.asarray(_inertia_tensor(t))
             J = np.block([[0.5 * np.trace(I) * np.eye(3) - I, t[1:4, None]], [t[None, 1:4], t[:1, None]]])
             if np.linalg.eigvalsh(J)[0] < -1e-9 * max(1.0, np.abs(J).max()):
-                out.append(f"link {j + 1}: no mass distribution has these inertial parameters "
-                           "(pseudo-inertia not positive semidefinite)")
-        out += [f"Ia{j + 1} = {theta[10 * n + j]:.4g}: an armature must be non-negative"
-                for j in range(n) if theta[10 * n + j] < 0]
+                out.append(
+                    f"link {j + 1}: no mass distribution has these inertial parameters "
+                    "(pseudo-inertia not positive semidefinite)"
+                )
+        out += [
+            f"Ia{j + 1} = {theta[10 * n + j]:.4g}: an armature must be non-negative"
+            for j in range(n)
+            if theta[10 * n + j] < 0
+        ]
         return out
 
     # -- the simulator's joint-tuple form (pose, shift, moved: `_Configuration`) ------------
@@ -469,14 +511,18 @@ class Serial(_Configuration):
         return np.diag(H)
 
     # -- identification --------------------------------------------------------------------
-    def base(self) -> "SerialBase":
+    def base(self) -> SerialBase:
         """This chain in its base parameters (`base_parameters`), the form identification uses."""
         return _base_of(self)
 
-    def pseudo(self) -> "SerialPseudo":
+    def pseudo(self) -> SerialPseudo:
         """This chain in pseudo-inertia coordinates (`manus.plants.pseudo_inertia`), the form adaptive
         control uses: its links are consistent exactly when each pseudo-inertia is PSD."""
         return SerialPseudo(self)
+
+    def identified_form(self):
+        """In base parameters (`base`): the combinations the torque determines."""
+        return self.base()
 
     def adaptive_form(self):
         """In pseudo-inertia coordinates (`pseudo`), where the projection keeps every link consistent."""
@@ -484,6 +530,7 @@ class Serial(_Configuration):
 
 
 # -- base parameters -----------------------------------------------------------------------------------
+
 
 class BaseParameters(NamedTuple):
     """The identifiable combinations of a structure's standard parameters.
@@ -531,27 +578,46 @@ def base_parameters(serial: Serial, samples: int = 200, seed: int = 0, tol: floa
     K[np.arange(r), kept] = 1.0
     K[:, dependent] = beta[order]
     names = serial.rigid_names
-    labels = tuple(" ".join([names[c], *(f"{'+' if b > 0 else '−'} {abs(b):.4g}·{names[d]}"
-                                         for b, d in ((K[i, d], d) for d in np.sort(dependent)) if b != 0)])
-                   for i, c in enumerate(kept))
+    labels = tuple(
+        " ".join(
+            [
+                names[c],
+                *(
+                    f"{'+' if b > 0 else '−'} {abs(b):.4g}·{names[d]}"
+                    for b, d in ((K[i, d], d) for d in np.sort(dependent))
+                    if b != 0
+                ),
+            ]
+        )
+        for i, c in enumerate(kept)
+    )
     return BaseParameters(kept, K, labels)
 
 
 _BASES: dict[tuple, BaseParameters] = {}
 
 
-def _base_of(serial: Serial) -> "SerialBase":
+def _base_of(serial: Serial) -> SerialBase:
     """`SerialBase` of a chain; its base parameters computed once per geometry (they do not depend
     on the parameter values)."""
-    key = (serial.joint_names, serial.prismatic, *(np.asarray(x, float).tobytes()
-                                                  for x in (serial.rotation, serial.translation, serial.axis, serial.gravity)))
+    key = (
+        serial.joint_names,
+        serial.prismatic,
+        *(np.asarray(x, float).tobytes() for x in (serial.rotation, serial.translation, serial.axis, serial.gravity)),
+    )
     if key not in _BASES:
         _BASES[key] = base_parameters(serial)
     b = _BASES[key]
     standard = serial.rigid_names
-    names = tuple(standard[c] + ("R" if " " in label else "") for c, label in zip(b.columns, b.names))
-    return SerialBase(serial=serial, n_joints=serial.n_joints, columns=tuple(int(c) for c in b.columns),
-                      base_names=names, written=b.names, K=b.K)
+    names = tuple(standard[c] + ("R" if " " in label else "") for c, label in zip(b.columns, b.names, strict=True))
+    return SerialBase(
+        serial=serial,
+        n_joints=serial.n_joints,
+        columns=tuple(int(c) for c in b.columns),
+        base_names=names,
+        written=b.names,
+        K=b.K,
+    )
 
 
 class Reparametrized(_Configuration):
@@ -607,14 +673,14 @@ class Reparametrized(_Configuration):
 class SerialBase(Reparametrized):
     """A serial chain in its base parameters: what inverse-dynamics identification can know.
 
-    Its rigid parameters are θ_b = K θ (`BaseParameters`, Gautier's numerical QR), each named
-    after the standard parameter it keeps, with `R` appended when others are regrouped into it
-    (Khalil and Gautier's convention: `Izz2R` = Izz2 + 0.1·m3 + ...); `combinations` (the field
-    `written`) writes each one out. The rigid torque is the base regressor (the kept columns of `Serial.regressor`) times
-    θ_b. H(q), C(q, q̇), g(q) and the simulator's joint-tuple form take the standard parameters with
-    θ_b in the kept places and zeros elsewhere: every standard θ with the same K θ gives the same
-    torque in every state, so they are the base parameters' own (which is also why a fitted set can
-    be simulated: the instruments of IDIM-IV).
+    Its rigid parameters are θ_b = K θ (`BaseParameters`, Gautier's numerical QR), each named after
+    the standard parameter it keeps, with `R` appended when others are regrouped into it (Khalil
+    and Gautier's convention: `Izz2R` = Izz2 + 0.1·m3 + ...); `combinations` (the field `written`)
+    writes each one out. The rigid torque is the base regressor (the kept columns of
+    `Serial.regressor`) times θ_b. H(q), C(q, q̇), g(q) and the simulator's joint-tuple form take
+    the standard parameters with θ_b in the kept places and zeros elsewhere: every standard θ with
+    the same K θ gives the same torque in every state, so they are the base parameters' own (which
+    is also why a fitted set can be simulated: the instruments of IDIM-IV).
     """
 
     serial: Serial
@@ -644,7 +710,7 @@ class SerialBase(Reparametrized):
     def coordinates_of(self, standard):
         """The base parameters K θ."""
         theta = np.array([float(standard[k]) for k in self.serial.rigid_names])
-        return dict(zip(self.base_names, self.values(theta).tolist()))
+        return dict(zip(self.base_names, self.values(theta).tolist(), strict=True))
 
     def standard(self, p: dict) -> Array:
         """A standard parameter vector with these base parameters: θ_b in the kept places, zeros elsewhere."""
@@ -673,8 +739,10 @@ class SerialBase(Reparametrized):
         bad = int(np.sum(~(low > 0)))
         if not bad:
             return []
-        return [f"the base parameters give an inertia matrix H(q) that is not positive definite (in {bad} of "
-                f"{len(q)} random configurations, smallest eigenvalue {low.min():.3g}): no physical robot has them"]
+        return [
+            f"the base parameters give an inertia matrix H(q) that is not positive definite (in {bad} of "
+            f"{len(q)} random configurations, smallest eigenvalue {low.min():.3g}): no physical robot has them"
+        ]
 
 
 class SerialPseudo(Reparametrized):
@@ -691,7 +759,7 @@ class SerialPseudo(Reparametrized):
         d = np.asarray(serial.defaults, float)
         scale = []
         for i in range(serial.n_joints):
-            e = entries_of(d[10 * i:10 * i + 10])
+            e = entries_of(d[10 * i : 10 * i + 10])
             scale.append(float(np.sqrt(max(e[4] + e[5] + e[6], 0.0) / e[0])) if e[0] > 0 else 1.0)
         self.scale = tuple(x if x > 0 else 1.0 for x in scale)
 
@@ -704,8 +772,8 @@ class SerialPseudo(Reparametrized):
     def rigid_defaults(self):
         d = np.asarray(self.serial.defaults, float)
         n = self.n_joints
-        links = [entries_of(d[10 * i:10 * i + 10]) for i in range(n)]
-        return tuple(float(x) for x in np.concatenate([*links, d[10 * n:]]))
+        links = [entries_of(d[10 * i : 10 * i + 10]) for i in range(n)]
+        return tuple(float(x) for x in np.concatenate([*links, d[10 * n :]]))
 
     def rigid_gains(self, gain: float) -> dict[str, float]:
         """Adaptation gains for which the Γ⁻¹ metric on a link's entries is the Frobenius norm of
@@ -722,15 +790,17 @@ class SerialPseudo(Reparametrized):
     def admissible(self):
         """Each link's scaled pseudo-inertia positive semidefinite, each armature ≥ 0."""
         n = self.n_joints
-        return Admissible(nonnegative=tuple(f"Ia{i + 1}" for i in range(n)),
-                          links=tuple((tuple(f"J{i + 1}{e}" for e in ENTRIES), self.scale[i]) for i in range(n)))
+        return Admissible(
+            nonnegative=tuple(f"Ia{i + 1}" for i in range(n)),
+            links=tuple((tuple(f"J{i + 1}{e}" for e in ENTRIES), self.scale[i]) for i in range(n)),
+        )
 
     def coordinates_of(self, standard):
         """The pseudo-inertia entries and the armatures."""
         s, n = self.serial, self.n_joints
         phi = np.array([float(standard[k]) for k in s.rigid_names])
-        links = [entries_of(phi[10 * i:10 * i + 10]) for i in range(n)]
-        return dict(zip(self.rigid_names, np.concatenate([*links, phi[10 * n:]]).tolist()))
+        links = [entries_of(phi[10 * i : 10 * i + 10]) for i in range(n)]
+        return dict(zip(self.rigid_names, np.concatenate([*links, phi[10 * n :]]).tolist(), strict=True))
 
     def standard(self, p: dict) -> jax.Array:
         """The standard parameter vector (11 n,) of these parameters."""
@@ -744,4 +814,4 @@ class SerialPseudo(Reparametrized):
 
     def violations(self, p):
         standard = np.asarray(self.standard({k: float(p[k]) for k in self.rigid_names}))
-        return self.serial.violations(dict(zip(self.serial.rigid_names, standard)))
+        return self.serial.violations(dict(zip(self.serial.rigid_names, standard, strict=True)))

@@ -93,8 +93,9 @@ def optimal(W: Array, v: Array, lo: Array, hi: Array, x: Array, free: Array) -> 
     return jnp.all(inside & sliding)
 
 
-def box_friction(H: Array, v: Array, lo: Array, hi: Array, dt, rounds: int = ROUNDS,
-                 sweeps: int = SWEEPS) -> tuple[Array, Array]:
+def box_friction(
+    H: Array, v: Array, lo: Array, hi: Array, dt, rounds: int = ROUNDS, sweeps: int = SWEEPS
+) -> tuple[Array, Array]:
     """(f, exact): the friction torque of one implicit step of length `dt` for inertia H (n, n),
     velocity v* (n,), levels lo, hi ≥ 0 (n,); `exact` says whether a polish confirmed it (else f
     is the best iterate found)."""
@@ -114,8 +115,9 @@ def box_friction(H: Array, v: Array, lo: Array, hi: Array, dt, rounds: int = ROU
     # the clipped start is often exact already (every joint sliding, or all stuck): check it first
     x, free = _on_active_set(W, v, lo, hi, f0)
     start = optimal(W, v, lo, hi, x, free)
-    f, done, _ = jax.lax.while_loop(lambda s: ~s[1] & (s[2] < rounds), round_,
-                                    (jnp.where(start, jnp.clip(x, -lo, hi), f0), start, 0))
+    f, done, _ = jax.lax.while_loop(
+        lambda s: ~s[1] & (s[2] < rounds), round_, (jnp.where(start, jnp.clip(x, -lo, hi), f0), start, 0)
+    )
     return f, done
 
 
@@ -130,7 +132,7 @@ class Dense(NamedTuple):
     def diagonal(self) -> tuple:
         return _tuple(jnp.diagonal(self.H))
 
-    def minus_diagonal(self, x) -> "Dense":
+    def minus_diagonal(self, x) -> Dense:
         return Dense(self.H - jnp.diag(_stack(x)))
 
     def solve(self, r) -> tuple:

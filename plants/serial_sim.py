@@ -43,12 +43,19 @@ class Feedforward(Controller):
     dt: float = eqx.field(static=True)
     velocity_hz: float = eqx.field(default=100.0, static=True)
 
-    def __init__(self, structure, dt: float, params: dict | None = None, stiffness=400.0, damping=20.0,
-                 velocity_hz: float = 100.0):
+    def __init__(
+        self,
+        structure,
+        dt: float,
+        params: dict | None = None,
+        stiffness=400.0,
+        damping=20.0,
+        velocity_hz: float = 100.0,
+    ):
         n = structure.n_joints
         self.structure = structure
         names, values = structure.rigid_names, structure.rigid_defaults
-        self.params = {k: jnp.asarray((params or {}).get(k, v), float) for k, v in zip(names, values)}
+        self.params = {k: jnp.asarray((params or {}).get(k, v), float) for k, v in zip(names, values, strict=True)}
         self.stiffness = jnp.broadcast_to(jnp.asarray(stiffness, float), (n,))
         self.damping = jnp.broadcast_to(jnp.asarray(damping, float), (n,))
         self.dt = float(dt)
@@ -62,13 +69,23 @@ class Feedforward(Controller):
         q_prev, v = state
         a = 1.0 - math.exp(-2 * math.pi * self.velocity_hz * self.dt)
         v = v + a * ((q - q_prev) / self.dt - v)
-        tau = (self.structure.rigid_torque(ref.q, ref.qd, ref.qdd, self.params)
-               + self.stiffness * (ref.q - q) + self.damping * (ref.qd - v))
+        tau = (
+            self.structure.rigid_torque(ref.q, ref.qd, ref.qdd, self.params)
+            + self.stiffness * (ref.q - q)
+            + self.damping * (ref.qd - v)
+        )
         return (q, v), tau
 
 
-def record(simulator, reference, seconds: float, controller: Controller | None = None, key=None,
-           counts_per_rev: float | None = None, meta: dict | None = None):
+def record(
+    simulator,
+    reference,
+    seconds: float,
+    controller: Controller | None = None,
+    key=None,
+    counts_per_rev: float | None = None,
+    meta: dict | None = None,
+):
     """The closed loop of `simulator` (a serial chain's) tracking `reference` for `seconds`, as a
     recording (`structure: urdf`, true velocities, the reference in `qref*`). `controller`:
     default `Feedforward` on the URDF's parameters."""
@@ -77,8 +94,9 @@ def record(simulator, reference, seconds: float, controller: Controller | None =
     traj = simulate(simulator, controller, reference, seconds, key=key)
     if counts_per_rev is None and simulator.encoder is not None:
         counts_per_rev = 2 * np.pi / float(simulator.encoder.step)
-    return from_trajectory(traj, simulator.rate_hz, structure, counts_per_rev,
-                           {"truth": simulator.model.spec, **(meta or {})})
+    return from_trajectory(
+        traj, simulator.rate_hz, structure, counts_per_rev, {"truth": simulator.model.spec, **(meta or {})}
+    )
 
 
 class Fourier(PositionReference):
@@ -101,7 +119,11 @@ class Fourier(PositionReference):
         n = centre.size
         k = np.arange(1, harmonics + 1)
         freqs = np.outer(f0 * (1 + 0.07 * np.arange(n)), k)
-        amps = np.broadcast_to(np.asarray(amplitude, float).reshape(-1, 1) * np.ones((n, 1)), (n, 1)) * (k ** -decay) / np.sum(k ** -decay)
+        amps = (
+            np.broadcast_to(np.asarray(amplitude, float).reshape(-1, 1) * np.ones((n, 1)), (n, 1))
+            * (k**-decay)
+            / np.sum(k**-decay)
+        )
         self.centre = jnp.asarray(centre)
         self.freqs = jnp.asarray(freqs)
         self.amps = jnp.asarray(amps)

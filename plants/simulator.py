@@ -60,7 +60,9 @@ class Actuator(eqx.Module):
     def __call__(self, tau: Array) -> Array:
         """The torque the motor delivers for the command `tau` (quantized, saturated)."""
         lsb = 2 * self.volts / 2**self.dac_bits
-        code = jnp.clip(jnp.round(tau / self.torque_per_volt / lsb), -(2 ** (self.dac_bits - 1)), 2 ** (self.dac_bits - 1) - 1)
+        code = jnp.clip(
+            jnp.round(tau / self.torque_per_volt / lsb), -(2 ** (self.dac_bits - 1)), 2 ** (self.dac_bits - 1) - 1
+        )
         return code * lsb * self.torque_per_volt
 
 
@@ -70,7 +72,7 @@ class Encoder(eqx.Module):
     step: float = 2 * math.pi / 131072  # thesis §2.6: 131072 counts/rev
 
     @classmethod
-    def counts_per_rev(cls, counts: float) -> "Encoder":
+    def counts_per_rev(cls, counts: float) -> Encoder:
         return cls(step=2 * math.pi / counts)
 
     def counts(self, q: Array) -> Array:
@@ -78,6 +80,9 @@ class Encoder(eqx.Module):
 
     def __call__(self, q: Array) -> Array:
         return self.counts(q) * self.step
+
+
+THESIS_ACTUATOR, THESIS_ENCODER = Actuator(), Encoder()  # the thesis's D/A, amplifier and motor; its encoder
 
 
 class SimState(NamedTuple):
@@ -116,7 +121,7 @@ def white_noise(key: Array, tick: Array, n: int) -> Array:
     count = jnp.concatenate([jnp.broadcast_to(tick, (blocks,)), jnp.arange(blocks, dtype=jnp.uint32)])
     bits = threefry_2x32(key, count)[:n]
     odd = (jax.lax.shift_right_logical(bits, jnp.uint32(7)) | jnp.uint32(1)).astype(jnp.int32) - (1 << 24)
-    v = odd.astype(jnp.float32) * jnp.float32(2.0 ** -24)
+    v = odd.astype(jnp.float32) * jnp.float32(2.0**-24)
     return jnp.float32(math.sqrt(2.0)) * jax.lax.erf_inv(v)
 
 
@@ -127,14 +132,23 @@ class Simulator(Plant):
     params: dict
     rate_hz: float = eqx.field(default=1000.0, static=True)
     substeps: int = eqx.field(default=10, static=True)
-    actuator: Actuator | None = Actuator()
-    encoder: Encoder | None = Encoder()
+    actuator: Actuator | None = THESIS_ACTUATOR
+    encoder: Encoder | None = THESIS_ENCODER
     torque_noise: float = 0.0  # std of a white torque disturbance per control period [N·m]
     q0: Array | None = None  # initial position; default: workspace centre
 
-    def __init__(self, model: Model, params: dict | None = None, *, rate_hz=1000.0, substeps=10,
-                 actuator: Actuator | None = Actuator(), encoder: Encoder | None = Encoder(),
-                 torque_noise=0.0, q0=None):
+    def __init__(
+        self,
+        model: Model,
+        params: dict | None = None,
+        *,
+        rate_hz=1000.0,
+        substeps=10,
+        actuator: Actuator | None = THESIS_ACTUATOR,
+        encoder: Encoder | None = THESIS_ENCODER,
+        torque_noise=0.0,
+        q0=None,
+    ):
         if not model.has("rigid"):
             raise ModelError("a simulated plant needs the 'rigid' effect (its inertia)")
         self.model = model
@@ -222,15 +236,19 @@ class Simulator(Plant):
         xs = late if late.any() else None
         q, qd = joints(state.q, n), joints(state.qd, n)
         if self.compliance is None:
+
             def body(carry, is_late):
                 return self._substep_rigid(*carry, tau_of(is_late), h), None
+
             carry = (q, qd, s.pose(q), self._half_shift(qd, h), self._bounds_ahead(q, qd, h))
             (q, qd, *_), _ = jax.lax.scan(body, carry, xs, length=self.substeps)
             new = SimState(jnp.stack(q), jnp.stack(qd), None, None, commands, key, tick)
         else:
             lq, lqd = joints(state.link_q, n), joints(state.link_qd, n)
+
             def body(carry, is_late):
                 return self._substep_compliant(*carry, tau_of(is_late), h), None
+
             carry = (q, qd, lq, lqd, s.pose(lq), self._half_shift(lqd, h), self._bounds_ahead(q, qd, h, "motor"))
             (q, qd, lq, lqd, *_), _ = jax.lax.scan(body, carry, xs, length=self.substeps)
             new = SimState(jnp.stack(q), jnp.stack(qd), jnp.stack(lq), jnp.stack(lqd), commands, key, tick)
@@ -255,7 +273,7 @@ class Simulator(Plant):
         and speed |q̇|; () without friction."""
         if not any(e.dry and (side is None or e.side == side) for e in self.model.effects):
             return ()
-        return self._friction_bounds(tuple(x + 0.5 * h * v for x, v in zip(q, qd)), qd, side)
+        return self._friction_bounds(tuple(x + 0.5 * h * v for x, v in zip(q, qd, strict=True)), qd, side)
 
     def _implicit_friction(self, H, vstar: Joints, bounds, h) -> Joints:
         """The velocity after the implicit friction step with inertia H, v* − h H⁻¹ f, and
@@ -265,7 +283,10 @@ class Simulator(Plant):
         lo, hi = bounds
         f = H.friction(vstar, lo, hi, h)
         slide = H.solve(f)
-        return tuple(jnp.where((fi > -l) & (fi < u), 0.0, v - h * a) for fi, l, u, v, a in zip(f, lo, hi, vstar, slide))
+        return tuple(
+            jnp.where((fi > -l) & (fi < u), 0.0, v - h * a)
+            for fi, l, u, v, a in zip(f, lo, hi, vstar, slide, strict=True)
+        )
 
     def _half_shift(self, qd: Joints, h):
         """The structure's shift for a move by h/2·q̇."""
@@ -282,17 +303,17 @@ class Simulator(Plant):
     # them: as a loop output XLA evaluates them once, not again inside each of their consumers.
     def _accel_rigid(self, q, qd, pose, tau):
         s, p = self.model.structure, self.params
-        r = [t - b - l for t, b, l in zip(tau, s.bias(pose, qd, p), self._torque(q, qd, is_load))]
+        r = [t - b - l for t, b, l in zip(tau, s.bias(pose, qd, p), self._torque(q, qd, is_load), strict=True)]
         return s.mass(pose, p).solve(r)
 
     def _substep_rigid(self, q, qd, pose, shift, bounds, tau, h):
         s = self.model.structure
-        qm = tuple(x + 0.5 * h * v for x, v in zip(q, qd))
+        qm = tuple(x + 0.5 * h * v for x, v in zip(q, qd, strict=True))
         pm = s.moved(pose, shift)
-        vm = tuple(v + 0.5 * h * a for v, a in zip(qd, self._accel_rigid(q, qd, pose, tau)))
-        vstar = tuple(v + h * a for v, a in zip(qd, self._accel_rigid(qm, vm, pm, tau)))
+        vm = tuple(v + 0.5 * h * a for v, a in zip(qd, self._accel_rigid(q, qd, pose, tau), strict=True))
+        vstar = tuple(v + h * a for v, a in zip(qd, self._accel_rigid(qm, vm, pm, tau), strict=True))
         v = self._implicit_friction(s.mass(pm, self.params), vstar, bounds, h)
-        q = tuple(x + 0.5 * h * (a + b) for x, a, b in zip(q, qd, v))
+        q = tuple(x + 0.5 * h * (a + b) for x, a, b in zip(q, qd, v, strict=True))
         shift = self._half_shift(v, h)
         return q, v, s.moved(pm, shift), shift, self._bounds_ahead(q, v, h)
 
@@ -301,28 +322,41 @@ class Simulator(Plant):
         H = s.mass(pose, p)
         jm = tuple(c.motor_fraction * x for x in H.diagonal())  # motor rotor inertia; the link has the rest
         shaft = []
-        for x, a, b, ad, bd in zip(H.diagonal(), th, q, thd, qd):
+        for x, a, b, ad, bd in zip(H.diagonal(), th, q, thd, qd, strict=True):
             k, d = c.shaft(x)
             shaft.append(k * (a - b) + d * (ad - bd))
         motor = self._torque(th, thd, is_load, "motor")
         link = self._torque(q, qd, is_load, "link")
-        am = tuple((t - x - m) / j for t, x, m, j in zip(tau, shaft, motor, jm))
-        rl = [x - b - l for x, b, l in zip(shaft, s.bias(pose, qd, p), link)]
+        am = tuple((t - x - m) / j for t, x, m, j in zip(tau, shaft, motor, jm, strict=True))
+        rl = [x - b - l for x, b, l in zip(shaft, s.bias(pose, qd, p), link, strict=True)]
         return am, H.minus_diagonal(jm).solve(rl), jm
 
     def _substep_compliant(self, th, thd, q, qd, pose, shift, bounds, tau, h):
         s = self.model.structure
         am, al, _ = self._accel_compliant(th, thd, q, qd, pose, tau)
-        thm = tuple(x + 0.5 * h * v for x, v in zip(th, thd))
-        qm = tuple(x + 0.5 * h * v for x, v in zip(q, qd))
+        thm = tuple(x + 0.5 * h * v for x, v in zip(th, thd, strict=True))
+        qm = tuple(x + 0.5 * h * v for x, v in zip(q, qd, strict=True))
         pm = s.moved(pose, shift)
-        am, al, jm = self._accel_compliant(thm, tuple(v + 0.5 * h * a for v, a in zip(thd, am)), qm,
-                                           tuple(v + 0.5 * h * a for v, a in zip(qd, al)), pm, tau)
-        vstar = tuple(v + h * a for v, a in zip(thd, am))
+        am, al, jm = self._accel_compliant(
+            thm,
+            tuple(v + 0.5 * h * a for v, a in zip(thd, am, strict=True)),
+            qm,
+            tuple(v + 0.5 * h * a for v, a in zip(qd, al, strict=True)),
+            pm,
+            tau,
+        )
+        vstar = tuple(v + h * a for v, a in zip(thd, am, strict=True))
         # the motor's inertia is diagonal: the implicit friction step is a clip per joint
         v = self._implicit_friction(Diagonal(jm), vstar, bounds, h)
-        th = tuple(x + 0.5 * h * (a + b) for x, a, b in zip(th, thd, v))
-        w = tuple(v + h * a for v, a in zip(qd, al))
+        th = tuple(x + 0.5 * h * (a + b) for x, a, b in zip(th, thd, v, strict=True))
+        w = tuple(v + h * a for v, a in zip(qd, al, strict=True))
         shift = self._half_shift(w, h)
-        return (th, v, tuple(x + 0.5 * h * (a + b) for x, a, b in zip(q, qd, w)), w, s.moved(pm, shift), shift,
-                self._bounds_ahead(th, v, h, "motor"))
+        return (
+            th,
+            v,
+            tuple(x + 0.5 * h * (a + b) for x, a, b in zip(q, qd, w, strict=True)),
+            w,
+            s.moved(pm, shift),
+            shift,
+            self._bounds_ahead(th, v, h, "motor"),
+        )

@@ -7,7 +7,7 @@ real-time loop.
 """
 
 import abc
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import equinox as eqx
 from jax import Array
@@ -58,10 +58,21 @@ class Plant(eqx.Module):
     (`manus.plants.closed_loop`, `manus.adaptive.slotine_li`) use exactly what is declared here.
     """
 
-    dt: eqx.AbstractVar[float]  # the control period [s]
-    # The true values of the plant's parameters by name (a simulated plant's truth); {} when
-    # they are unknown (the rig).
-    params: eqx.AbstractVar[dict]
+    if TYPE_CHECKING:  # a type checker reads an AbstractVar as a dataclass field, which a property cannot override
+
+        @property
+        def dt(self) -> float:
+            """The control period [s]."""
+            ...
+
+        @property
+        def params(self) -> dict:
+            """The true values of the plant's parameters by name (a simulated plant's truth); {} when
+            they are unknown (the rig)."""
+            ...
+    else:  # (this module's annotations are not strings: equinox needs its AbstractVar evaluated)
+        dt: eqx.AbstractVar[float]
+        params: eqx.AbstractVar[dict]
 
     @abc.abstractmethod
     def reset(self, key: Array | None = None, q0: Array | None = None, qd0: Array | None = None) -> tuple[Any, Array]:

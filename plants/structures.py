@@ -27,7 +27,7 @@ Two structures:
 """
 
 import abc
-from typing import ClassVar, NamedTuple
+from typing import TYPE_CHECKING, ClassVar, NamedTuple
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -117,14 +117,14 @@ class Diagonal(NamedTuple):
         return self.d
 
     def minus_diagonal(self, x: Joints) -> "Diagonal":
-        return Diagonal(tuple(a - b for a, b in zip(self.d, x)))
+        return Diagonal(tuple(a - b for a, b in zip(self.d, x, strict=True)))
 
     def solve(self, r: Joints) -> Joints:
-        return tuple(x / a for a, x in zip(self.d, r))
+        return tuple(x / a for a, x in zip(self.d, r, strict=True))
 
     def friction(self, v: Joints, lo: Joints, hi: Joints, dt) -> Joints:
         """The box QP of `Sym2.friction`, uncoupled: a clip per joint."""
-        return tuple(clip(a * x * (1.0 / dt), -l, u) for a, x, l, u in zip(self.d, v, lo, hi))
+        return tuple(clip(a * x * (1.0 / dt), -l, u) for a, x, l, u in zip(self.d, v, lo, hi, strict=True))
 
 
 class Admissible(NamedTuple):
@@ -143,21 +143,30 @@ class Structure(eqx.Module):
     """Abstract joint structure. Arrays are per joint, shape `(n_joints,)`.
 
     Besides the dynamics, a structure says what the rest of manus asks of it, each with a default
-    that a concrete structure overrides where it has more to say: which joints are prismatic,
-    whether its rigid effect holds gravity (`rigid_gravity`), whether it is the thesis's arm
-    (`thesis_arm`), the file it was read from (`urdf_file`), its own nominal values of effects
-    (`nominal`) and joint inertias (`nominal_joint_inertias`), where a simulated run starts (`workspace_centre`), the closed forms adaptive
-    control may use (`slotine_li_columns`, `momentum_columns`), its admissible rigid parameters
-    (`admissible`) in the coordinates it adapts in (`adaptive_form`) and adaptation gains
-    (`rigid_gains`), and the standard form it is a reparametrization of (`standard_form`,
-    `combinations`, `coordinates_of`)."""
+    that a concrete structure overrides where it has more to say:
+
+    - what it is: which joints are prismatic (`prismatic`), whether its rigid effect holds gravity
+      (`rigid_gravity`), whether it is the thesis's arm (`thesis_arm`), the file it was read from
+      (`urdf_file`);
+    - its own nominal values: of effects' coefficients (`nominal`), of the joints' inertias
+      (`nominal_joint_inertias`), where a simulated run starts (`workspace_centre`);
+    - its other parametrizations: the one identification fits (`identified_form`), the one adaptive
+      control adapts (`adaptive_form`), the standard one it reparametrizes (`standard_form`,
+      `combinations`, `coordinates_of`);
+    - for adaptive control: its closed forms (`slotine_li_columns`, `momentum_columns`), its
+      admissible rigid parameters (`admissible`) and their adaptation gains (`rigid_gains`)."""
 
     name: ClassVar[str]
     n_joints: eqx.AbstractVar[int]
-    # Per joint: a linear axis (positions in metres), as far as the structure says; () when it
-    # does not (a single axis may be either: a recording's metadata says). (This module's
-    # annotations are not strings: equinox needs AbstractVar's evaluated.)
-    prismatic: eqx.AbstractVar[tuple[bool, ...]]
+    if TYPE_CHECKING:  # a type checker reads an AbstractVar as a dataclass field, which a property cannot override
+
+        @property
+        def prismatic(self) -> tuple[bool, ...]:
+            """Per joint: a linear axis (positions in metres), as far as the structure says; () when
+            it does not (a single axis may be either: a recording's metadata says)."""
+            ...
+    else:  # (this module's annotations are not strings: equinox needs its AbstractVar evaluated)
+        prismatic: eqx.AbstractVar[tuple[bool, ...]]
     # Why the per-joint `gravity` effect does not apply, when the rigid effect holds gravity
     # itself (a serial chain's links' masses in the world's gravity); "" when it does not.
     rigid_gravity: ClassVar[str] = ""
@@ -174,6 +183,11 @@ class Structure(eqx.Module):
     def standard_form(self) -> "Structure":
         """This structure in its standard rigid parameters: itself, or for a serial chain in other
         coordinates (base parameters, pseudo-inertia entries) the chain they are coordinates of."""
+        return self
+
+    def identified_form(self) -> "Structure":
+        """This structure in the rigid parameters identification fits (the ones the torque
+        determines): itself."""
         return self
 
     def adaptive_form(self) -> "Structure":
@@ -328,7 +342,7 @@ class Manus2(Structure):
 
     def rigid_gains(self, gain):
         """The thesis's Γ for a1, a2, a3 (App. C), whatever the rigid effect's gain."""
-        return dict(zip(self.rigid_names, self.RIGID_GAINS))
+        return dict(zip(self.rigid_names, self.RIGID_GAINS, strict=True))
 
     def admissible(self):
         """H(q) ⪰ ε I for every q: [[a1, a2], [a2, a3]] ⪰ ε I (the worst case is cos² = 1)."""
@@ -338,8 +352,11 @@ class Manus2(Structure):
         """c = cos(q2 − q1), s = sin(q2 − q1): [[q̈r1, c q̈r2 − s q̇2 q̇r2, 0], [0, c q̈r1 + s q̇1 q̇r1, q̈r2]]."""
         c, sn = self.pose(q)
         zero = 0.0 * c
-        return {"a1": (qdd_r[0], zero), "a2": (c * qdd_r[1] - sn * qd[1] * qd_r[1], c * qdd_r[0] + sn * qd[0] * qd_r[0]),
-                "a3": (zero, qdd_r[1])}
+        return {
+            "a1": (qdd_r[0], zero),
+            "a2": (c * qdd_r[1] - sn * qd[1] * qd_r[1], c * qdd_r[0] + sn * qd[0] * qd_r[0]),
+            "a3": (zero, qdd_r[1]),
+        }
 
     def momentum_columns(self, q, qd):
         """Z₁ = H q̇ per parameter; in Z₂, −Ḣ q̇ + C q̇ leaves ∓s q̇1 q̇2 in the a2 column."""
@@ -380,8 +397,10 @@ class Manus2(Structure):
         a1, a2, a3 = (float(p[k]) for k in self.rigid_names)
         if a1 > 0 and a3 > 0 and a1 * a3 > a2 * a2:
             return []
-        return [f"a1 = {a1:.4g}, a2 = {a2:.4g}, a3 = {a3:.4g}: H(q) is not positive definite for every q "
-                "(a1 > 0, a3 > 0, a1 a3 > a2² needed)"]
+        return [
+            f"a1 = {a1:.4g}, a2 = {a2:.4g}, a3 = {a3:.4g}: H(q) is not positive definite for every q "
+            "(a1 > 0, a3 > 0, a1 a3 > a2² needed)"
+        ]
 
 
 class Axis(Structure):
@@ -429,4 +448,6 @@ class Axis(Structure):
         return Diagonal(joints(jnp.diagonal(H), self.n_joints))
 
     def violations(self, p):
-        return [f"{k} = {float(p[k]):.4g}: an inertia must be positive" for k in self.rigid_names if not float(p[k]) > 0]
+        return [
+            f"{k} = {float(p[k]):.4g}: an inertia must be positive" for k in self.rigid_names if not float(p[k]) > 0
+        ]

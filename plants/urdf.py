@@ -17,9 +17,13 @@ def _rpy(rpy) -> np.ndarray:
     """The URDF rotation Rz(yaw) Ry(pitch) Rx(roll)."""
     r, p, y = rpy
     cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
-    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-                     [-sp, cp * sr, cp * cr]])
+    return np.array(
+        [
+            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+            [-sp, cp * sr, cp * cr],
+        ]
+    )
 
 
 def _floats(element, attribute: str, default: str) -> np.ndarray:
@@ -45,10 +49,14 @@ def link_inertial(link) -> np.ndarray:
     R, c = _origin(inertial)
     m = float(inertial.find("mass").get("value"))
     e = inertial.find("inertia")
-    get = lambda k: float(e.get(k, "0"))  # noqa: E731
-    I_c = np.array([[get("ixx"), get("ixy"), get("ixz")],
-                    [get("ixy"), get("iyy"), get("iyz")],
-                    [get("ixz"), get("iyz"), get("izz")]])
+    get = lambda k: float(e.get(k, "0"))
+    I_c = np.array(
+        [
+            [get("ixx"), get("ixy"), get("ixz")],
+            [get("ixy"), get("iyy"), get("iyz")],
+            [get("ixz"), get("iyz"), get("izz")],
+        ]
+    )
     return _ten(m, m * c, R @ I_c @ R.T + m * _skew(c).T @ _skew(c))
 
 
@@ -99,9 +107,19 @@ def read(path) -> tuple[dict, dict]:
         axis = _floats(j.find("axis"), "xyz", "1 0 0")
         dynamics = j.find("dynamics")
         joints[j.get("name")] = Joint(
-            j.get("name"), j.get("type"), j.find("parent").get("link"), j.find("child").get("link"), R, p,
-            axis / np.linalg.norm(axis), float(dynamics.get("armature", "0")) if dynamics is not None else 0.0,
+            j.get("name"),
+            j.get("type"),
+            j.find("parent").get("link"),
+            j.find("child").get("link"),
+            R,
+            p,
+            axis / np.linalg.norm(axis),
+            float(dynamics.get("armature", "0")) if dynamics is not None else 0.0,
             j.find("mimic") is not None,
-            *((float(dynamics.get("damping", "0")), float(dynamics.get("friction", "0"))) if dynamics is not None
-              else (0.0, 0.0)))
+            *(
+                (float(dynamics.get("damping", "0")), float(dynamics.get("friction", "0")))
+                if dynamics is not None
+                else (0.0, 0.0)
+            ),
+        )
     return links, joints

@@ -31,18 +31,24 @@ def test_estimators_come_by_name_and_model_based_ones_use_the_controllers_model(
     assert ffd.velocity_lag == pytest.approx(1 / 188.5, rel=0.01)  # the filter's 1/λ
 
 
-@pytest.mark.parametrize("args, kwargs, match", [
-    (("pid", MODEL, 1e-3), {}, "unknown controller 'pid'"),
-    (("slotine-li", MODEL, 1e-3, "psychic"), {}, "unknown estimator 'psychic'"),
-    (("slotine-li", MODEL, 1e-3), {"weight": 3.0}, "weight belong to slotine-li-composite"),
-    (("slotine-li", MODEL, 1e-3), {"gains": 3.0}, "slotine-li has no setting gains \\(its settings: gamma, lam"),
-    (("slotine-li-composite", MODEL, 1e-3), {"bandwidth": -5.0}, "composite bandwidth must be positive"),
-    (("impedance", MODEL, 1e-3), {"stiffness": -30.0}, "stiffness must be positive definite"),
-    (("slotine-li", "rigid", 1e-3), {}, "needs a manus.plants.effects.Model"),
-    # at 50 Hz the thesis's 30 Hz filter is above Nyquist: no Kalman bandwidth has its noise
-    (("slotine-li", MODEL, 1 / 50, "kalman_cv"), {}, "kalman_cv: no bandwidth .* 30 Hz filtered first difference at 50 Hz "
-                                                     "\\(its corner is above Nyquist"),
-])
+@pytest.mark.parametrize(
+    "args, kwargs, match",
+    [
+        (("pid", MODEL, 1e-3), {}, "unknown controller 'pid'"),
+        (("slotine-li", MODEL, 1e-3, "psychic"), {}, "unknown estimator 'psychic'"),
+        (("slotine-li", MODEL, 1e-3), {"weight": 3.0}, "weight belong to slotine-li-composite"),
+        (("slotine-li", MODEL, 1e-3), {"gains": 3.0}, "slotine-li has no setting gains \\(its settings: gamma, lam"),
+        (("slotine-li-composite", MODEL, 1e-3), {"bandwidth": -5.0}, "composite bandwidth must be positive"),
+        (("impedance", MODEL, 1e-3), {"stiffness": -30.0}, "stiffness must be positive definite"),
+        (("slotine-li", "rigid", 1e-3), {}, "needs a manus.plants.effects.Model"),
+        # at 50 Hz the thesis's 30 Hz filter is above Nyquist: no Kalman bandwidth has its noise
+        (
+            ("slotine-li", MODEL, 1 / 50, "kalman_cv"),
+            {},
+            "kalman_cv: no bandwidth .* 30 Hz filtered first difference at 50 Hz \\(its corner is above Nyquist",
+        ),
+    ],
+)
 def test_bad_requests_are_refused_with_a_clear_message(args, kwargs, match):
     with pytest.raises(ManusError, match=match):
         make_controller(*args, **kwargs)

@@ -9,7 +9,6 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-import pytest
 from scipy.optimize import minimize
 
 from manus.adaptive.projection import Projection, project_psd2
@@ -26,9 +25,17 @@ def brute_force(y, g):
     """min Σ (x − y)²/g over {[[u, v], [v, w]] ⪰ 0} with SLSQP, from several starts."""
     best = None
     for x0 in ([1.0, 0.0, 1.0], [abs(y[0]) + 0.1, 0.0, abs(y[2]) + 0.1], [0.1, 0.05, 0.1]):
-        r = minimize(lambda x: np.sum((x - y) ** 2 / g), x0, method="SLSQP", tol=1e-14,
-                     constraints=[{"type": "ineq", "fun": lambda x: x[0] * x[2] - x[1] ** 2},
-                                  {"type": "ineq", "fun": lambda x: x[0]}, {"type": "ineq", "fun": lambda x: x[2]}])
+        r = minimize(
+            lambda x: np.sum((x - y) ** 2 / g),
+            x0,
+            method="SLSQP",
+            tol=1e-14,
+            constraints=[
+                {"type": "ineq", "fun": lambda x: x[0] * x[2] - x[1] ** 2},
+                {"type": "ineq", "fun": lambda x: x[0]},
+                {"type": "ineq", "fun": lambda x: x[2]},
+            ],
+        )
         if best is None or r.fun < best.fun:
             best = r
     return best.x
@@ -66,7 +73,7 @@ def exact_search(u, v, w, g1, g2, g3, grid=32, golden_steps=40):
     t = fit(phi)[1]
     r = ray(phi)
     inside = (u >= 0) & (w >= 0) & (u * w >= v * v)
-    return tuple(jnp.where(inside, x, t * ri) for x, ri in zip((u, v, w), r))
+    return tuple(jnp.where(inside, x, t * ri) for x, ri in zip((u, v, w), r, strict=True))
 
 
 def random_cases(rng, n):
@@ -150,7 +157,9 @@ def test_the_projection_vectorizes_and_branches_once_per_batch():
     gains = np.exp(rng.uniform(-3, 0, (8, 9)))
     for thetas in (inside, outside, np.concatenate([inside[:7], outside[:1]])):
         got = np.asarray(batched(jnp.asarray(thetas), jnp.asarray(gains)))
-        alone = np.array([np.asarray(project(jnp.asarray(t), jnp.asarray(g))) for t, g in zip(thetas, gains)])
+        alone = np.array(
+            [np.asarray(project(jnp.asarray(t), jnp.asarray(g))) for t, g in zip(thetas, gains, strict=True)]
+        )
         np.testing.assert_allclose(got, alone, rtol=1e-14, atol=1e-16)
     np.testing.assert_array_equal(np.asarray(batched(jnp.asarray(inside), jnp.asarray(gains))), inside)
 

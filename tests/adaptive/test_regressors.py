@@ -16,7 +16,7 @@ ALL_LINEAR = "rigid,viscous,coulomb,stribeck,asymmetry,offset,gravity,cogging"
 
 
 def test_hdot_minus_2c_is_skew_symmetric_along_a_trajectory():
-    s, p = Manus2(), dict(zip(("a1", "a2", "a3"), (0.349, 0.241, 0.246)))
+    s, p = Manus2(), dict(zip(("a1", "a2", "a3"), (0.349, 0.241, 0.246), strict=True))
     ref = Complex()
     rng = np.random.default_rng(0)
     largest = 0.0
@@ -34,10 +34,14 @@ def test_hdot_minus_2c_is_skew_symmetric_along_a_trajectory():
 def thesis_equations(q, qd, qd_r, qdd_r, a, form, b=(0, 0), fc=(0, 0), phi=0.01):
     """Eqs. C.1–C.2 / 3.2–3.3 by hand along the reference, friction at q̇_r."""
     c, s = np.cos(q[1] - q[0]), np.sin(q[1] - q[0])
-    v1, v2 = (qd if form == "slotine-li" else qd_r)  # the Coriolis slot that is not q̇_r
+    v1, v2 = qd if form == "slotine-li" else qd_r  # the Coriolis slot that is not q̇_r
     sat = np.clip(np.asarray(qd_r) / phi, -1, 1)
-    return np.array([a[0] * qdd_r[0] + a[1] * (c * qdd_r[1] - s * v2 * qd_r[1]) + b[0] * qd_r[0] + fc[0] * sat[0],
-                     a[1] * (c * qdd_r[0] + s * v1 * qd_r[0]) + a[2] * qdd_r[1] + b[1] * qd_r[1] + fc[1] * sat[1]])
+    return np.array(
+        [
+            a[0] * qdd_r[0] + a[1] * (c * qdd_r[1] - s * v2 * qd_r[1]) + b[0] * qd_r[0] + fc[0] * sat[0],
+            a[1] * (c * qdd_r[0] + s * v1 * qd_r[0]) + a[2] * qdd_r[1] + b[1] * qd_r[1] + fc[1] * sat[1],
+        ]
+    )
 
 
 @pytest.mark.parametrize("form", ["slotine-li", "thesis"])
@@ -59,7 +63,9 @@ def test_slotine_li_form_uses_the_measured_velocity_and_the_thesis_form_does_not
     q, qd_r, qdd_r = np.array([0.4, 2.4]), np.array([0.3, -0.5]), np.array([1.0, 2.0])
     a, b = reg(q, np.array([1.0, 1.0]), qd_r, qdd_r), reg(q, np.array([2.0, -1.0]), qd_r, qdd_r)
     assert np.abs(a - b).max() > 0.1
-    np.testing.assert_array_equal(thesis(q, np.array([1.0, 1.0]), qd_r, qdd_r), thesis(q, np.array([2.0, -1.0]), qd_r, qdd_r))
+    np.testing.assert_array_equal(
+        thesis(q, np.array([1.0, 1.0]), qd_r, qdd_r), thesis(q, np.array([2.0, -1.0]), qd_r, qdd_r)
+    )
 
 
 @pytest.mark.parametrize("structure", [Manus2(), Axis(n_joints=3)], ids=["manus2", "axis3"])

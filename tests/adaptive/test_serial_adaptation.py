@@ -16,8 +16,8 @@ from manus.adaptive.projection import Projection
 from manus.adaptive.regressors import Regressor
 from manus.adaptive.slotine_li import SlotineLi, rollout
 from manus.plants import Model, Serial, Simulator
-from manus.plants.references import MultiSine
 from manus.plants.pseudo_inertia import ENTRIES, entries_of, matrix, standard_of
+from manus.plants.references import MultiSine
 
 URDF = pathlib.Path(__file__).resolve().parents[2] / "examples" / "dfki_double_pendulum" / "double_pendulum_a0.urdf"
 
@@ -32,10 +32,11 @@ def test_coordinates_map_to_the_standard_parameters(chain):
     serial, pseudo = chain
     d = np.asarray(serial.defaults)
     for i in range(serial.n_joints):
-        phi = d[10 * i:10 * i + 10]
+        phi = d[10 * i : 10 * i + 10]
         np.testing.assert_allclose(standard_of(entries_of(phi)), phi, atol=1e-15)
-    np.testing.assert_allclose(np.asarray(pseudo.standard(dict(zip(pseudo.rigid_names, pseudo.rigid_defaults)))), d,
-                               atol=1e-15)
+    np.testing.assert_allclose(
+        np.asarray(pseudo.standard(dict(zip(pseudo.rigid_names, pseudo.rigid_defaults, strict=True)))), d, atol=1e-15
+    )
 
 
 def test_regressor_is_the_chains_slotine_li_regressor(chain):
@@ -48,21 +49,24 @@ def test_regressor_is_the_chains_slotine_li_regressor(chain):
     @eqx.filter_jit
     def reference(q, qd, qd_r, qdd_r, theta):
         p = model.unvector(theta)
-        return serial.slotine_li_regressor(q, qd, qd_r, qdd_r) @ pseudo.standard(p) + jnp.stack([p["b1"], p["b2"]]) * qd_r
+        return (
+            serial.slotine_li_regressor(q, qd, qd_r, qdd_r) @ pseudo.standard(p) + jnp.stack([p["b1"], p["b2"]]) * qd_r
+        )
 
     rng = np.random.default_rng(1)
     for _ in range(5):
         q, qd, qd_r, qdd_r = (jnp.asarray(x) for x in rng.normal(size=(4, 2)))
         theta = jnp.asarray(rng.normal(size=len(model.names)))
-        np.testing.assert_allclose(np.asarray(Y(q, qd, qd_r, qdd_r) @ theta),
-                                   np.asarray(reference(q, qd, qd_r, qdd_r, theta)), atol=1e-12)
+        np.testing.assert_allclose(
+            np.asarray(Y(q, qd, qd_r, qdd_r) @ theta), np.asarray(reference(q, qd, qd_r, qdd_r, theta)), atol=1e-12
+        )
 
 
 def test_projection_is_the_closest_consistent_point(chain):
     """A link with a negative inertia, projected: the eigen-clip of the scaled pseudo-inertia equals
     cvxpy's minimizer of the gains' metric over J ⪰ 0 (to the solver's tolerance); the metric of the
     default gains is that scaled Frobenius norm; a consistent estimate comes back bit for bit."""
-    serial, pseudo = chain
+    _, pseudo = chain
     model = Model(pseudo, "rigid,viscous")
     ctl = SlotineLi(model, 1e-3, theta0={k: 0.0 for k in model.names}, project=False)
     gamma = np.asarray(ctl.gamma)
@@ -77,7 +81,9 @@ def test_projection_is_the_closest_consistent_point(chain):
     assert np.linalg.eigvalsh(np.asarray(matrix(out[idx])))[0] > -1e-12
     # cvxpy: the same link, min Σ (x − x0)² / γ over its entries with J(x) ⪰ 0
     x = cp.Variable(10)
-    J = cp.bmat([[x[4], x[7], x[8], x[1]], [x[7], x[5], x[9], x[2]], [x[8], x[9], x[6], x[3]], [x[1], x[2], x[3], x[0]]])
+    J = cp.bmat(
+        [[x[4], x[7], x[8], x[1]], [x[7], x[5], x[9], x[2]], [x[8], x[9], x[6], x[3]], [x[1], x[2], x[3], x[0]]]
+    )
     prob = cp.Problem(cp.Minimize(cp.sum(cp.multiply(1 / gamma[idx], cp.square(x - bad[idx])))), [J >> 0])
     prob.solve(solver=cp.CLARABEL)
     np.testing.assert_allclose(out[idx], x.value, atol=1e-6)
@@ -115,7 +121,6 @@ def test_closed_loop_converges_and_stays_consistent(chain, law):
         assert low > -1e-12, (i, low)
 
 
-
 def test_composite_identifies_the_base_parameters(chain):
     """Composite adaptation in base-parameter coordinates (identifiable, no projection): on the same
     run every base parameter and friction coefficient comes within 2 % of the truth (or 2e-3 of
@@ -131,6 +136,6 @@ def test_composite_identifies_the_base_parameters(chain):
     theta0 = {k: v * (0.5 if k in base.base_names else 0.0) for k, v in truth.items()}
     ctl = make_controller("slotine-li-composite", model, plant.dt, theta0=theta0, limit=50.0, project=False)
     log, _ = rollout(plant, ctl, MultiSine(jnp.zeros(2), 0.8, seed=1), 8000, key=jax.random.PRNGKey(0))
-    final = dict(zip(model.names, np.asarray(log.theta)[-1]))
+    final = dict(zip(model.names, np.asarray(log.theta)[-1], strict=True))
     for k, v in truth.items():
         assert final[k] == pytest.approx(v, rel=0.02, abs=2e-3), (k, final[k], v)

@@ -10,7 +10,7 @@ import pytest
 
 from manus.adaptive import Composite, SlotineLi, make_controller, replay, rollout
 from manus.adaptive.regressors import Regressor
-from manus.adaptive.slotine_li import fusion_boundary, regressor_entries, rollout_batch, trial
+from manus.adaptive.slotine_li import fusion_boundary, regressor_entries, rollout_batch
 from manus.estimators.base import Estimate, Estimator, FirstDifference
 from manus.plants import Model, Simulator
 from manus.plants.closed_loop import simulate
@@ -48,8 +48,12 @@ def numpy_controller(q, refs, theta, gamma, lam=5.0, kd=5.0, dt=1e-3, lead=0.000
         qdd_r = qdd_d + lead * jerk - lam * ev
         qp = q[k] + lead * v
         c, sn = np.cos(qp[1] - qp[0]), np.sin(qp[1] - qp[0])
-        Y = np.array([[qdd_r[0], c * qdd_r[1] - sn * v[1] * qd_r[1], 0, qd_r[0], 0],
-                      [0, c * qdd_r[0] + sn * v[0] * qd_r[0], qdd_r[1], 0, qd_r[1]]])
+        Y = np.array(
+            [
+                [qdd_r[0], c * qdd_r[1] - sn * v[1] * qd_r[1], 0, qd_r[0], 0],
+                [0, c * qdd_r[0] + sn * v[0] * qd_r[0], qdd_r[1], 0, qd_r[1]],
+            ]
+        )
         taus.append(np.clip(Y @ theta - kd * s, -limit, limit))
         theta = theta - dt * gamma * (Y.T @ s)
         thetas.append(theta)
@@ -73,7 +77,7 @@ def test_a_python_loop_over_the_jitted_step_agrees_with_the_scan(run):
     state = ctrl.init(jnp.asarray(traj.q[0]))
     _, tau = replay(ctrl, traj.q[:200], jax.tree.map(lambda x: x[:200], refs))
     for k in range(200):
-        state, u = step(state, jnp.asarray(traj.q[k]), jax.tree.map(lambda x: x[k], refs))
+        state, u = step(state, jnp.asarray(traj.q[k]), jax.tree.map(lambda x, k=k: x[k], refs))
         np.testing.assert_allclose(u, tau[k], atol=1e-13)
 
 
@@ -91,7 +95,10 @@ def test_composite_prediction_error_of_the_true_parameters_is_small_and_timing_m
         def body(st, x):
             st, W, tau_f = comp.step(st, ctrl.regressor, x[0], x[1], x[2], ctrl.gamma, lead, 1e-3)
             return st, W @ THETA - tau_f
-        _, e = jax.lax.scan(body, comp.init(ctrl.regressor, ctrl.gamma), (jnp.asarray(traj.q), jnp.asarray(v), jnp.asarray(traj.tau)))
+
+        _, e = jax.lax.scan(
+            body, comp.init(ctrl.regressor, ctrl.gamma), (jnp.asarray(traj.q), jnp.asarray(v), jnp.asarray(traj.tau))
+        )
         return np.sqrt(np.mean(np.asarray(e)[500:] ** 2))
 
     good, off = residual(0.0005), residual(0.0015)
@@ -143,15 +150,18 @@ def test_a_model_based_estimator_gets_the_current_estimates(run):
     assert np.abs(fed[-1] - fed[0]).max() > 1e-3
 
 
-@pytest.mark.parametrize("gains, match", [
-    ({"gamma": {"a2": 0.0}}, r"gamma must be positive definite.*a2=0"),
-    ({"gamma": -1.0}, r"gamma must be positive definite"),
-    ({"lam": [5.0, -1.0]}, r"lam must be positive definite.*joint2=-1"),
-    ({"kd": float("nan")}, r"kd must be positive definite"),
-    ({"gamma": [0.2, 0.2]}, r"gamma: expected 5 values"),
-    ({"theta0": {"a9": 1.0}}, r"theta0: unknown name\(s\) a9"),
-    ({"lead": -0.001}, r"lead must be a time"),
-])
+@pytest.mark.parametrize(
+    "gains, match",
+    [
+        ({"gamma": {"a2": 0.0}}, r"gamma must be positive definite.*a2=0"),
+        ({"gamma": -1.0}, r"gamma must be positive definite"),
+        ({"lam": [5.0, -1.0]}, r"lam must be positive definite.*joint2=-1"),
+        ({"kd": float("nan")}, r"kd must be positive definite"),
+        ({"gamma": [0.2, 0.2]}, r"gamma: expected 5 values"),
+        ({"theta0": {"a9": 1.0}}, r"theta0: unknown name\(s\) a9"),
+        ({"lead": -0.001}, r"lead must be a time"),
+    ],
+)
 def test_bad_gains_are_refused_before_the_run(gains, match):
     with pytest.raises(ManusError, match=match):
         SlotineLi(TRUTH, **gains)
@@ -161,7 +171,7 @@ def test_a_model_that_does_not_match_the_plant_is_refused_before_the_run():
     ctrl = SlotineLi(Model(Axis(n_joints=3), "rigid,viscous"))
     with pytest.raises(ManusError, match="has 3 joint\\(s\\) but the plant measures 2"):
         simulate(Simulator(TRUTH), ctrl, Complex(), 0.1)
-    with pytest.raises(ManusError, match="runs at dt = 0.002 s but the controller at 0.001 s"):
+    with pytest.raises(ManusError, match=r"runs at dt = 0\.002 s but the controller at 0\.001 s"):
         SlotineLi(TRUTH, estimator=FirstDifference(dt=0.002))
 
 
@@ -178,7 +188,7 @@ def test_the_regressor_entry_by_entry_is_the_regressors_array():
 def test_the_fusion_boundary_returns_its_input_bit_for_bit_under_vmap():
     x = jnp.array([[1.5, -0.0, jnp.nan], [jnp.inf, 0.0, -2.0]])
     out = jax.jit(jax.vmap(lambda r: fusion_boundary((r[0], [r[1], r[2]]))))(x)
-    for got, want in zip(jax.tree.leaves(out), (x[:, 0], x[:, 1], x[:, 2])):
+    for got, want in zip(jax.tree.leaves(out), (x[:, 0], x[:, 1], x[:, 2]), strict=True):
         np.testing.assert_array_equal(np.signbit(got), np.signbit(want))
         np.testing.assert_array_equal(got, want)
     out = jax.jit(jax.vmap(lambda r: fusion_boundary((r[0], [r[1], r[2]]))))(x[::-1])  # NaN first: the other branch
@@ -197,8 +207,13 @@ def test_the_batch_keeps_the_statistics_of_every_tick_and_a_row_of_every_fifth()
     ctrl = SlotineLi(truth_model, lead=0.0015)
     truth = np.array([float(plant.params[k]) for k in ctrl.names])
     theta0 = truth * np.array([[1.3, 0.8, 1.2, 0.5, 1.5, 1.4, 0.6], [0.1, 1.9, 0.1, 1.0, 1.0, 1.0, 1.0], [1.0] * 7])
-    per_trial = (jnp.asarray(theta0), *(jnp.broadcast_to(x, (3,) + x.shape) * jnp.array([1.0, 1.2, 0.8])[:, None]
-                                        for x in (ctrl.gamma, ctrl.lam, ctrl.kd)))
+    per_trial = (
+        jnp.asarray(theta0),
+        *(
+            jnp.broadcast_to(x, (3,) + x.shape) * jnp.array([1.0, 1.2, 0.8])[:, None]
+            for x in (ctrl.gamma, ctrl.lam, ctrl.kd)
+        ),
+    )
     keys = jax.random.split(jax.random.PRNGKey(4), 3)
     steps, every, record = 600, 50, 5
     batch = rollout_batch(plant, ctrl, Complex(), per_trial, keys, steps, every, record)
@@ -209,12 +224,12 @@ def test_the_batch_keeps_the_statistics_of_every_tick_and_a_row_of_every_fifth()
         log, grams = full(plant, c, Complex(), steps, keys[i], every)
         q_err, theta = np.asarray(log.q - log.q_ref), np.asarray(log.theta)
         close = lambda got, want: np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12)  # vector vs scalar code
-        close(batch.q_err[i], q_err[record - 1::record])
-        close(batch.tau[i], np.asarray(log.tau)[record - 1::record])
-        close(batch.theta[i], theta[record - 1::record])
+        close(batch.q_err[i], q_err[record - 1 :: record])
+        close(batch.tau[i], np.asarray(log.tau)[record - 1 :: record])
+        close(batch.theta[i], theta[record - 1 :: record])
         close(batch.theta_final[i], theta[-1])
         close(batch.grams[i], np.asarray(grams))
-        close(batch.q_err_ms[i], np.mean(q_err ** 2, axis=0))
+        close(batch.q_err_ms[i], np.mean(q_err**2, axis=0))
         close(batch.tau_max[i], np.abs(np.asarray(log.tau)).max(0))
         for k in range(len(truth)):
             want = settle_times(np.asarray(log.t), theta[None, :, k], truth[k])[0]

@@ -1,6 +1,5 @@
 """Each effect is defined once by its torque; its regressor must reproduce it exactly."""
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -34,8 +33,7 @@ def test_manus2_rigid_regressor_matches_the_thesis_equations():
     model = Model(Manus2(), "rigid")
     q, qd, qdd = np.array([0.3, 2.1]), np.array([0.7, -1.2]), np.array([2.0, -0.5])
     c, s = np.cos(q[1] - q[0]), np.sin(q[1] - q[0])
-    expected = np.array([[qdd[0], c * qdd[1] - s * qd[1] ** 2, 0.0],
-                         [0.0, c * qdd[0] + s * qd[0] ** 2, qdd[1]]])
+    expected = np.array([[qdd[0], c * qdd[1] - s * qd[1] ** 2, 0.0], [0.0, c * qdd[0] + s * qd[0] ** 2, qdd[1]]])
     np.testing.assert_allclose(model.regressor(q, qd, qdd), expected, atol=1e-14)
 
 
@@ -45,10 +43,12 @@ def test_closed_form_torques_of_friction_effects():
     m = Model(s, "rigid,coulomb,stribeck:0.05,asymmetry,cogging:6")
     p = m.defaults()
     tau = np.asarray(m.torque(q, qd, np.zeros(2), p, only=lambda e: is_dry(e) or is_load(e)))
-    expected = (np.array([0.099, -0.139])
-                + np.array([0.05 * np.exp(-36), -0.07 * np.exp(-(0.02 / 0.05) ** 2)])
-                + np.array([0.05 * 0.3, 0.04 * 0.02])  # asymmetry: db |q̇|
-                + np.array([0.02 * np.sin(0.6) + 0.01 * np.cos(0.6), 0.015 * np.sin(1.2) - 0.01 * np.cos(1.2)]))
+    expected = (
+        np.array([0.099, -0.139])
+        + np.array([0.05 * np.exp(-36), -0.07 * np.exp(-((0.02 / 0.05) ** 2))])
+        + np.array([0.05 * 0.3, 0.04 * 0.02])  # asymmetry: db |q̇|
+        + np.array([0.02 * np.sin(0.6) + 0.01 * np.cos(0.6), 0.015 * np.sin(1.2) - 0.01 * np.cos(1.2)])
+    )
     np.testing.assert_allclose(tau, expected, rtol=1e-12)
 
 
@@ -57,10 +57,15 @@ def test_spring_and_several_cogging_orders():
     q, qd = np.array([0.1, 0.2]), np.array([0.3, -0.02])
     m = Model(s, "spring,cogging:39+6")
     assert m.names == ("k1", "k2", "A1", "A2", "B1", "B2", "A1_2", "A2_2", "B1_2", "B2_2")
-    p = dict(zip(m.names, np.arange(1.0, 11.0)))
+    p = dict(zip(m.names, np.arange(1.0, 11.0), strict=True))
     tau = np.asarray(m.torque(q, qd, np.zeros(2), p))
-    expected = (np.array([1.0, 2.0]) * q + np.array([3.0, 4.0]) * np.sin(39 * q) + np.array([5.0, 6.0]) * np.cos(39 * q)
-                + np.array([7.0, 8.0]) * np.sin(6 * q) + np.array([9.0, 10.0]) * np.cos(6 * q))
+    expected = (
+        np.array([1.0, 2.0]) * q
+        + np.array([3.0, 4.0]) * np.sin(39 * q)
+        + np.array([5.0, 6.0]) * np.cos(39 * q)
+        + np.array([7.0, 8.0]) * np.sin(6 * q)
+        + np.array([9.0, 10.0]) * np.cos(6 * q)
+    )
     np.testing.assert_allclose(tau, expected, rtol=1e-12)
     assert parse_effects("cogging:39+6")[0].spec == "cogging:39+6"
 
@@ -97,7 +102,7 @@ def test_parse_specs_and_errors():
     assert [e.name for e in effects] == ["rigid", "stribeck", "cogging", "delay"]
     assert effects[-1].seconds == pytest.approx(0.002)
     assert Model(Manus2(), effects).spec == "rigid,stribeck:0.02,cogging:39,delay:2ms"
-    with pytest.raises(ModelError, match="unknown effect 'friction'.*vocabulary is rigid"):
+    with pytest.raises(ModelError, match=r"unknown effect 'friction'.*vocabulary is rigid"):
         parse_effects("rigid,friction")
     with pytest.raises(ModelError, match="given twice"):
         parse_effects("rigid,viscous,viscous")
@@ -110,6 +115,36 @@ def test_parse_specs_and_errors():
             parse_effects(bad)
     with pytest.raises(ModelError, match="longer than 10 s"):
         parse_effects("delay:1e9ms")
+
+
+def test_the_vocabulary_is_a_registry_and_each_effect_parses_its_own_argument():
+    from typing import ClassVar
+
+    from manus.plants.effects import ORDER, Cogging, Coulomb, Delay, Effect, Stribeck, parse_effect
+
+    assert ORDER == (
+        "rigid",
+        "viscous",
+        "coulomb",
+        "stribeck",
+        "asymmetry",
+        "offset",
+        "gravity",
+        "spring",
+        "cogging",
+        "delay",
+        "compliance",
+    )
+    assert all(VOCABULARY[name].name == name for name in ORDER)
+    assert Cogging.parse("39+6") == parse_effect("cogging:39+6") and Stribeck.parse("") == Stribeck()
+    assert Delay.parse("1ms/3ms").seconds == pytest.approx((1e-3, 3e-3))
+    with pytest.raises(ModelError, match="effect 'coulomb' takes no argument \\(got '2'\\)"):
+        Coulomb.parse("2")
+
+    class Elsewhere(Effect):  # an effect defined outside the vocabulary is not registered in it
+        name: ClassVar[str] = "elsewhere"
+
+    assert "elsewhere" not in VOCABULARY and Elsewhere.parse("") == Elsewhere()
 
 
 def test_thesis_defaults():
@@ -138,4 +173,3 @@ def test_a_delay_per_joint_reads_writes_and_grows_one_joint_at_a_time():
     assert Delay(seconds=0.002).grow(Span(1e-3, 10.0, np.ones(1), 1e-5, np.ones(1), (False,))) == ()
     assert "joint 2" in Delay(seconds=(0.0, grid[-1])).edge(span)
     assert Delay(seconds=(0.0, 0.002)).edge(span) is None  # a joint at 0 while the other is late: a value
-

@@ -3,7 +3,6 @@ leaves a readable recording, and faults (the emulator stopping, lost and garbage
 controller returning NaN, Ctrl-C, kill -9 of the loop) that each end at zero torque with what was
 recorded still readable. No timing asserts: those figures belong to `manus bench hardware`."""
 
-import json
 import os
 import re
 import signal
@@ -26,7 +25,7 @@ realtime_jax()
 from manus.plants.device import open_device  # noqa: E402
 from manus.plants.hardware import CompiledTick, run_loop  # noqa: E402
 from manus.plants.recording import RecordingWriter, read  # noqa: E402
-from manus.plants.stepper import Controller  # noqa: E402
+from manus.plants.stepper import Controller, Plant  # noqa: E402
 
 MANUS = [sys.executable, "-m", "manus.runs.cli"]
 ROOT = Path(__file__).resolve().parents[2]
@@ -36,9 +35,12 @@ HALF_LSB_TORQUE = 10.0 / 2**11 * 2.22 / 2  # the D/A's rounding, in N·m
 
 def _start_emulator(tmp: Path, name: str, *extra):
     log, err = tmp / f"{name}.csv", tmp / f"{name}.err"
-    proc = subprocess.Popen(MANUS + ["emulate", "--port", "0", "--truth", TRUTH, "--log", str(log),
-                                     "--watchdog-ms", "300", *extra],
-                            cwd=ROOT, stdout=subprocess.DEVNULL, stderr=open(err, "w"))
+    proc = subprocess.Popen(
+        MANUS + ["emulate", "--port", "0", "--truth", TRUTH, "--log", str(log), "--watchdog-ms", "300", *extra],
+        cwd=ROOT,
+        stdout=subprocess.DEVNULL,
+        stderr=open(err, "w"),  # noqa: SIM115 (the emulator's, for as long as it runs)
+    )
     return proc, log, err
 
 
@@ -112,8 +114,9 @@ def _session(log: Path, host_rec=()):
 
 def test_a_two_second_run_tracks_its_reference_and_leaves_a_readable_recording(rigs, stepper, tmp_path):
     dev = _device(rigs, "clean")
-    r = run_loop(dev, stepper, 2.0, tmp_path / "run.csv", watchdog=0.5,
-                 meta={"controller": "slotine-li", "structure": "manus2"})
+    r = run_loop(
+        dev, stepper, 2.0, tmp_path / "run.csv", watchdog=0.5, meta={"controller": "slotine-li", "structure": "manus2"}
+    )
     dev.close()
     assert r.stopped_by == "end", r.reason
     assert r.ticks == 2000 and r.lost_samples == 0 and r.refused == {}
@@ -129,14 +132,14 @@ def test_a_two_second_run_tracks_its_reference_and_leaves_a_readable_recording(r
     # the encoder counts crossed the wire exactly: the device logged the same positions per sample
     dev_rec, rows = _session(rigs["clean"][2], rec)
     ticks = rows & ((dev_rec.extra["flags"].astype(int) & P.STATUS_STOPPED) == 0)  # not the final STOP row
-    by_seq = {int(s): i for i, s in zip(np.flatnonzero(ticks), dev_rec.extra["seq"][ticks])}
+    by_seq = {int(s): i for i, s in zip(np.flatnonzero(ticks), dev_rec.extra["seq"][ticks], strict=True)}
     idx = [by_seq[int(s)] for s in rec.extra["seq"]]
     assert np.array_equal(dev_rec.q[idx], rec.q)
     # the torque the device applied over the period after sample k is the command answering k
     # (through the 12-bit D/A), wherever that command arrived in time
     nxt = [by_seq.get(int(s) + 1) for s in rec.extra["seq"][:-1]]
     ok = np.array([j is not None and not int(dev_rec.extra["flags"][j]) & P.STATUS_LATE for j in nxt])
-    applied = dev_rec.tau[[j for j, o in zip(nxt, ok) if o]]
+    applied = dev_rec.tau[[j for j, o in zip(nxt, ok, strict=True) if o]]
     assert ok.any()
     assert np.max(np.abs(applied - rec.tau[:-1][ok])) <= HALF_LSB_TORQUE + 1e-6
     # and the session ended at zero torque
@@ -147,8 +150,11 @@ def test_the_rig_as_a_plant_steps_like_the_simulator_would(rigs):
     from manus.plants.hardware import HardwarePlant
 
     plant = HardwarePlant(_device(rigs, "clean"), watchdog=0.5)
+    assert isinstance(plant, Plant) and plant.params == {} and plant.dt == pytest.approx(1e-3)
     state, q0 = plant.reset()
     assert np.allclose(q0, [0.464, 2.409], atol=1e-4)  # the emulated arm starts at rest at the centre
+    q_true, qd_true = plant.truth(state)  # the rig's truth is its encoder: no velocity
+    assert np.array_equal(q_true, q0) and np.all(np.isnan(qd_true))
     q = q0
     for _ in range(100):  # a constant 1 N·m on joint 1: it turns positive, from rest
         state, q = plant.step(state, [1.0, 0.0])
@@ -221,6 +227,7 @@ def test_lost_and_garbage_packets_are_counted_and_the_run_goes_on(rigs, stepper,
 def after_ticks(path: Path, ticks: int, action, timeout: float = 20.0) -> threading.Thread:
     """Run `action` once the loop's recording holds `ticks` rows (it is flushed every 0.1 s):
     faults are injected into a running loop however long its start took on a loaded machine."""
+
     def wait():
         end = time.monotonic() + timeout
         while time.monotonic() < end:
@@ -235,10 +242,13 @@ def after_ticks(path: Path, ticks: int, action, timeout: float = 20.0) -> thread
 
 
 def test_the_emulator_stopping_mid_run_trips_both_watchdogs(rigs, stepper, tmp_path):
-    proc, port, log = rigs["clean"]
+    proc, _, log = rigs["clean"]
     dev = _device(rigs, "clean")
-    freeze = after_ticks(tmp_path / "frozen.csv", 300, lambda: (os.kill(proc.pid, signal.SIGSTOP), time.sleep(1.0),
-                                                                 os.kill(proc.pid, signal.SIGCONT)))
+    freeze = after_ticks(
+        tmp_path / "frozen.csv",
+        300,
+        lambda: (os.kill(proc.pid, signal.SIGSTOP), time.sleep(1.0), os.kill(proc.pid, signal.SIGCONT)),
+    )
     r = run_loop(dev, stepper, 3.0, tmp_path / "frozen.csv", watchdog=0.55)
     dev.close()
     freeze.join()
@@ -259,8 +269,11 @@ def test_ctrl_c_and_strangers(rigs, stepper, tmp_path):
         for _ in range(10):  # a valid sample, from the wrong address
             stranger.sendto(P.encode_sensor(10**6, 0, [0, 0]), dev.address)
 
-    timers = [after_ticks(tmp_path / "user.csv", 200, lambda: (meddle(), time.sleep(0.5),
-                                                               os.kill(os.getpid(), signal.SIGINT)))]
+    timers = [
+        after_ticks(
+            tmp_path / "user.csv", 200, lambda: (meddle(), time.sleep(0.5), os.kill(os.getpid(), signal.SIGINT))
+        )
+    ]
     r = run_loop(dev, stepper, 4.0, tmp_path / "user.csv", watchdog=0.5)
     for t in timers:
         t.join()
@@ -274,11 +287,27 @@ def test_ctrl_c_and_strangers(rigs, stepper, tmp_path):
 
 
 def test_kill_9_of_the_loop_leaves_the_device_at_zero_torque_and_a_readable_recording(rigs, tmp_path):
-    proc, port, log = rigs["clean"]
+    _, port, log = rigs["clean"]
     rec_path = tmp_path / "killed.csv"
-    loop = subprocess.Popen(MANUS + ["run-hardware", "--device", f"udp://127.0.0.1:{port}", "--seconds", "30",
-                                     "--record", str(rec_path), "--watchdog-ms", "500", "--model", TRUTH],
-                            cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    loop = subprocess.Popen(
+        MANUS
+        + [
+            "run-hardware",
+            "--device",
+            f"udp://127.0.0.1:{port}",
+            "--seconds",
+            "30",
+            "--record",
+            str(rec_path),
+            "--watchdog-ms",
+            "500",
+            "--model",
+            TRUTH,
+        ],
+        cwd=ROOT,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
     try:
         end = time.monotonic() + 90
         while time.monotonic() < end and (not rec_path.exists() or rec_path.read_text().count("\n") < 600):
@@ -303,12 +332,18 @@ def test_kill_9_of_the_loop_leaves_the_device_at_zero_torque_and_a_readable_reco
 
 
 def test_a_dead_link_is_a_one_line_error(tmp_path):
-    out = subprocess.run(MANUS + ["run-hardware", "--device", "udp://127.0.0.1:9", "--seconds", "1", "--json"],
-                         cwd=ROOT, capture_output=True, text=True, timeout=60)
+    out = subprocess.run(
+        MANUS + ["run-hardware", "--device", "udp://127.0.0.1:9", "--seconds", "1", "--json"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert out.returncode == 2 and out.stdout == ""
     assert out.stderr.strip().splitlines() == [
         "manus run-hardware: udp://127.0.0.1:9: no answer from the device within 2 s "
-        "(is `manus emulate --port 9` or the rig running?)"]
+        "(is `manus emulate --port 9` or the rig running?)"
+    ]
 
 
 def test_a_streamed_recording_cut_mid_number_drops_its_last_line(tmp_path):

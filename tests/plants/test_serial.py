@@ -4,20 +4,21 @@ of example-robot-data, and against the closed form of a double pendulum."""
 import functools
 import importlib.metadata
 
-import numpy as np
-import pytest
-
 import jax
 import jax.numpy as jnp
+import numpy as np
+import pytest
 
 from manus.plants.errors import ModelError
 from manus.plants.serial import Serial, base_parameters
 
 # pinocchio orders a link's ten parameters m, mx, my, mz, Ixx, Ixy, Iyy, Ixz, Iyz, Izz; ours swap Iyy, Ixz
 PIN_ORDER = np.array([0, 1, 2, 3, 4, 5, 7, 6, 8, 9])
-ROBOTS = {"panda": ("panda_description/urdf/panda.urdf", None),
-          "panda_finger": ("panda_description/urdf/panda.urdf", "panda_leftfinger"),  # a prismatic 8th joint
-          "ur5": ("ur_description/urdf/ur5_robot.urdf", None)}
+ROBOTS = {
+    "panda": ("panda_description/urdf/panda.urdf", None),
+    "panda_finger": ("panda_description/urdf/panda.urdf", "panda_leftfinger"),  # a prismatic 8th joint
+    "ur5": ("ur_description/urdf/ur5_robot.urdf", None),
+}
 
 
 def urdf(relative: str) -> str:
@@ -105,7 +106,7 @@ def test_coriolis_is_skew_symmetric_and_slotine_li_regressor_is_exact(arm):
     pin = pytest.importorskip("pinocchio")
     _, serial, model, data = arm
     theta = serial.defaults
-    p = dict(zip(serial.rigid_names, theta))
+    p = dict(zip(serial.rigid_names, theta, strict=True))
     q, qd, qd_r, qdd_r = (jnp.asarray(x) for x in states(serial, 3, seed=2))
 
     def check(q, qd, qd_r, qdd_r):
@@ -120,8 +121,9 @@ def test_coriolis_is_skew_symmetric_and_slotine_li_regressor_is_exact(arm):
     np.testing.assert_allclose(skew, -np.swapaxes(skew, 1, 2), rtol=0, atol=1e-9)
     np.testing.assert_allclose(Y_theta, sl, rtol=0, atol=1e-9)
     # with q̇_r = q̇ the Slotine–Li torque is the inverse dynamics
-    np.testing.assert_allclose(rigid, [pin.rnea(model, data, *np.asarray(x)) for x in zip(q, qd, qdd_r)],
-                               rtol=0, atol=1e-9)
+    np.testing.assert_allclose(
+        rigid, [pin.rnea(model, data, *np.asarray(x)) for x in zip(q, qd, qdd_r, strict=True)], rtol=0, atol=1e-9
+    )
 
 
 def test_base_parameters_span_the_regressor(robot):
@@ -133,7 +135,10 @@ def test_base_parameters_span_the_regressor(robot):
     q, qd, qdd, _ = states(serial, 60, seed=3)
     Y = np.asarray(jax.jit(jax.vmap(serial.regressor))(q, qd, qdd)).reshape(-1, len(serial.rigid_names))
     # pinocchio's regressor, with the armature columns, has the same numerical rank
-    pins = [np.hstack([pin.computeJointTorqueRegressor(model, data, *x), np.diag(x[2])]) for x in zip(q, qd, qdd)]
+    pins = [
+        np.hstack([pin.computeJointTorqueRegressor(model, data, *x), np.diag(x[2])])
+        for x in zip(q, qd, qdd, strict=True)
+    ]
     assert len(base.columns) == np.linalg.matrix_rank(Y) == np.linalg.matrix_rank(np.vstack(pins))
     rng = np.random.default_rng(4)
     theta = rng.standard_normal(Y.shape[1])  # any parameters: the map holds for all of them
@@ -165,7 +170,8 @@ PENDULUM = f"""<?xml version="1.0"?>
   <joint name="tip" type="fixed">
     <origin xyz="0 0 {-L2}" rpy="0.3 0.2 0.1"/><parent link="lower"/><child link="weight"/>
   </joint>
-  <link name="weight"><inertial><mass value="{MT}"/><inertia ixx="0" iyy="0" izz="0" ixy="0" ixz="0" iyz="0"/></inertial></link>
+  <link name="weight"><inertial><mass value="{MT}"/>
+    <inertia ixx="0" iyy="0" izz="0" ixy="0" ixz="0" iyz="0"/></inertial></link>
 </robot>
 """
 
@@ -177,12 +183,17 @@ def pendulum_closed_form(q, qd, qdd, g=9.81):
     lc2 = (M2 * LC2 + MT * L2) / m2
     i2 = I2 + M2 * (lc2 - LC2) ** 2 + MT * (L2 - lc2) ** 2
     c2, s2 = np.cos(q[1]), np.sin(q[1])
-    H = np.array([[I1 + i2 + M1 * LC1**2 + m2 * (L1**2 + lc2**2 + 2 * L1 * lc2 * c2), i2 + m2 * (lc2**2 + L1 * lc2 * c2)],
-                  [i2 + m2 * (lc2**2 + L1 * lc2 * c2), i2 + m2 * lc2**2]])
+    H = np.array(
+        [
+            [I1 + i2 + M1 * LC1**2 + m2 * (L1**2 + lc2**2 + 2 * L1 * lc2 * c2), i2 + m2 * (lc2**2 + L1 * lc2 * c2)],
+            [i2 + m2 * (lc2**2 + L1 * lc2 * c2), i2 + m2 * lc2**2],
+        ]
+    )
     h = m2 * L1 * lc2 * s2
     coriolis = np.array([-h * (2 * qd[0] * qd[1] + qd[1] ** 2), h * qd[0] ** 2])
-    gravity = g * np.array([(M1 * LC1 + m2 * L1) * np.sin(q[0]) + m2 * lc2 * np.sin(q[0] + q[1]),
-                            m2 * lc2 * np.sin(q[0] + q[1])])
+    gravity = g * np.array(
+        [(M1 * LC1 + m2 * L1) * np.sin(q[0]) + m2 * lc2 * np.sin(q[0] + q[1]), m2 * lc2 * np.sin(q[0] + q[1])]
+    )
     return H, H @ qdd + coriolis + gravity
 
 
@@ -203,13 +214,17 @@ def test_double_pendulum_matches_its_closed_form(tmp_path):
 
 def test_refuses_what_is_not_a_serial_chain(tmp_path):
     path = tmp_path / "floating.urdf"
-    path.write_text('<robot name="r"><link name="a"/><link name="b"/><joint name="j" type="floating">'
-                    '<parent link="a"/><child link="b"/></joint></robot>')
+    path.write_text(
+        '<robot name="r"><link name="a"/><link name="b"/><joint name="j" type="floating">'
+        '<parent link="a"/><child link="b"/></joint></robot>'
+    )
     with pytest.raises(ModelError, match="floating"):
         Serial.from_urdf(path)
-    path.write_text('<robot name="r"><link name="a"/><link name="b"/><link name="c"/>'
-                    '<joint name="j1" type="revolute"><parent link="a"/><child link="b"/></joint>'
-                    '<joint name="j2" type="revolute"><parent link="a"/><child link="c"/></joint></robot>')
+    path.write_text(
+        '<robot name="r"><link name="a"/><link name="b"/><link name="c"/>'
+        '<joint name="j1" type="revolute"><parent link="a"/><child link="b"/></joint>'
+        '<joint name="j2" type="revolute"><parent link="a"/><child link="c"/></joint></robot>'
+    )
     with pytest.raises(ModelError, match="branches into j1, j2: name the tip link"):
         Serial.from_urdf(path)
     assert Serial.from_urdf(path, tip="c").joint_names == ("j2",)

@@ -3,11 +3,10 @@ form, `structure_named("urdf", ...)` and `structure: urdf` recordings (with `# r
 References: pinocchio's inverse dynamics (rigid, gravity included) plus the friction laws in
 closed form; the regressor against the model's torque."""
 
-import numpy as np
-import pytest
-
 import jax
 import jax.numpy as jnp
+import numpy as np
+import pytest
 
 from manus.adaptive import fit
 from manus.plants import Model, Serial, SerialBase, recording, structure_named
@@ -27,8 +26,11 @@ def test_a_model_of_a_serial_chain_is_its_rigid_torque_plus_friction_per_joint(p
     _, serial, model, data = panda
     m = Model(serial, "rigid,viscous,coulomb,offset")
     n = serial.n_joints
-    assert m.names[:11 * n] == serial.rigid_names and m.names[11 * n:] == (
-        *(f"b{i}" for i in range(1, n + 1)), *(f"Fc{i}" for i in range(1, n + 1)), *(f"off{i}" for i in range(1, n + 1)))
+    assert m.names[: 11 * n] == serial.rigid_names and m.names[11 * n :] == (
+        *(f"b{i}" for i in range(1, n + 1)),
+        *(f"Fc{i}" for i in range(1, n + 1)),
+        *(f"off{i}" for i in range(1, n + 1)),
+    )
     rng = np.random.default_rng(7)
     p = m.defaults()
     p.update({f"b{i}": v for i, v in enumerate(rng.uniform(0.1, 1, n), 1)})
@@ -48,22 +50,58 @@ def test_the_base_form_predicts_what_the_standard_parameters_do(panda):
     _, serial, _, _ = panda
     base = serial.base()
     assert isinstance(base, SerialBase) and len(base.rigid_names) == 48 and base.serial is serial
-    assert len(set(base.rigid_names)) == 48 and all(c in n or n.endswith("R") for n, c in zip(base.rigid_names, base.combinations))
+    assert len(set(base.rigid_names)) == 48 and all(
+        c in n or n.endswith("R") for n, c in zip(base.rigid_names, base.combinations, strict=True)
+    )
     rng = np.random.default_rng(9)
     theta = rng.standard_normal(len(serial.rigid_names))
-    p_base = dict(zip(base.rigid_names, base.values(theta)))
-    p_std = dict(zip(serial.rigid_names, theta))
+    p_base = dict(zip(base.rigid_names, base.values(theta), strict=True))
+    p_std = dict(zip(serial.rigid_names, theta, strict=True))
     q, qd, qdd, _ = states(serial, 4, seed=10)
 
     def both(s, p):  # (C takes the same embedding of θ_b as H)
         return jax.jit(jax.vmap(lambda q, qd, qdd: (s.rigid_torque(q, qd, qdd, p), s.inertia(q, p))))
 
-    for a, b in zip(both(base, p_base)(q, qd, qdd), both(serial, p_std)(q, qd, qdd)):
+    for a, b in zip(both(base, p_base)(q, qd, qdd), both(serial, p_std)(q, qd, qdd), strict=True):
         np.testing.assert_allclose(a, b, rtol=0, atol=1e-9)
     # the defaults are the URDF's, reduced; a physical set has no violation, a negative-definite one has
     assert base.rigid_defaults == pytest.approx(tuple(base.values(serial.defaults)), abs=1e-12)
-    assert base.violations(dict(zip(base.rigid_names, base.rigid_defaults))) == []
-    assert "not positive definite" in base.violations({k: -v for k, v in zip(base.rigid_names, base.rigid_defaults)})[0]
+    assert base.violations(dict(zip(base.rigid_names, base.rigid_defaults, strict=True))) == []
+    assert (
+        "not positive definite"
+        in base.violations({k: -v for k, v in zip(base.rigid_names, base.rigid_defaults, strict=True)})[0]
+    )
+
+
+def test_a_chain_and_its_forms_say_what_callers_ask_of_a_structure(panda):
+    from manus.plants import Axis, Manus2, SerialPseudo
+
+    _, serial, _, _ = panda
+    base, pseudo = serial.identified_form(), serial.adaptive_form()
+    assert isinstance(base, SerialBase) and isinstance(pseudo, SerialPseudo)
+    assert base.identified_form() is base and pseudo.adaptive_form() is pseudo
+    for s in (serial, base, pseudo):
+        assert s.standard_form is serial and s.urdf_file == serial.source and s.rigid_gravity
+        assert s.prismatic == serial.prismatic and s.nominal("viscous") == serial.damping
+        np.testing.assert_array_equal(s.nominal_joint_inertias(), serial.nominal_joint_inertias())
+    assert serial.combinations is None and base.combinations == base.written and pseudo.combinations is None
+    standard = dict(zip(serial.rigid_names, serial.defaults, strict=True))
+    assert serial.coordinates_of(standard) == {}
+    assert tuple(pseudo.coordinates_of(standard).values()) == pytest.approx(pseudo.rigid_defaults, abs=1e-12)
+    assert tuple(base.coordinates_of(standard).values()) == pytest.approx(base.rigid_defaults, abs=1e-12)
+    assert pseudo.admissible() is not None and serial.admissible() is None and base.admissible() is None
+    # the defaults of a structure that has nothing more to say
+    axis = Axis(n_joints=2)
+    assert (axis.prismatic, axis.rigid_gravity, axis.thesis_arm, axis.urdf_file, axis.nominal("viscous")) == (
+        (),
+        "",
+        False,
+        "",
+        (),
+    )
+    assert axis.workspace_centre == (0.0, 0.0) and axis.nominal_joint_inertias() is None and axis.rigid_gains(5.0) == {}
+    assert axis.slotine_li_columns(*jnp.zeros((4, 2))) is None and axis.momentum_columns(*jnp.zeros((2, 2))) is None
+    assert Manus2().thesis_arm and Manus2().rigid_gains(5.0) == {"a1": 0.2, "a2": 0.2, "a3": 0.5}
 
 
 def test_per_joint_gravity_is_not_an_effect_of_a_serial_chain(panda):
@@ -81,7 +119,7 @@ def test_structure_named_reads_a_urdf_and_checks_its_joints(tmp_path):
     path.write_text(PENDULUM)
     s = structure_named("urdf", 2, robot=path)
     assert isinstance(s, Serial) and s.joint_names == ("shoulder", "elbow") and s.source == str(path)
-    with pytest.raises(ModelError, match="has 2 joints .shoulder, elbow., not 3"):
+    with pytest.raises(ModelError, match=r"has 2 joints .shoulder, elbow., not 3"):
         structure_named("urdf", 3, robot=path)
     with pytest.raises(ModelError, match="needs the robot's URDF"):
         structure_named("urdf", 2)
@@ -128,20 +166,31 @@ def test_bad_robots_are_the_recordings_error(tmp_path):
         recording.read(no_robot)
     path = tmp_path / "missing.csv"  # a relative robot path, as a rig's own file would give it
     path.write_text(no_robot.read_text().replace("# structure: urdf\n", "# structure: urdf\n# robot: missing.urdf\n"))
-    with pytest.raises(RecordingError, match=r"missing.csv: robot .*missing.urdf: no such URDF file \(the metadata's "
-                                             r"'missing.urdf' is read relative to the recording's folder\)"):
+    with pytest.raises(
+        RecordingError,
+        match=r"missing.csv: robot .*missing.urdf: no such URDF file \(the metadata's "
+        r"'missing.urdf' is read relative to the recording's folder\)",
+    ):
         recording.read(path)
     three = tmp_path / "three.urdf"
     three.write_text(PENDULUM.replace('<joint name="tip" type="fixed">', '<joint name="tip" type="revolute">'))
-    with pytest.raises(RecordingError, match=r"three.urdf: the URDF's chain has 3 joints \(shoulder, elbow, tip\), not 2"):
+    with pytest.raises(
+        RecordingError, match=r"three.urdf: the URDF's chain has 3 joints \(shoulder, elbow, tip\), not 2"
+    ):
         recording.read(tmp_path / "missing.csv", robot=three)
     floating = tmp_path / "floating.urdf"
-    floating.write_text(PENDULUM.replace('<joint name="elbow" type="revolute">', '<joint name="elbow" type="floating">'))
-    with pytest.raises(RecordingError, match="joint elbow is floating; a serial chain takes revolute, continuous, prismatic"):
+    floating.write_text(
+        PENDULUM.replace('<joint name="elbow" type="revolute">', '<joint name="elbow" type="floating">')
+    )
+    with pytest.raises(
+        RecordingError, match="joint elbow is floating; a serial chain takes revolute, continuous, prismatic"
+    ):
         recording.read(tmp_path / "missing.csv", robot=floating)
     broken = tmp_path / "broken.urdf"
-    broken.write_text("<robot name='r'><link name='a'/><joint name='j' type='revolute'><parent link='a'/></joint></robot>")
-    with pytest.raises(RecordingError, match="broken.urdf: not a well-formed URDF"):
+    broken.write_text(
+        "<robot name='r'><link name='a'/><joint name='j' type='revolute'><parent link='a'/></joint></robot>"
+    )
+    with pytest.raises(RecordingError, match=r"broken\.urdf: not a well-formed URDF"):
         recording.read(tmp_path / "missing.csv", robot=broken)
 
 

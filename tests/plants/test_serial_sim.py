@@ -1,12 +1,11 @@
 """Simulating a serial chain: the coupled stick-slip step against a direct solution, and the
 simulator's serial robot against the equations of motion it integrates (pinocchio's ABA)."""
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 import scipy.optimize
-
-import jax
-import jax.numpy as jnp
 
 from manus.plants.serial_friction import ROUNDS, SWEEPS, Dense, box_friction, pgs
 from tests.plants.test_serial import load
@@ -21,8 +20,9 @@ def _direct(H: np.ndarray, v: np.ndarray, lo: np.ndarray, hi: np.ndarray, dt: fl
     on = np.maximum(lo, hi) > 0  # a joint without friction has f = 0 (and BVLS wants lo < hi)
     L = np.linalg.cholesky(W[np.ix_(on, on)])
     f = np.zeros_like(v)
-    f[on] = scipy.optimize.lsq_linear(L.T, np.linalg.solve(L, v[on]), bounds=(-lo[on], hi[on]), method="bvls",
-                                      tol=1e-14).x
+    f[on] = scipy.optimize.lsq_linear(
+        L.T, np.linalg.solve(L, v[on]), bounds=(-lo[on], hi[on]), method="bvls", tol=1e-14
+    ).x
     return f
 
 
@@ -56,9 +56,11 @@ def test_the_friction_step_is_the_exact_box_qp_solution():
         err.append(np.abs(f[k] - ref).max() / scale[k])
         err_pgs.append(np.abs(pgs_only[k] - ref).max() / scale[k])
         free.append(int(np.sum((ref > -lo[k] + 1e-9) & (ref < hi[k] - 1e-9))))
-    print(f"box QP, {len(v)} cases (joints stuck per case: {np.bincount(free).tolist()}): polished max error "
-          f"{max(err):.2g} of the levels, confirmed exact {np.mean(exact):.1%}; PGS alone after {ROUNDS * SWEEPS} sweeps "
-          f"{max(err_pgs):.2g} (median {np.median(err_pgs):.2g})")
+    print(
+        f"box QP, {len(v)} cases (joints stuck per case: {np.bincount(free).tolist()}): polished max error "
+        f"{max(err):.2g} of the levels, confirmed exact {np.mean(exact):.1%}; PGS alone after {ROUNDS * SWEEPS} sweeps "
+        f"{max(err_pgs):.2g} (median {np.median(err_pgs):.2g})"
+    )
     assert np.all(exact) and max(err) < 1e-9
     assert len(set(free)) >= 5  # the cases mix sliding and stuck joints
 
@@ -83,6 +85,7 @@ def test_a_stuck_joint_rests_exactly_and_a_sliding_one_feels_its_level():
 
 
 # -- the simulator's serial robot -----------------------------------------------------------------
+
 
 def _simulate(model, params, q0, commands, periods, substeps=10):
     """(q, q̇) per period under each constant command of `commands` (one compiled run for all)."""
@@ -113,7 +116,9 @@ def test_the_simulated_panda_follows_pinocchios_forward_dynamics():
     n = serial.n_joints
     b = np.linspace(0.5, 0.2, n)
     q0 = np.array([0.1, -0.4, 0.2, -2.0, 0.3, 1.6, 0.7])
-    tau = np.array(pin.rnea(model, data, q0, np.zeros(n), np.zeros(n))) + np.linspace(2.0, -1.0, n)  # gravity held, plus a push
+    tau = np.array(pin.rnea(model, data, q0, np.zeros(n), np.zeros(n))) + np.linspace(
+        2.0, -1.0, n
+    )  # gravity held, plus a push
     m = Model(serial, "rigid,viscous")
     [(q, qd)] = _simulate(m, {f"b{i + 1}": b[i] for i in range(n)}, q0, [tau], periods=200)
 
@@ -123,7 +128,10 @@ def test_the_simulated_panda_follows_pinocchios_forward_dynamics():
     x, h = np.r_[q0, np.zeros(n)], 1e-4
     ref = []
     for k in range(2000):
-        k1 = f(x); k2 = f(x + h / 2 * k1); k3 = f(x + h / 2 * k2); k4 = f(x + h * k3)  # noqa: E702
+        k1 = f(x)
+        k2 = f(x + h / 2 * k1)
+        k3 = f(x + h / 2 * k2)
+        k4 = f(x + h * k3)
         x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
         if k % 10 == 9:
             ref.append(x.copy())

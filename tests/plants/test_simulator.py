@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 from manus.adaptive.impedance import Impedance
-from manus.plants import Encoder, Model, Simulator
-from manus.plants.effects import is_dry, is_load
+from manus.plants import Model, Simulator
 from manus.plants.closed_loop import simulate, simulate_batch
+from manus.plants.effects import is_dry, is_load
 from manus.plants.references import Complex, MultiSine
 from manus.plants.structures import Axis, Manus2
 
@@ -26,13 +26,16 @@ A1, A2, A3, B1, B2 = 0.349, 0.241, 0.246, 0.222, 0.181
 def open_loop(sim, taus, **reset):
     """Drive `sim` with the commands `taus` (T, n); true (q, qd) before each command."""
     state, _ = sim.reset(**reset)
-    run = eqx.filter_jit(lambda st, u: jax.lax.scan(lambda s, x: (sim.step(s, x)[0], (s.q, s.qd, sim.measure(s))), st, u))
+    run = eqx.filter_jit(
+        lambda st, u: jax.lax.scan(lambda s, x: (sim.step(s, x)[0], (s.q, s.qd, sim.measure(s))), st, u)
+    )
     _, out = run(state, jnp.asarray(taus, float))
     return tuple(np.asarray(x) for x in out)
 
 
 def arm_rk4(x0, taus, per_period=10, dt=1e-3):
     """An independent numpy RK4 of eqs. 3.2–3.3 with viscous friction, torque held per period."""
+
     def f(x, tau):
         q1, q2, v1, v2 = x
         c, s = np.cos(q2 - q1), np.sin(q2 - q1)
@@ -44,7 +47,10 @@ def arm_rk4(x0, taus, per_period=10, dt=1e-3):
     for tau in taus:
         out.append(x.copy())
         for _ in range(per_period):
-            k1 = f(x, tau); k2 = f(x + h / 2 * k1, tau); k3 = f(x + h / 2 * k2, tau); k4 = f(x + h * k3, tau)
+            k1 = f(x, tau)
+            k2 = f(x + h / 2 * k1, tau)
+            k3 = f(x + h / 2 * k2, tau)
+            k4 = f(x + h * k3, tau)
             x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
     return np.array(out)
 
@@ -56,7 +62,7 @@ def test_arm_matches_an_independent_rk4():
     errors = []
     for substeps in (5, 20):
         sim = Simulator(Model(Manus2(), "rigid,viscous"), substeps=substeps, actuator=None, encoder=None)
-        q, qd, _ = open_loop(sim, taus, qd0=jnp.array([0.5, -0.8]))
+        q, _, _ = open_loop(sim, taus, qd0=jnp.array([0.5, -0.8]))
         errors.append(np.abs(q - ref[:, :2]).max())
     assert errors[1] < 1e-7  # 2 s of motion, about 0.5 rad
     assert errors[0] / errors[1] > 10  # second order: 4x the sub-steps, ~16x smaller error
@@ -127,7 +133,9 @@ def test_compliance_resonance_in_the_position_spectrum():
     peak = f[band][np.argmax(spec[band])]
     # the linear model's mode: eigenvalues of the two-mass system with the thesis's values
     m1, m2, k, b, b2 = 0.1, 0.9, 170000.0, 1.5, 2.0
-    A = np.array([[0, 0, 1, 0], [0, 0, 0, 1], [-k / m1, k / m1, -(b + b2) / m1, b2 / m1], [k / m2, -k / m2, b2 / m2, -b2 / m2]])
+    A = np.array(
+        [[0, 0, 1, 0], [0, 0, 0, 1], [-k / m1, k / m1, -(b + b2) / m1, b2 / m1], [k / m2, -k / m2, b2 / m2, -b2 / m2]]
+    )
     mode = np.abs(np.linalg.eigvals(A)).max() / (2 * np.pi)
     assert mode == pytest.approx(218.7, rel=0.01)
     assert peak == pytest.approx(mode, rel=0.05)
@@ -278,20 +286,31 @@ def test_structure_forms_agree():
     def forms(q, qd, dq, r):
         pose = s.pose(tuple(q))
         H = s.inertia(q, p)
-        return (H, jnp.stack(s.bias(pose, tuple(qd), p)), s.coriolis(q, qd, p) @ qd,
-                jnp.stack(s.moved(pose, s.shift(tuple(dq)))), s.solve(H, r))
+        return (
+            H,
+            jnp.stack(s.bias(pose, tuple(qd), p)),
+            s.coriolis(q, qd, p) @ qd,
+            jnp.stack(s.moved(pose, s.shift(tuple(dq)))),
+            s.solve(H, r),
+        )
 
     H, bias, cqd, turned, solved = map(np.asarray, forms(q, qd, dq, r))
     c = math.cos(q[1] - q[0])
     np.testing.assert_allclose(H, [[A1, A2 * c], [A2 * c, A3]], rtol=0, atol=1e-16)
     np.testing.assert_allclose(bias, cqd, rtol=1e-15)
-    np.testing.assert_allclose(bias, [-A2 * math.sin(q[1] - q[0]) * qd[1] ** 2, A2 * math.sin(q[1] - q[0]) * qd[0] ** 2], rtol=1e-14)
+    np.testing.assert_allclose(
+        bias, [-A2 * math.sin(q[1] - q[0]) * qd[1] ** 2, A2 * math.sin(q[1] - q[0]) * qd[0] ** 2], rtol=1e-14
+    )
     angle = q[1] + dq[1] - q[0] - dq[0]
     np.testing.assert_allclose(turned, [math.cos(angle), math.sin(angle)], rtol=0, atol=3e-16)
     np.testing.assert_allclose(solved, np.linalg.solve(H, r), rtol=1e-14)
     axis = Axis(n_joints=3)
-    np.testing.assert_array_equal(axis.inertia(jnp.zeros(3), {"M1": 1.0, "M2": 2.0, "M3": 4.0}), np.diag([1.0, 2.0, 4.0]))
-    held = axis.friction_solve(jnp.diag(jnp.array([1.0, 2.0, 4.0])), jnp.array([1e-5, -1e-3, 0.0]), jnp.full(3, 0.5), jnp.full(3, 0.5), 1e-3)
+    np.testing.assert_array_equal(
+        axis.inertia(jnp.zeros(3), {"M1": 1.0, "M2": 2.0, "M3": 4.0}), np.diag([1.0, 2.0, 4.0])
+    )
+    held = axis.friction_solve(
+        jnp.diag(jnp.array([1.0, 2.0, 4.0])), jnp.array([1e-5, -1e-3, 0.0]), jnp.full(3, 0.5), jnp.full(3, 0.5), 1e-3
+    )
     np.testing.assert_allclose(held, [0.01, -0.5, 0.0])
 
 
@@ -310,12 +329,20 @@ def test_one_period_matches_the_generic_definitions_on_random_states():
     qd = rng.normal(0, 0.3, (n, 2)) * (rng.uniform(size=(n, 2)) > 0.4)
     tau = rng.normal(0, 0.25, (n, 2))
 
-    dyn = jax.jit(jax.vmap(lambda q, v: (s.inertia(q, p), s.coriolis(q, v, p) @ v
-                                         + model.torque(q, v, jnp.zeros(2), p, only=is_load))))
+    dyn = jax.jit(
+        jax.vmap(
+            lambda q, v: (s.inertia(q, p), s.coriolis(q, v, p) @ v + model.torque(q, v, jnp.zeros(2), p, only=is_load))
+        )
+    )
     spd = lambda v: jnp.maximum(jnp.abs(v), 1e-12)
-    bounds = jax.jit(jax.vmap(lambda q, v: (
-        jnp.maximum(-model.torque(q, -spd(v), jnp.zeros(2), p, only=is_dry), 0.0),
-        jnp.maximum(model.torque(q, spd(v), jnp.zeros(2), p, only=is_dry), 0.0))))
+    bounds = jax.jit(
+        jax.vmap(
+            lambda q, v: (
+                jnp.maximum(-model.torque(q, -spd(v), jnp.zeros(2), p, only=is_dry), 0.0),
+                jnp.maximum(model.torque(q, spd(v), jnp.zeros(2), p, only=is_dry), 0.0),
+            )
+        )
+    )
 
     def accel(q, v):
         H, rest = map(np.asarray, dyn(q, v))
@@ -371,8 +398,13 @@ print(json.dumps({
 def test_a_batch_split_over_two_devices_equals_the_trials_one_by_one():
     """With two devices (a fresh process: the flag must precede JAX's start) `simulate_batch`
     shards the trials; recording every 7th tick keeps ticks 0, 7, 14, ... of each trial."""
-    out = subprocess.run([sys.executable, "-c", SPLIT_BATCH], capture_output=True, text=True, timeout=600,
-                         cwd=pathlib.Path(__file__).resolve().parents[2])
+    out = subprocess.run(
+        [sys.executable, "-c", SPLIT_BATCH],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        cwd=pathlib.Path(__file__).resolve().parents[2],
+    )
     assert out.returncode == 0, out.stderr[-2000:]
     r = json.loads(out.stdout.strip().splitlines()[-1])
     assert r["devices"] == 2 and r["shape"] == [4, 15, 2]
