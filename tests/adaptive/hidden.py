@@ -49,7 +49,7 @@ def nominal_without(hidden: tuple[str, ...]) -> str:
     return ",".join(e for e in NOMINAL if e not in hidden)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def recording(hidden: tuple[str, ...] = (), seconds: float = SECONDS, seed: int = 0):
     """A closed-loop recording whose truth holds the nominal effects plus `hidden`."""
     spec = ALL_LINEAR + (",delay:1ms" if "delay" in hidden else "")
@@ -89,8 +89,9 @@ def square_wave_recording(seconds: float = 6.0):
 
     sim = Simulator(Model(STRUCTURE, "rigid,viscous,coulomb,compliance"))
     t = np.arange(int(seconds * sim.rate_hz)) * sim.dt
-    taus = np.stack([4.0 * np.sign(np.sin(2 * np.pi * 10 * t + 1e-9)),
-                     2.0 * np.sign(np.sin(2 * np.pi * 7 * t + 0.5))], 1)
+    taus = np.stack(
+        [4.0 * np.sign(np.sin(2 * np.pi * 10 * t + 1e-9)), 2.0 * np.sign(np.sin(2 * np.pi * 7 * t + 0.5))], 1
+    )
     state, _ = sim.reset()
     run = eqx.filter_jit(lambda s0, u: jax.lax.scan(lambda s, x: (sim.step(s, x)[0], (sim.measure(s), s.qd)), s0, u))
     _, (q, qd) = run(state, jnp.asarray(taus))
@@ -109,7 +110,7 @@ def emps(name: str = "DATA_EMPS.mat"):
     return _read(str(EMPS / name))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _read(path: str):
     from manus.plants.recording import read
 

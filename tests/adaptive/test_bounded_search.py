@@ -65,8 +65,12 @@ def test_a_grid_of_values_at_once_matches_scipys_bounded_least_squares():
     rng = np.random.default_rng(8)
     starts = np.arange(0, X.shape[0], 100)
     base = lsq.Stats.of(X[:, :, :4], tau, starts)
-    E = np.stack([X[:, :, 4:] * rng.uniform(0.5, 2.0, (1, 1, 2)) + 0.1 * v * rng.normal(size=X[:, :, 4:].shape)
-                  for v in range(5)])  # (V, rows, n, 2): five values of the searched columns
+    E = np.stack(
+        [
+            X[:, :, 4:] * rng.uniform(0.5, 2.0, (1, 1, 2)) + 0.1 * v * rng.normal(size=X[:, :, 4:].shape)
+            for v in range(5)
+        ]
+    )  # (V, rows, n, 2): five values of the searched columns
     every = base.extend(E, budget=3 * X.shape[0] * 6 * 2)  # (three values per chunk: two chunks)
     np.testing.assert_array_equal(base.extend(list(E), budget=3 * X.shape[0] * 6 * 2).G, every.G)  # (a list of them)
     masks = rng.random((4, starts.size)) < 0.7

@@ -30,8 +30,9 @@ def test_pseudo_inertia_is_pinocchios():
         p_pin = inertia.toDynamicParameters()
         ours = np.empty(10)
         ours[OURS_TO_PIN] = p_pin
-        np.testing.assert_allclose(pseudo_inertia(ours), pin.PseudoInertia.FromDynamicParameters(p_pin).toMatrix(),
-                                   atol=1e-12)
+        np.testing.assert_allclose(
+            pseudo_inertia(ours), pin.PseudoInertia.FromDynamicParameters(p_pin).toMatrix(), atol=1e-12
+        )
         assert np.linalg.eigvalsh(pseudo_inertia(ours))[0] > 0
 
 
@@ -52,8 +53,9 @@ def swing():
     qdd = np.einsum("jk,tjk->tj", -a * w**2, np.sin(arg))
     tau = np.asarray(jax.jit(jax.vmap(lambda *x: serial.rnea(*x, serial.defaults)))(q, qd, qdd)) + 0.02 * qd
     tau += 0.01 * np.std(tau, 0) * np.random.default_rng(0).normal(size=tau.shape)
-    rec = Recording(t, q, tau, qd, {"sample_rate_hz": "500", "command_hold": "none", "structure": "urdf",
-                                    "robot": str(URDF)})
+    rec = Recording(
+        t, q, tau, qd, {"sample_rate_hz": "500", "command_hold": "none", "structure": "urdf", "robot": str(URDF)}
+    )
     return fit(rec, "rigid,viscous", method="ls")
 
 
@@ -67,8 +69,7 @@ def test_a_consistent_estimate_stays(swing):
     assert r["rel_error"] == pytest.approx(swing.rel_error, rel=1e-3)
     assert [x["mass"] for x in r["links"]] == pytest.approx([0.5594, 0.6043], rel=0.2)
     base = swing.model.structure
-    np.testing.assert_allclose(base.K @ c.standard, c.theta[[swing.names.index(k) for k in base.base_names]],
-                               atol=1e-8)
+    np.testing.assert_allclose(base.K @ c.standard, c.theta[[swing.names.index(k) for k in base.base_names]], atol=1e-8)
 
 
 def _objective(f):
@@ -103,9 +104,9 @@ def test_an_inconsistent_estimate_against_log_cholesky(swing):
     assert not r["already"]
     n = 2
     for i in range(n):
-        J = pseudo_inertia(c.standard[LINK * i:LINK * (i + 1)])
+        J = pseudo_inertia(c.standard[LINK * i : LINK * (i + 1)])
         assert np.linalg.eigvalsh(J)[0] > -1e-9 * np.abs(J).max()
-    assert np.all(c.standard[LINK * n:] > -1e-8) and c.theta[names.index("b2")] > -1e-8  # to the solver's tolerance
+    assert np.all(c.standard[LINK * n :] > -1e-8) and c.theta[names.index("b2")] > -1e-8  # to the solver's tolerance
 
     base = f.model.structure
     rigid = [names.index(k) for k in base.base_names]
@@ -117,29 +118,30 @@ def test_an_inconsistent_estimate_against_log_cholesky(swing):
         phi = []
         for i in range(n):
             U = np.zeros((4, 4))
-            U[tri] = z[10 * i:10 * (i + 1)]
+            U[tri] = z[10 * i : 10 * (i + 1)]
             J = U @ U.T
             Sigma, h, m = J[:3, :3], J[:3, 3], J[3, 3]
             inertia = np.trace(Sigma) * np.eye(3) - Sigma
             phi += [m, *h, inertia[0, 0], inertia[0, 1], inertia[0, 2], inertia[1, 1], inertia[1, 2], inertia[2, 2]]
-        phi += list(z[10 * n:11 * n] ** 2)  # armatures
+        phi += list(z[10 * n : 11 * n] ** 2)  # armatures
         phi = np.array(phi)
         x = np.empty(len(names))
         x[rigid] = base.K @ phi
-        rest = z[11 * n:]
+        rest = z[11 * n :]
         x[others] = [rest[k] ** 2 if j in bounded else rest[k] for k, j in enumerate(others)]
         return x, phi
 
     prior = np.asarray(base.serial.defaults)
     z0 = []
     for i in range(n):
-        U = np.linalg.cholesky(pseudo_inertia(prior[LINK * i:LINK * (i + 1)])[::-1, ::-1])[::-1, ::-1]  # J = U Uᵀ
+        U = np.linalg.cholesky(pseudo_inertia(prior[LINK * i : LINK * (i + 1)])[::-1, ::-1])[::-1, ::-1]  # J = U Uᵀ
         z0 += list(U[tri])
-    z0 += list(np.sqrt(prior[LINK * n:]))
+    z0 += list(np.sqrt(prior[LINK * n :]))
     z0 += [np.sqrt(max(theta[j], 0)) if j in bounded else theta[j] for j in others]
     objective = _objective(f)
-    best = optimize.minimize(lambda z: objective(*unpack(z)), np.array(z0), method="BFGS",
-                             options={"gtol": 1e-10, "maxiter": 20000})
+    best = optimize.minimize(
+        lambda z: objective(*unpack(z)), np.array(z0), method="BFGS", options={"gtol": 1e-10, "maxiter": 20000}
+    )
     ours = objective(c.theta, c.standard)
     assert ours <= best.fun * (1 + 1e-4) + 1e-9, (ours, best.fun)
     assert ours >= best.fun * (1 - 1e-3), (ours, best.fun)  # scipy reaches the same optimum

@@ -2,6 +2,7 @@
 with hidden effects (the truth parameters are the reference), the EMPS axis against its published
 reference model, and the compliant shaft under the thesis's open-loop square wave."""
 
+import itertools
 import json
 
 import numpy as np
@@ -13,8 +14,18 @@ from tests.adaptive import hidden
 
 # per hidden effect: the relative tolerance on its fitted linear parameters against the truth
 # (Stribeck's level trades against its velocity, which is found on a grid)
-SINGLE = {"rigid": 0.02, "viscous": 0.02, "coulomb": 0.02, "offset": 0.05, "gravity": 0.05, "cogging": 0.05,
-          "stribeck": 0.25, "delay": None, "asymmetry": 0.1, "spring": 0.05}
+SINGLE = {
+    "rigid": 0.02,
+    "viscous": 0.02,
+    "coulomb": 0.02,
+    "offset": 0.05,
+    "gravity": 0.05,
+    "cogging": 0.05,
+    "stribeck": 0.25,
+    "delay": None,
+    "asymmetry": 0.1,
+    "spring": 0.05,
+}
 
 
 @pytest.fixture(scope="module")
@@ -95,7 +106,8 @@ def test_diagnose_report_is_the_json_contract():
     assert first["effect"] == "coulomb" and first["significant"] is True and first["joint"] in (1, 2)
     # every effect the model lacks is a candidate, exactly once; Stribeck only on top of Coulomb
     assert sorted(c["effect"] for c in r["candidates"]) == sorted(
-        ["coulomb", "asymmetry", "offset", "gravity", "spring", "cogging", "delay", "compliance"])
+        ["coulomb", "asymmetry", "offset", "gravity", "spring", "cogging", "delay", "compliance"]
+    )
     assert any(n.startswith("stribeck: offered only on top of coulomb") for n in r["notes"])
     assert r["hold"] == "zoh" and r["method"] in ("ls", "iv") and r["method_why"]
     assert {"significant", "joint", "against", "fraction", "p_value"} <= set(r["unexplained"])
@@ -114,6 +126,7 @@ def test_diagnose_tries_every_candidate_on_a_20_s_two_joint_recording():
 
 # -- EMPS ----------------------------------------------------------------------------------------
 
+
 def test_emps_discovery_from_rigid():
     """Coulomb and viscous friction come out first; then the direction-dependent viscous term
     (asymmetry, which on EMPS's trapezoidal strokes also carries the published model's constant
@@ -128,7 +141,7 @@ def test_emps_discovery_from_rigid():
     assert steps[-1].verdict is None and len(found) <= 6
     assert "gravity" not in found and "stribeck" not in found
     errors = [d.base.rel_error for d in steps]
-    assert all(b < a for a, b in zip(errors, errors[1:]))
+    assert all(b < a for a, b in itertools.pairwise(errors))
     assert errors[-1] < 0.0408
     published = fit(rec, "rigid,viscous,coulomb,offset")  # the same band and rows as the loop
     for name, value in {"M1": 95.1089, "b1": 203.5034, "Fc1": 20.3935, "off1": -3.1648}.items():
@@ -155,6 +168,7 @@ def test_emps_physics_rules_and_joint_kinds():
 
 
 # -- compliance ----------------------------------------------------------------------------------
+
 
 def test_compliance_is_found_from_an_open_loop_square_wave():
     """Thesis Figs. 4-12 and 4-20: the square wave's steps ring the 218.7 Hz shaft mode, which the
@@ -217,7 +231,9 @@ def test_a_white_floor_on_the_recorded_torque_is_fitted_not_read_as_inertia():
     many, misfits = modes.fit_grid(z, w, G, modes.floor_column(sxy, sxx))
     for qi in (0, 77, 200, len(pts) - 1):
         one, m1 = modes.fit_response(z, w, np.stack([np.ones_like(f, complex), G[qi]]), modes.floor_column(sxy, sxx))
-        assert many[qi] == pytest.approx(one, rel=1e-6, abs=1e-12) and misfits[qi] == pytest.approx(m1, rel=1e-6, abs=1e-15)
+        assert many[qi] == pytest.approx(one, rel=1e-6, abs=1e-12) and misfits[qi] == pytest.approx(
+            m1, rel=1e-6, abs=1e-15
+        )
     assert coef[0] == pytest.approx(r * inertia, rel=1e-6) and coef[1] == pytest.approx((1 - r) * inertia, rel=1e-6)
     assert coef[2] == pytest.approx(snn, rel=1e-6) and misfit < 1e-12
     _, without = modes.fit_response(z, w, g, np.zeros_like(f))
@@ -233,8 +249,9 @@ def test_a_mode_whose_motor_share_sits_on_its_bound_is_not_proposed():
 
     def mode(r):
         e = np.ones(8)
-        return modes.Mode(50.0, 0.2, r, 0, True, e, e / 2, np.zeros(1), np.zeros((1, 1)), np.zeros((1, 1)),
-                          np.zeros((1, 1)))
+        return modes.Mode(
+            50.0, 0.2, r, 0, True, e, e / 2, np.zeros(1), np.zeros((1, 1)), np.zeros((1, 1)), np.zeros((1, 1))
+        )
 
     assert "edge of its search range" in mode(0.899).edge() and "edge" in mode(0.0201).edge()
     assert mode(0.1).edge() == "" and mode(0.85).edge() == ""
@@ -300,6 +317,7 @@ def test_a_response_falling_with_frequency_is_no_peak_and_every_physical_mode_is
 
 # -- bad input -----------------------------------------------------------------------------------
 
+
 def test_a_model_holding_every_effect_is_refused():
     full = "rigid,viscous,coulomb,stribeck,asymmetry,offset,gravity,spring,cogging,delay,compliance"
     with pytest.raises(ModelError, match="already holds every effect of the vocabulary"):
@@ -342,8 +360,8 @@ def test_the_detection_limit_a_null_verdict_states_is_what_it_finds():
     import copy
 
     from manus.adaptive import Columns, prepare
-    from manus.plants.effects import Model, Offset
     from manus.experiments import calibration
+    from manus.plants.effects import Model, Offset
 
     c = calibration.case(3, None, structure="arm", rate=1000, excitation="multisine", torque="white", hold="stated")
     d = diagnose(c.rec, c.start)

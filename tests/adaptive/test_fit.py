@@ -41,6 +41,7 @@ def nominal():
 
 # -- EMPS: the published reference model ---------------------------------------------------------
 
+
 def test_emps_fit_gives_the_published_parameters_within_one_percent(emps_fit, emps):
     for name, value in PUBLISHED.items():
         assert emps_fit.params[name] == pytest.approx(value, rel=0.01), name
@@ -54,7 +55,7 @@ def test_emps_fit_gives_the_published_parameters_within_one_percent(emps_fit, em
 
 def test_emps_standard_deviations_match_the_published_ones(emps_fit):
     # Newey–West over the decimated rows against the reference's std: same order (within 2x)
-    for name, s in zip(emps_fit.names, emps_fit.std):
+    for name, s in zip(emps_fit.names, emps_fit.std, strict=True):
         assert PUBLISHED_STD[name] / 2 < s < 2 * PUBLISHED_STD[name], (name, s)
 
 
@@ -102,6 +103,7 @@ def test_fit_report_is_the_json_contract(emps_fit):
 
 # -- simulated arm: the truth parameters ----------------------------------------------------------
 
+
 def test_the_nominal_model_recovers_the_simulated_truth(nominal):
     f = fit(nominal, "rigid,viscous,coulomb")
     truth = hidden.truth_params(())
@@ -123,6 +125,7 @@ def test_nonlinear_parameters_are_found_by_search():
 
 # -- bad input (issue 4, item 5) ----------------------------------------------------------------
 
+
 def test_too_short_names_every_parameter(nominal):
     short = nominal.window(2000, 2150)
     with pytest.raises(ModelError, match="too short or without motion") as e:
@@ -133,6 +136,7 @@ def test_too_short_names_every_parameter(nominal):
 
 def test_a_torque_of_zero_throughout_is_refused(nominal):
     import copy
+
     blank = copy.copy(nominal)
     blank.tau = np.zeros_like(nominal.tau)
     with pytest.raises(ModelError, match="the recorded torque is zero throughout"):
@@ -143,6 +147,7 @@ def test_a_torque_recorded_with_the_opposite_sign_is_named(nominal):
     """The whole torque negated: every parameter with a sign rule breaks it, and the fit says
     that the sign convention, not the physics, is the likely cause; a sound fit says nothing."""
     import copy
+
     flipped = copy.copy(nominal)
     flipped.tau = -nominal.tau
     bad = fit(flipped, "rigid,viscous,coulomb", method="ls").violations()
@@ -152,8 +157,15 @@ def test_a_torque_recorded_with_the_opposite_sign_is_named(nominal):
 
 def test_no_motion_names_the_parameters_outside_the_regressors_rank():
     t = np.arange(3000) * 1e-3
-    still = Recording(t, np.tile([0.464, 2.409], (t.size, 1)), np.full((t.size, 2), 0.1), None,
-                      {"sample_rate_hz": "1000", "counts_per_rev": "131072"}, {}, "still.csv")
+    still = Recording(
+        t,
+        np.tile([0.464, 2.409], (t.size, 1)),
+        np.full((t.size, 2), 0.1),
+        None,
+        {"sample_rate_hz": "1000", "counts_per_rev": "131072"},
+        {},
+        "still.csv",
+    )
     with pytest.raises(ModelError) as e:
         fit(still, "rigid,viscous,coulomb,offset")
     msg = str(e.value)
@@ -164,7 +176,7 @@ def test_no_motion_names_the_parameters_outside_the_regressors_rank():
 
 
 def test_unknown_effect_and_impossible_models_are_refused(nominal):
-    with pytest.raises(ModelError, match="unknown effect 'frictoin'.*vocabulary is rigid"):
+    with pytest.raises(ModelError, match=r"unknown effect 'frictoin'.*vocabulary is rigid"):
         fit(nominal, "rigid,frictoin")
     with pytest.raises(ModelError, match="given twice"):
         fit(nominal, "rigid,viscous,viscous")
@@ -197,13 +209,14 @@ def test_friction_columns_are_the_average_over_the_sample_period():
     strib = np.asarray(effect_columns(Stribeck(vs=vs), Axis(), q, qd, qdd, dt))[:, 0, 0]
     exact = vs * np.sqrt(np.pi) / 2 * (erf(np.abs(hi) / vs) - erf(np.abs(lo) / vs)) / (hi - lo)
     np.testing.assert_allclose(strib, exact, atol=tol)
-    point = np.sign(v) * np.exp(-(v / vs) ** 2)
+    point = np.sign(v) * np.exp(-((v / vs) ** 2))
     assert np.max(np.abs(point - exact)) > 0.3  # (the point values would fail: the test can tell)
     visc = np.asarray(effect_columns(Viscous(), Axis(), q, qd, qdd, dt))[:, 0, 0]
     np.testing.assert_allclose(visc, v, rtol=1e-12)
 
 
 # -- lost samples (a real-time loop that missed packets: `run-hardware` writes t = seq·T) --------
+
 
 def _without(rec: Recording, lost: slice) -> Recording:
     keep = np.ones(len(rec), bool)
@@ -226,9 +239,16 @@ def test_samples_lost_in_a_gap_are_filled_and_left_out_not_read_as_physics(nomin
 
 
 def test_a_gap_longer_than_the_recording_is_refused_by_name(nominal):
-    two_runs = Recording(np.r_[nominal.t[:3000], nominal.t[3000:6000] + 3600.0], nominal.q[:6000],
-                         nominal.tau[:6000], None, dict(nominal.meta), {}, "two_runs.csv")
-    with pytest.raises(ManusError, match="two_runs.csv: .*separate runs: split it at the gap"):
+    two_runs = Recording(
+        np.r_[nominal.t[:3000], nominal.t[3000:6000] + 3600.0],
+        nominal.q[:6000],
+        nominal.tau[:6000],
+        None,
+        dict(nominal.meta),
+        {},
+        "two_runs.csv",
+    )
+    with pytest.raises(ManusError, match=r"two_runs.csv: .*separate runs: split it at the gap"):
         fit(two_runs, "rigid,viscous,coulomb")
 
 
@@ -287,8 +307,14 @@ def test_a_creeping_joint_is_at_rest_a_reversal_is_not():
     t = np.arange(0, 6.0, dt)
     v = np.where((t >= 2.0) & (t < 2.5), 0.002 * vmax, vmax * np.sin(np.pi * np.where(t < 2.0, t, t - 2.5)))
     q = np.round(np.cumsum(v) * dt / 1e-6) * 1e-6
-    rec = Recording(t, q[:, None], np.random.default_rng(0).standard_normal((t.size, 1)), None,
-                    {"sample_rate_hz": "1000", "position_step": "1e-06", "structure": "axis"}, {})
+    rec = Recording(
+        t,
+        q[:, None],
+        np.random.default_rng(0).standard_normal((t.size, 1)),
+        None,
+        {"sample_rate_hz": "1000", "position_step": "1e-06", "structure": "axis"},
+        {},
+    )
     data = prepare(rec)
     used = t[data.rows]
     assert not np.any((used > 2.05) & (used < 2.45))  # the creep

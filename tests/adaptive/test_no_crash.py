@@ -16,10 +16,10 @@ import numpy as np
 import pytest
 
 from manus.adaptive import diagnose, discover
+from manus.experiments import calibration, sizing
 from manus.plants.effects import VOCABULARY, Compliance, Delay, Model
 from manus.plants.errors import ManusError
 from manus.plants.recording import from_trajectory
-from manus.experiments import calibration, sizing
 
 SEED = 7  # the fuzz's seeds: SEED + case index
 CASES = 16  # random combinations
@@ -36,7 +36,8 @@ PYTHON_TEXT = re.compile(
     r"object has no attribute|out of bounds|index out of range|division by zero|unsupported operand|"
     r"not subscriptable|could not be broadcast|cannot reshape|not aligned|Singular matrix|"
     r"^\w+(Error|Exception)\b|Traceback|NoneType|takes \d+ positional|unexpected keyword|must be real number|"
-    r"invalid value encountered|zero-size array")
+    r"invalid value encountered|zero-size array"
+)
 
 
 def _combination(index: int) -> dict:
@@ -44,13 +45,24 @@ def _combination(index: int) -> dict:
     setup = calibration.SETUPS[str(rng.choice(calibration.STRUCTURES))]
     rate = int(rng.choice(RATES))
     excitation = "steps" if rate == 1000 and rng.random() < 0.3 else "multisine"
-    pool = [e for e in calibration.hidden_effects() if sizing.applies(e, setup)
-            and (e != "compliance" or excitation == "steps")]
+    pool = [
+        e
+        for e in calibration.hidden_effects()
+        if sizing.applies(e, setup) and (e != "compliance" or excitation == "steps")
+    ]
     hidden = sorted(rng.choice(pool, size=int(rng.integers(1, 4)), replace=False).tolist(), key=pool.index)
-    return {"setup": setup, "rate": rate, "excitation": excitation, "hidden": hidden,
-            "joint": [None, *range(1, setup.n + 1)][int(rng.integers(setup.n + 1))],
-            "amplitude": float(10 ** rng.uniform(*AMPLITUDE)), "noise": float(rng.uniform(*NOISE)),
-            "seconds": float(rng.uniform(3.0, SIM_SECONDS)), "hold": bool(rng.random() < 0.5), "seed": int(rng.integers(2**31))}
+    return {
+        "setup": setup,
+        "rate": rate,
+        "excitation": excitation,
+        "hidden": hidden,
+        "joint": [None, *range(1, setup.n + 1)][int(rng.integers(setup.n + 1))],
+        "amplitude": float(10 ** rng.uniform(*AMPLITUDE)),
+        "noise": float(rng.uniform(*NOISE)),
+        "seconds": float(rng.uniform(3.0, SIM_SECONDS)),
+        "hold": bool(rng.random() < 0.5),
+        "seed": int(rng.integers(2**31)),
+    }
 
 
 def _recording(c: dict):
@@ -71,8 +83,13 @@ def _recording(c: dict):
             on = name == "rigid" or owner.get(k) is None or c["joint"] is None or owner[k] == c["joint"] - 1
             params[k] = setup.nominal.get(k, v) * c["amplitude"] if on else 0.0
     traj = calibration.simulate_case(setup, c["rate"], c["excitation"], params, tuple(extra), SIM_SECONDS, c["seed"])
-    rec = from_trajectory(traj, c["rate"], "manus2" if setup.name == "arm" else "axis",
-                          131072 if setup.name == "arm" else None, setup.meta())
+    rec = from_trajectory(
+        traj,
+        c["rate"],
+        "manus2" if setup.name == "arm" else "axis",
+        131072 if setup.name == "arm" else None,
+        setup.meta(),
+    )
     rec.qd, rec.extra = None, {}
     rec = rec.window(0, int(c["seconds"] * c["rate"]))
     rng = np.random.default_rng(c["seed"])
@@ -113,9 +130,11 @@ def answers(what: str, calls) -> list[str]:
 def test_no_crash_random_combination(index):
     c = _combination(index)
     rec, start = _recording(c)
-    what = (f"case {index} ({c['setup'].name} {c['rate']} Hz {c['excitation']} {c['seconds']:.1f} s, hidden "
-            f"{'+'.join(c['hidden'])} x{c['amplitude']:.3g} on joint {c['joint'] or 'all'}, noise {c['noise']:.2f}, "
-            f"hold {'stated' if c['hold'] else 'not stated'}, start {start})")
+    what = (
+        f"case {index} ({c['setup'].name} {c['rate']} Hz {c['excitation']} {c['seconds']:.1f} s, hidden "
+        f"{'+'.join(c['hidden'])} x{c['amplitude']:.3g} on joint {c['joint'] or 'all'}, noise {c['noise']:.2f}, "
+        f"hold {'stated' if c['hold'] else 'not stated'}, start {start})"
+    )
     _run(rec, start, what, direct=index % DIAGNOSE_EVERY == 0)
 
 

@@ -59,5 +59,10 @@ def test_degenerate_serial_recordings(chain):
     still = rec.window(0, len(rec))
     still.q = np.c_[still.q[:, 0], np.full(len(still), still.q[0, 1])]  # the elbow never moves
     for name, r in (("the elbow never moves", still), ("40 samples", rec.window(0, 40))):
-        answers(f"{what}, {name}", (("fit", lambda: fit(r, "rigid,viscous,coulomb")),
-                                     ("diagnose", lambda: diagnose(r, "rigid,viscous,coulomb"))))
+        answers(
+            f"{what}, {name}",
+            (
+                ("fit", lambda r=r: fit(r, "rigid,viscous,coulomb")),
+                ("diagnose", lambda r=r: diagnose(r, "rigid,viscous,coulomb")),
+            ),
+        )

@@ -41,8 +41,12 @@ def test_block_scores_are_the_partialled_scores_and_recover_the_full_fit():
     r0 = y - Xf @ np.linalg.lstsq(Xf, y, rcond=None)[0]
     Et = (Ef - Xf @ np.linalg.lstsq(Xf, Ef, rcond=None)[0]) / st.scale[3:]
     rows = np.repeat(np.arange(X.shape[0]), 2)
-    per_block = np.array([Et[(rows >= a) & (rows < b)].T @ r0[(rows >= a) & (rows < b)]
-                          for a, b in zip(starts, np.r_[starts[1:], X.shape[0]])])
+    per_block = np.array(
+        [
+            Et[(rows >= a) & (rows < b)].T @ r0[(rows >= a) & (rows < b)]
+            for a, b in zip(starts, np.r_[starts[1:], X.shape[0]], strict=True)
+        ]
+    )
     assert s == pytest.approx(per_block, rel=1e-8, abs=1e-10)
 
 
@@ -71,8 +75,10 @@ def test_the_flips_fast_algebra_equals_the_statistic_computed_again(mode, monkey
     observed = max(wald(x.s, x.Q) for x in scores)
     flipped = [jackknifed(x.s, x.Q) if mode == "wild" else x.s for x in scores]  # a draw: w_b times these
     w = np.random.default_rng(0).choice((-1.0, 1.0), size=(score_test.FLIPS, G))  # the draws score_p makes
-    exceed = sum(max(wald(wi[:, None] * d, x.Q) for d, x in zip(flipped, scores)) >= observed * (1 - 1e-9)
-                 for wi in w)
+    exceed = sum(
+        max(wald(wi[:, None] * d, x.Q) for d, x in zip(flipped, scores, strict=True)) >= observed * (1 - 1e-9)
+        for wi in w
+    )
     p, _, how = score_test.score_p(scores, alpha=0.5, stop_above=2.0)
     assert how == mode
     assert p == pytest.approx((1 + exceed) / (1 + score_test.FLIPS), abs=1e-12)
@@ -100,7 +106,9 @@ def test_the_score_test_holds_its_size_under_the_null(heavy):
     wild bootstrap alone gave 11 % with 2 heavy blocks and 4 % with 6; under 12 effective blocks
     the exact flips are used)."""
     rng = np.random.default_rng(11)
-    ps = np.array([score_test.score_p([_null_case(rng, heavy=heavy)], alpha=0.02, stop_above=1.0)[0] for _ in range(300)])
+    ps = np.array(
+        [score_test.score_p([_null_case(rng, heavy=heavy)], alpha=0.02, stop_above=1.0)[0] for _ in range(300)]
+    )
     assert np.mean(ps < 0.02) <= 0.045 and 0.04 <= np.mean(ps < 0.1) <= 0.17, (np.mean(ps < 0.02), np.mean(ps < 0.1))
 
 
@@ -112,8 +120,12 @@ def test_the_one_sided_score_test_holds_its_size_and_judges_by_the_sign(heavy):
     test), and at the wrong sign nothing is found."""
     rng = np.random.default_rng(12)
     signed = np.array([True])
-    ps = np.array([score_test.score_p([_null_case(rng, heavy=heavy)], alpha=0.02, stop_above=1.0, signed=signed)[0]
-                   for _ in range(300)])
+    ps = np.array(
+        [
+            score_test.score_p([_null_case(rng, heavy=heavy)], alpha=0.02, stop_above=1.0, signed=signed)[0]
+            for _ in range(300)
+        ]
+    )
     assert np.mean(ps < 0.02) <= 0.045 and 0.04 <= np.mean(ps < 0.1) <= 0.17, (np.mean(ps < 0.02), np.mean(ps < 0.1))
     ratios = []
     for _ in range(20):
@@ -123,7 +135,9 @@ def test_the_one_sided_score_test_holds_its_size_and_judges_by_the_sign(heavy):
         assert one <= two + 1e-12 or one == 1.0  # (the fitted coefficient's sign: physical, or not)
         if 0.003 < two < 0.5:  # (above the flips' floor)
             ratios.append(one / two)
-        wrong = score_test.Scores(x.s * -1, x.Q) if heavy == 40 else None  # (the scores' sign turned: the effect's opposite)
+        wrong = (
+            score_test.Scores(x.s * -1, x.Q) if heavy == 40 else None
+        )  # (the scores' sign turned: the effect's opposite)
         if wrong is not None and two < 0.01:
             assert score_test.score_p([wrong], alpha=0.01, stop_above=1.0, signed=signed)[0] > 0.3
     assert len(ratios) >= 5 and 0.35 <= np.median(ratios) <= 0.65, ratios
@@ -169,6 +183,7 @@ def _lambda_closed_form(k, dof, alpha, power):
     """The non-centrality of an F(k, dof) test at `alpha` with `power`, from scipy by bisection
     (independent of the score test's root finder)."""
     from scipy import stats
+
     crit = stats.f.isf(alpha, k, dof)
     lo, hi = 0.0, 1000.0
     for _ in range(200):
@@ -191,7 +206,9 @@ def test_the_detection_limit_is_the_closed_form_for_white_noise(k):
     starts, blocks = _segments(rows, G)
     st = Stats.of(np.concatenate([X, E], 2), tau, starts)
     scores = [score_test.block_scores(st, np.r_[False, False, [True] * k], blocks)]
-    assert score_test.detectable(scores, alpha=0.01) == pytest.approx(_lambda_closed_form(k, G - k, 0.01, 0.8) * sigma**2, rel=0.15)
+    assert score_test.detectable(scores, alpha=0.01) == pytest.approx(
+        _lambda_closed_form(k, G - k, 0.01, 0.8) * sigma**2, rel=0.15
+    )
 
 
 def test_an_effect_at_the_detection_limit_is_found_four_times_in_five():
@@ -269,7 +286,9 @@ def test_the_one_sided_statistic_is_the_distance_to_the_physical_cone():
         R = np.linalg.qr(rng.normal(size=(2, 2)))[0]  # the identified directions (a rotation)
         omega = np.diag(rng.uniform(0.5, 2.0, 2))
         m = rng.normal(size=2) * 3
-        got = score_test.physical(m[None, None], Qs[None], np.linalg.inv(Qs)[None], R[None], omega[None, None], signed)[0, 0]
+        got = score_test.physical(m[None, None], Qs[None], np.linalg.inv(Qs)[None], R[None], omega[None, None], signed)[
+            0, 0
+        ]
         W_plus = got @ np.linalg.solve(omega, got)
         b = R @ np.linalg.solve(Qs, m)  # β̂ in the columns
         A = R @ Qs @ np.linalg.inv(omega) @ Qs @ R.T  # its precision there

@@ -10,13 +10,13 @@ import pytest
 
 from manus.adaptive import diagnose, discover, fit, prepare
 from manus.adaptive.impedance import Impedance
+from manus.experiments.calibration import pendulum
 from manus.plants import Model, Simulator
 from manus.plants.closed_loop import simulate
 from manus.plants.effects import Coulomb, parse_effects, sign, stack
 from manus.plants.recording import from_trajectory, read
 from manus.plants.references import MultiSine
 from manus.plants.structures import Manus2
-from manus.experiments.calibration import pendulum
 from tests.adaptive import hidden
 from tests.conftest import SHARED
 
@@ -29,14 +29,16 @@ def arm(truth: dict, effects: str, seconds: float = 12.0, seed: int = 3, extra: 
     model = Model(Manus2(), parse_effects(effects) + tuple(extra))
     plant = Simulator(model, truth)
     ref = MultiSine((0.464, 2.409), 0.3, seed=seed)
-    traj = simulate(plant, Impedance(30.0, 1.0, n_joints=2, limit=plant.actuator.limit), ref, seconds,
-                    key=jax.random.PRNGKey(seed))
+    traj = simulate(
+        plant, Impedance(30.0, 1.0, n_joints=2, limit=plant.actuator.limit), ref, seconds, key=jax.random.PRNGKey(seed)
+    )
     rec = from_trajectory(traj, plant.rate_hz, "manus2", 131072)
     rec.path = f"<arm {effects}>"
     return rec
 
 
 # -- errors in variables ----------------------------------------------------------------------------
+
 
 @pytest.fixture(scope="module")
 def swing():
@@ -73,6 +75,7 @@ def test_errors_in_variables_discover_names_gravity_first(swing):
 
 # -- sampled data: the command's hold ----------------------------------------------------------------
 
+
 def test_a_held_command_is_not_a_delay_when_the_file_is_silent():
     """A digital controller holds its command over the period: half a sample that looks like a
     delay. With `command_hold` removed from the file, zoh is the default, said in the report, and
@@ -90,6 +93,7 @@ def test_a_held_command_is_not_a_delay_when_the_file_is_silent():
 
 # -- noisy torque -----------------------------------------------------------------------------------
 
+
 @pytest.mark.parametrize("hidden_effect", [None, "coulomb"])
 def test_a_noisy_recorded_torque_does_not_widen_the_band(hidden_effect):
     """A torque read from a measured current: white noise of 15 % of its RMS. The band comes from
@@ -106,6 +110,7 @@ def test_a_noisy_recorded_torque_does_not_widen_the_band(hidden_effect):
 
 # -- one direction: two readings --------------------------------------------------------------------
 
+
 def test_motion_in_one_direction_names_both_readings(emps_dir):
     """On a stroke of EMPS that moves one way only, a Coulomb level and an offset are one
     constant: the constant term is proposed once, the note names both readings."""
@@ -119,6 +124,7 @@ def test_motion_in_one_direction_names_both_readings(emps_dir):
 
 
 # -- the crashes the issue lists --------------------------------------------------------------------
+
 
 def test_a_small_cogging_on_one_joint_only():
     rec = arm({"A2": 0.012, "B2": 0.0, "A1": 0.0, "B1": 0.0}, "rigid,viscous,coulomb,cogging")
@@ -138,6 +144,7 @@ def test_three_hidden_effects_from_rigid_viscous():
 
 # -- something left that no effect explains ----------------------------------------------------------
 
+
 class PositionCoulomb(Coulomb):
     """Outside the vocabulary: a Coulomb level that varies with position, Fc_i (1 + 0.8 sin 3q_i)."""
 
@@ -151,8 +158,12 @@ class PositionCoulomb(Coulomb):
 
 
 def test_an_effect_outside_the_vocabulary_is_said_not_misnamed():
-    rec = arm({"Fq1": 0.1, "Fq2": 0.12, "Fc1": 0.0, "Fc2": 0.0}, "rigid,viscous,coulomb", seconds=20.0,
-              extra=(PositionCoulomb(),))
+    rec = arm(
+        {"Fq1": 0.1, "Fq2": 0.12, "Fc1": 0.0, "Fc2": 0.0},
+        "rigid,viscous,coulomb",
+        seconds=20.0,
+        extra=(PositionCoulomb(),),
+    )
     d = diagnose(rec, "rigid,viscous,coulomb")
     u = d.report()["unexplained"]
     assert u["significant"] is True
@@ -166,8 +177,9 @@ def test_a_tiny_structure_left_by_a_right_model_is_not_something_left():
     from manus.plants.references import Benign
 
     plant = Simulator(Model(Manus2(), "rigid,viscous,coulomb"))
-    traj = simulate(plant, Impedance(30.0, 1.0, n_joints=2, limit=plant.actuator.limit), Benign(), 20.0,
-                    key=jax.random.PRNGKey(0))
+    traj = simulate(
+        plant, Impedance(30.0, 1.0, n_joints=2, limit=plant.actuator.limit), Benign(), 20.0, key=jax.random.PRNGKey(0)
+    )
     rec = from_trajectory(traj, plant.rate_hz, "manus2", 131072)
     d = diagnose(rec, "rigid,viscous,coulomb")
     u = d.report()["unexplained"]
@@ -204,7 +216,7 @@ def rippled_axis(ripple: float = 0.08, order: int = 6, seconds: float = 20.0, se
     n = int(seconds * rate)
     t = np.arange(n) * dt
     f, ph = rng.uniform(0.2, 2.5, 6), rng.uniform(0, 2 * math.pi, 6)
-    ref = sum(0.12 * np.sin(2 * math.pi * fi * t + p) for fi, p in zip(f, ph))
+    ref = sum(0.12 * np.sin(2 * math.pi * fi * t + p) for fi, p in zip(f, ph, strict=True))
     q = v = vf = q_last = 0.0
     qs, taus = np.zeros(n), np.zeros(n)
     smooth = 1 - math.exp(-2 * math.pi * 30 * dt)
@@ -236,6 +248,7 @@ def test_a_torque_ripple_is_said_to_be_left_as_what_it_is():
 
 # -- a real double pendulum -------------------------------------------------------------------------
 
+
 def test_dfki_double_pendulum_from_rigid():
     """The real DFKI arm (NOTES.md there), the three recordings with moderate swings: gravity
     first in each, no invented cogging or Stribeck, gravity loads near DFKI's model_2.0 in manus2
@@ -258,6 +271,7 @@ def test_dfki_double_pendulum_from_rigid():
 
 
 # -- a delay per joint -------------------------------------------------------------------------------
+
 
 def test_a_delay_that_differs_between_joints_is_found_joint_by_joint():
     """Joint 1's command arrives 0.5 ms late, joint 2's 4 ms: the loop finds one delay for both,
