@@ -92,3 +92,28 @@ def test_importing_the_command_sets_no_environment(tmp_path):
     out = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.strip() == "True"
+
+
+def test_a_dead_link_is_a_one_line_error(tmp_path):
+    out = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "manus.runs.cli",
+            "run-hardware",
+            "--device",
+            "udp://127.0.0.1:9",
+            "--seconds",
+            "1",
+            "--json",
+        ],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert out.returncode == 2 and out.stdout == ""
+    assert out.stderr.strip().splitlines() == [
+        "manus run-hardware: udp://127.0.0.1:9: no answer from the device within 2 s "
+        "(is `manus emulate --port 9` or the rig running?)"
+    ]
