@@ -103,7 +103,8 @@ class CompiledTick:
             ok = finite(state) & jnp.all(jnp.isfinite(tau)) & jnp.all(jnp.isfinite(ref.q))
             ok = ok & ~jnp.any(jnp.asarray(controller.stopped(state)))  # a latched controller stop
             tau = jnp.where(ok, jnp.clip(tau, -limit, limit), 0.0)
-            extra = [ref.q] + ([controller.velocity(state)] if has_v else [])
+            velocity = controller.velocity(state)
+            extra = [ref.q] + ([velocity] if has_v and velocity is not None else [])
             return jnp.concatenate([ravel_pytree(state)[0], tau, *extra, ok[None].astype(flat.dtype)])
 
         def init(counts):

@@ -52,7 +52,8 @@ The URDF file itself is read by `manus.plants.urdf`.
 
 from __future__ import annotations
 
-from typing import ClassVar, NamedTuple
+import abc
+from typing import TYPE_CHECKING, ClassVar, NamedTuple
 
 import equinox as eqx
 import jax
@@ -624,6 +625,13 @@ class Reparametrized(_Configuration):
     """A chain in other rigid parameters than the standard ones (base parameters, pseudo-inertia
     entries): `self.serial` and `self.standard(p)`, the standard vector of its parameters, give
     H, C and the simulator's joint-tuple form."""
+
+    if TYPE_CHECKING:  # each form's own field
+        serial: Serial
+
+    @abc.abstractmethod
+    def standard(self, p: dict) -> Array:
+        """The standard parameter vector (11 n,) of these parameters `p` (by name)."""
 
     def inertia(self, q, p):
         return self.serial.mass_matrix(q, self.standard(p))
