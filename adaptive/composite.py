@@ -73,7 +73,7 @@ from manus.adaptive.regressors import Regressor
 from manus.plants.errors import ModelError
 
 
-def _upper(m: int) -> tuple[tuple[int, int], ...]:
+def upper_triangle(m: int) -> tuple[tuple[int, int], ...]:
     """The upper triangle (i ≤ j) of an m×m matrix, row by row: the order of `CompositeState.gain`."""
     return tuple((i, j) for i in range(m) for j in range(i, m))
 
@@ -84,7 +84,7 @@ class CompositeState(NamedTuple):
     z1: tuple  # f·Z₁: its n·P entries, row by row (joint by joint), each an array ()
     z2: tuple  # f·Z₂, the same
     tau: Array  # τ_f (n,)
-    gain: tuple  # the least-squares gain P: its upper triangle, row by row (`_upper`)
+    gain: tuple  # the least-squares gain P: its upper triangle, row by row (`upper_triangle`)
 
     @property
     def P(self) -> Array:
@@ -95,14 +95,14 @@ class CompositeState(NamedTuple):
     def diagonal(self) -> Array:
         """The gain's diagonal (P,), without forming the matrix."""
         m = int(round((math.sqrt(8 * len(self.gain) + 1) - 1) / 2))
-        return jnp.stack([g for g, (i, j) in zip(self.gain, _upper(m), strict=True) if i == j], -1)
+        return jnp.stack([g for g, (i, j) in zip(self.gain, upper_triangle(m), strict=True) if i == j], -1)
 
 
 def symmetric(upper: tuple, axis: int = 0) -> Array:
-    """The symmetric m×m matrix whose upper triangle, row by row (`_upper`), is `upper`; its two
+    """The symmetric m×m matrix whose upper triangle, row by row (`upper_triangle`), is `upper`; its two
     axes at `axis` and `axis` + 1 of the result (a non-negative position among the entries' axes)."""
     m = int(round((math.sqrt(8 * len(upper) + 1) - 1) / 2))
-    e = dict(zip(_upper(m), upper, strict=True))
+    e = dict(zip(upper_triangle(m), upper, strict=True))
     return jnp.stack([jnp.stack([e[min(i, j), max(i, j)] for j in range(m)], axis) for i in range(m)], axis)
 
 
@@ -123,13 +123,13 @@ def _gain_update(gain: tuple, w: list, c) -> tuple:
     """P − P Wᵀ (c I + W P Wᵀ)⁻¹ W P (Woodbury) entry by entry, for P symmetric given by its upper
     triangle and W (n, m) as nested lists of scalars; the upper triangle of the result."""
     n, m = len(w), len(w[0])
-    entry = dict(zip(_upper(m), gain, strict=True))
+    entry = dict(zip(upper_triangle(m), gain, strict=True))
     p = lambda i, j: entry[min(i, j), max(i, j)]
     pw = [[sum(p(i, k) * w[a][k] for k in range(m)) for a in range(n)] for i in range(m)]  # P Wᵀ (m, n)
     S = [[sum(w[a][k] * pw[k][b] for k in range(m)) + (c if a == b else 0.0) for b in range(n)] for a in range(n)]
     inv = _inverse(S)
     g = [[sum(pw[i][a] * inv[a][b] for a in range(n)) for b in range(n)] for i in range(m)]  # P Wᵀ S⁻¹ (m, n)
-    return tuple(p(i, j) - sum(g[i][b] * pw[j][b] for b in range(n)) for i, j in _upper(m))
+    return tuple(p(i, j) - sum(g[i][b] * pw[j][b] for b in range(n)) for i, j in upper_triangle(m))
 
 
 class Composite(eqx.Module):
@@ -182,7 +182,8 @@ class Composite(eqx.Module):
         written = s.momentum_columns(q, qd)
         if written is None:
             z1, z2 = jax.jacfwd(lambda th: cls._z(regressor, q, qd, th))(theta0)
-            return tuple([[z[a, k] for k in range(len(names))] for a in range(n)] for z in (z1, z2))
+            Z1, Z2 = ([[z[a, k] for k in range(len(names))] for a in range(n)] for z in (z1, z2))
+            return Z1, Z2
         z1, z2 = written
         zero = jnp.zeros_like(q[0])  # Z₁ of the other effects: they hold no momentum
         if any(not e.inertial for e in model.effects):
@@ -198,14 +199,15 @@ class Composite(eqx.Module):
             Zo = jax.jacfwd(rest)(theta0)
             z2.update({k: (Zo[0, i], Zo[1, i]) for i, k in enumerate(names) if k not in z2})
         z1.update({k: (zero, zero) for k in names if k not in z1})
-        return tuple([[z[k][a] for k in names] for a in range(n)] for z in (z1, z2))
+        Z1, Z2 = ([[z[k][a] for k in names] for a in range(n)] for z in (z1, z2))
+        return Z1, Z2
 
     def init(self, regressor: Regressor, gamma: Array) -> CompositeState:
         n, m = regressor.n_joints, len(regressor.names)
         gamma = jnp.asarray(gamma, float)
         zeros = (jnp.zeros((), gamma.dtype),) * (n * m)
         return CompositeState(
-            zeros, zeros, jnp.zeros(n), tuple(gamma[i] if i == j else 0.0 * gamma[i] for i, j in _upper(m))
+            zeros, zeros, jnp.zeros(n), tuple(gamma[i] if i == j else 0.0 * gamma[i] for i, j in upper_triangle(m))
         )
 
     def step(self, state: CompositeState, regressor: Regressor, q, qd, tau, gamma: Array, lead: float, dt: float):
@@ -229,7 +231,7 @@ class Composite(eqx.Module):
         ]
         # R = P⁻¹ gains T κ WᵀW (Woodbury: an n×n inverse), then bounded-gain forgetting
         gain = _gain_update(state.gain, w, 1.0 / (dt * self.weight))
-        trace = sum(g for g, (i, j) in zip(gain, _upper(m), strict=True) if i == j)
+        trace = sum(g for g, (i, j) in zip(gain, upper_triangle(m), strict=True) if i == j)
         beta = self.forgetting * jnp.maximum(0.0, 1.0 - trace / jnp.sum(gamma))
         gain = tuple(g * (1.0 + dt * beta) for g in gain)
         W = jnp.stack([jnp.stack(row) for row in w])
@@ -241,5 +243,5 @@ class Composite(eqx.Module):
         n, m = W.shape
         e = [sum(W[a, k] * theta[k] for k in range(m)) - tau_f[a] for a in range(n)]  # prediction error
         g = [grad[k] + self.weight * sum(W[a, k] * e[a] for a in range(n)) for k in range(m)]
-        entry = dict(zip(_upper(m), state.gain, strict=True))
+        entry = dict(zip(upper_triangle(m), state.gain, strict=True))
         return jnp.stack([sum(entry[min(i, k), max(i, k)] * g[k] for k in range(m)) for i in range(m)])

@@ -109,7 +109,7 @@ class Projection(eqx.Module):
     """θ ↦ the closest admissible θ in the Γ⁻¹ metric (see the module docstring)."""
 
     lower: Array  # (P,) lower bounds: 0 for friction, ε for axis inertias, −inf otherwise
-    cone: tuple[int, int, int] | None = eqx.field(static=True)  # indices of a1, a2, a3 (manus2)
+    cone: tuple[int, ...] | None = eqx.field(static=True)  # indices of the cone's (u, v, w): manus2's a1, a2, a3
     min_inertia: float = eqx.field(static=True)  # ε [kg m²]
     # a serial chain in pseudo-inertia coordinates: per link, the indices of its 10 entries and ℓ
     links: tuple = eqx.field(static=True, default=())
@@ -133,7 +133,7 @@ class Projection(eqx.Module):
         self.lower = jnp.asarray(lower)
         self.min_inertia = float(min_inertia)
 
-    def __call__(self, theta: Array, gamma: Array) -> Array:
+    def __call__(self, theta: Array, gamma: Array | np.ndarray) -> Array:
         """The projection of θ (P,) in the metric of Γ⁻¹ = diag(1/gamma)."""
         theta = jnp.maximum(theta, self.lower)
         if self.links:
@@ -186,14 +186,14 @@ def _onto_pseudo_inertias(theta: Array, links: tuple) -> Array:
     return jnp.stack([moved[m] if m in moved else theta[m] for m in range(theta.shape[-1])])
 
 
-def _outside_cone(theta: Array, cone: tuple[int, int, int], eps: float) -> Array:
+def _outside_cone(theta: Array, cone: tuple[int, ...], eps: float) -> Array:
     """Whether θ (P,) lies outside the inertia cone M ⪰ ε I (M from the entries `cone` of θ)."""
     i, j, k = cone
     u, v, w = theta[i] - eps, theta[j], theta[k] - eps
     return ~((u >= 0) & (w >= 0) & (u * w >= v * v))
 
 
-def _onto_cone(theta: Array, gamma: Array, cone: tuple[int, int, int], eps: float) -> Array:
+def _onto_cone(theta: Array, gamma: Array, cone: tuple[int, ...], eps: float) -> Array:
     """θ with its inertias projected onto the cone; a point inside comes back bit for bit."""
     i, j, k = cone
     u, v, w = theta[i] - eps, theta[j], theta[k] - eps

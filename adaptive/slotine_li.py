@@ -51,6 +51,7 @@ logs the estimates), over recorded positions (`replay`), and jitted once in a re
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Any, NamedTuple
 
 import equinox as eqx
@@ -60,7 +61,7 @@ import numpy as np
 from jax import Array
 
 from manus import estimators
-from manus.adaptive.composite import Composite, CompositeState, _upper, symmetric
+from manus.adaptive.composite import Composite, CompositeState, symmetric, upper_triangle
 from manus.adaptive.projection import Projection
 from manus.adaptive.regressors import DEFAULT_BOUNDARY, Regressor
 from manus.estimators.base import Estimator, run
@@ -134,8 +135,8 @@ def measure_lag(estimator: Estimator, n_joints: int, seconds: float = 2.0) -> fl
     return lag if np.isfinite(lag) and 0 <= lag < 0.1 else 0.0
 
 
-def _per(what: str, value, names: tuple[str, ...], default=None) -> np.ndarray:
-    """A per-item vector from None (default), a scalar, a sequence or a {name: value} dict."""
+def _per(what: str, value, names: tuple[str, ...], default: Sequence[float] | np.ndarray) -> np.ndarray:
+    """A per-item vector from None (`default`), a scalar, a sequence or a {name: value} dict."""
     if value is None:
         out = np.array(default, float)
     elif isinstance(value, dict):
@@ -333,6 +334,7 @@ class SlotineLi(Controller):
         if self.composite is None:
             new_theta = jnp.stack([t - self.dt * g * d for t, g, d in zip(th, gamma, grad, strict=True)])
         else:
+            assert comp is not None  # (init gives a composite controller its state)
             comp, W, tau_f = self.composite.step(
                 comp, self.regressor, q, jnp.stack(v), jnp.stack(tau), self.gamma, lead, self.dt
             )
@@ -424,7 +426,7 @@ class Log(NamedTuple):
 
 def _gram_start(m: int, dtype) -> tuple:
     """∫₀⁰ YᵀY dt, entry by entry: the upper triangle of an m×m zero matrix, row by row."""
-    return tuple(jnp.zeros((), dtype) for _ in _upper(m))
+    return tuple(jnp.zeros((), dtype) for _ in upper_triangle(m))
 
 
 def _gram_step(gram: tuple, Y: list, dt: float) -> tuple:
@@ -433,7 +435,9 @@ def _gram_step(gram: tuple, Y: list, dt: float) -> tuple:
     a (P, n) × (n, P) product per trial is a tiny batched matmul, and a (P, P) broadcast-and-sum
     took as long as the whole controller, measured)."""
     n, m = len(Y), len(Y[0])
-    return tuple(g + dt * sum(Y[a][i] * Y[a][j] for a in range(n)) for g, (i, j) in zip(gram, _upper(m), strict=True))
+    return tuple(
+        g + dt * sum(Y[a][i] * Y[a][j] for a in range(n)) for g, (i, j) in zip(gram, upper_triangle(m), strict=True)
+    )
 
 
 def rollout(
@@ -574,7 +578,7 @@ def rollout_batch(
     steps: int,
     every: int = 50,
     record: int = 1,
-    truth: Array | None = None,
+    truth: Array | np.ndarray | Sequence[float] | None = None,
 ) -> BatchLog:
     """Many closed-loop trials at once: trial i runs `controller` with per_trial = (â(0), Γ, Λ, K_D),
     each with a leading trial axis, and the plant's noise key keys[i]; `truth` (P,) the parameters'
@@ -606,7 +610,7 @@ def rollout_batch(
     *arrays, last_out = (np.moveaxis(np.asarray(x), -1, 0) for x in out)
     settle = np.where(last_out < steps - 1, (last_out + 1) * plant.dt, np.nan)
     t = (np.arange(steps // record) * record + record - 1) * plant.dt
-    return BatchLog(t, *arrays, settle)
+    return BatchLog._make([t, *arrays, settle])
 
 
 def _entries(tree) -> tuple[tuple, tuple]:
@@ -658,9 +662,14 @@ def _batch(plant, controller, reference, per_trial, keys, truth, steps: int, eve
     arrays, rest = eqx.partition((plant, controller, reference), eqx.is_array)
     rows, last = Ps(None, None, "trials"), Ps(None, "trials")
     out = (rows, rows, rows, Ps("trials"), Ps(None, None, None, "trials"), last, last, last, last)
+
     # no collectives inside: every device runs its own trials
+    def on_device(arrays, per_trial, keys, truth):
+        plant, controller, reference = eqx.combine(arrays, rest)
+        return run(plant, controller, reference, per_trial, keys, truth)
+
     local = jax.shard_map(
-        lambda arrays, per_trial, keys, truth: run(*eqx.combine(arrays, rest), per_trial, keys, truth),
+        on_device,
         mesh=jax.sharding.Mesh(np.array(devices), ("trials",)),
         in_specs=(Ps(), Ps("trials"), Ps("trials"), Ps()),
         out_specs=out,

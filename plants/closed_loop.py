@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import equinox as eqx
 import jax
@@ -22,14 +22,15 @@ from manus.plants.stepper import Controller, Plant, Reference
 
 
 class Trajectory(NamedTuple):
-    """What a closed-loop run produced, one row per tick: arrays (T,) or (T, n)."""
+    """What a closed-loop run produced, one row per tick: arrays (T,) or (T, n), JAX's inside the
+    scan and numpy's once returned (the same structure also carries their sharding specs)."""
 
-    t: Array
-    q: Array  # measured (quantized) positions
-    tau: Array  # commanded torques
-    q_true: Array  # true positions of the measured coordinate
-    qd_true: Array  # true velocities
-    q_ref: Array  # reference positions
+    t: Any
+    q: Any  # measured (quantized) positions
+    tau: Any  # commanded torques
+    q_true: Any  # true positions of the measured coordinate
+    qd_true: Any  # true velocities
+    q_ref: Any  # reference positions
 
 
 def _tick(plant: Plant, controller: Controller, reference: Reference):
@@ -79,9 +80,7 @@ def simulate(
     """
     steps = int(round(seconds / plant.dt))
     if not progress:
-        traj = eqx.filter_jit(
-            rollout,
-        )(plant, controller, reference, steps, key)
+        traj = eqx.filter_jit(rollout)(plant, controller, reference, steps, key)
         return _finite(Trajectory(*map(np.asarray, traj)), plant.dt)
     chunk = max(1, int(round(chunk_seconds / plant.dt)))
     carry = eqx.filter_jit(start)(plant, controller, reference, key)

@@ -51,7 +51,7 @@ from __future__ import annotations
 
 import math
 import re
-from typing import ClassVar, NamedTuple
+from typing import ClassVar, NamedTuple, TypeVar
 
 import equinox as eqx
 import jax
@@ -196,9 +196,10 @@ class Effect(eqx.Module):
 
 
 VOCABULARY: dict[str, type[Effect]] = {}  # the vocabulary of physical effects by name, in its order
+EffectClass = TypeVar("EffectClass", bound=type[Effect])
 
 
-def in_vocabulary(cls: type[Effect]) -> type[Effect]:
+def in_vocabulary(cls: EffectClass) -> EffectClass:
     """Register the effect class `cls` in `VOCABULARY` under its name; the vocabulary's order is the
     order of registration (each class below, as it is defined)."""
     if cls.name in VOCABULARY:
@@ -513,7 +514,7 @@ class Cogging(Effect):
         return cls(order=orders[0], more=tuple(orders[1:]))
 
     def describe(self):
-        out = {"order": float(self.order)}
+        out: dict = {"order": float(self.order)}
         if self.more:
             out["orders"] = [float(N) for N in self.orders]
         return out
@@ -619,14 +620,18 @@ class Delay(Effect):
             return {"delay_ms": [round(d * 1e3, 6) for d in self.seconds]}
         return {"delay_ms": self.seconds * 1e3}
 
-    def space(self, span):
-        """0 to a sensible fraction of the record (2 %, at most 100 ms, at least ten samples):
-        tenths of a sample up to five samples, then a geometric grid."""
+    @staticmethod
+    def _grid(span: Span) -> list[float]:
+        """The delays of `space` [s]."""
         top = max(10 * span.dt, min(0.02 * span.duration, 0.1))
         fine = np.arange(0.0, min(5 * span.dt, top), span.dt / 10)
         coarse = np.geomspace(5 * span.dt, top, 30) if top > 5 * span.dt else np.zeros(0)
-        grid = np.unique(np.round(np.r_[fine, coarse], 9))
-        return tuple(Delay(seconds=float(d)) for d in grid)
+        return [float(d) for d in np.unique(np.round(np.r_[fine, coarse], 9))]
+
+    def space(self, span):
+        """0 to a sensible fraction of the record (2 %, at most 100 ms, at least ten samples):
+        tenths of a sample up to five samples, then a geometric grid."""
+        return tuple(Delay(seconds=d) for d in self._grid(span))
 
     def grow(self, span):
         """One joint's delay other than it is now, the others kept: for each joint, every value
@@ -636,16 +641,16 @@ class Delay(Effect):
             return ()
         d = self.per_joint(n)
         return tuple(
-            Delay(seconds=tuple(float(v.seconds) if i == j else float(d[i]) for i in range(n)))
+            Delay(seconds=tuple(v if i == j else float(d[i]) for i in range(n)))
             for j in range(n)
-            for v in self.space(span)
-            if v.seconds != d[j]
+            for v in self._grid(span)
+            if v != d[j]
         )
 
     def edge(self, span):
         if not isinstance(self.seconds, tuple):
             return super().edge(span)
-        top = self.space(span)[-1].seconds
+        top = self._grid(span)[-1]
         at = [i + 1 for i, d in enumerate(self.seconds) if d >= top]
         if at:  # (a joint at 0 while the others are late is a value, not an edge)
             joints = ", ".join(map(str, at))

@@ -30,8 +30,10 @@ import math
 import signal
 import threading
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -40,6 +42,9 @@ from manus.plants.device import Device
 from manus.plants.errors import ManusError
 from manus.plants.recording import RecordingWriter
 from manus.plants.stepper import Controller, Plant, Reference
+
+if TYPE_CHECKING:
+    from jax.typing import ArrayLike
 
 STOPS = ("end", "watchdog", "fault", "user")
 FIRST_SAMPLE_TIMEOUT = 0.5  # s: after HELLO, the device's first sample
@@ -198,7 +203,7 @@ class HardwarePlant(Plant):
         sample = self._next(FIRST_SAMPLE_TIMEOUT)
         return sample, sample.counts * self.q_step
 
-    def step(self, state: P.Sensor, command):
+    def step(self, state: P.Sensor, command: ArrayLike | Sequence[float]):
         tau = np.asarray(command, float)
         if not np.all(np.isfinite(tau)):
             self.close()

@@ -31,7 +31,7 @@ ENTRIES = ("m", "hx", "hy", "hz", "xx", "yy", "zz", "xy", "xz", "yz")
 OFF_DIAGONAL = ("hx", "hy", "hz", "xy", "xz", "yz")
 
 
-def standard_of(j: np.ndarray) -> np.ndarray:
+def standard_of(j: np.ndarray | jax.Array) -> np.ndarray | jax.Array:
     """One link's standard parameters (m, mx, my, mz, Ixx, Ixy, Ixz, Iyy, Iyz, Izz) from its
     pseudo-inertia entries (in the order of `ENTRIES`); numpy or JAX arrays."""
     xp = jnp if isinstance(j, jax.Array) else np

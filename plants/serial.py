@@ -69,6 +69,7 @@ from manus.plants.structures import Admissible, Structure
 
 LINK_PARAMETERS = ("m", "mx", "my", "mz", "Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz")
 GRAVITY = (0.0, 0.0, -9.81)  # m/s², the world's z axis up
+Vector = Array | np.ndarray  # a chain's q, q̇, q̈ or parameters: JAX's or numpy's
 GRAVITY_IN_RIGID = (
     "a serial chain's gravity is part of rigid (the links' masses and first moments in the "
     "world's gravity): a cos/sin of each relative joint angle is not a physical effect there"
@@ -97,12 +98,12 @@ def _rotation(axis: Array, angle: Array) -> Array:
     return jnp.eye(3) + jnp.sin(angle) * K + (1 - jnp.cos(angle)) * (K @ K)
 
 
-def _mv(A: Array, x: Array) -> Array:
+def _mv(A: Array, x: Array | np.ndarray) -> Array:
     """A x for 3×3 matrices A (..., 3, 3), as products and sums (XLA compiles these faster than small dots)."""
     return (A * x[..., None, :]).sum(-1)
 
 
-def _inertia_tensor(t: Array) -> Array:
+def _inertia_tensor(t: Array | np.ndarray) -> Array:
     """The inertia tensor (..., 3, 3) of ten standard parameters (..., 10)."""
     return jnp.stack([t[..., 4:7], t[..., (5, 7, 8)], t[..., (6, 8, 9)]], -2)
 
@@ -305,7 +306,7 @@ class Serial(_Configuration):
         return jnp.stack([jnp.asarray(p[k]) for k in self.rigid_names])
 
     # -- dynamics on the parameter vector -----------------------------------------------------
-    def motion(self, q: Array, qd: Array, qdd: Array, gravity: bool = True) -> Motion:
+    def motion(self, q: Vector, qd: Vector, qdd: Vector, gravity: bool = True) -> Motion:
         """The outward pass of the RNEA: each link's velocity and acceleration from its parent's.
 
         Revolute joint (axis s, link frame = joint frame): ω = Rᵀω_p + s q̇,
@@ -333,7 +334,7 @@ class Serial(_Configuration):
         _, links = jax.lax.scan(outward, root, (self.rotation, self.translation, self.axis, slide, turn, q, qd, qdd))
         return Motion(*links)
 
-    def rnea(self, q: Array, qd: Array, qdd: Array, theta: Array, gravity: bool = True) -> Array:
+    def rnea(self, q: Vector, qd: Vector, qdd: Vector, theta: Vector, gravity: bool = True) -> Array:
         """Inverse dynamics τ (n,) [N·m or N] by the recursive Newton–Euler algorithm.
 
         After the outward pass (`motion`), each link's wrench about its origin in its own frame,
@@ -358,7 +359,7 @@ class Serial(_Configuration):
         _, tau = jax.lax.scan(inward, (zero, zero), (M.R, M.p, f, torque, self.axis, slide), reverse=True)
         return tau + theta[10 * n :] * qdd
 
-    def mass_matrix(self, q: Array, theta: Array) -> Array:
+    def mass_matrix(self, q: Vector, theta: Vector) -> Array:
         """H(q) (n, n), armature included, by composite inertias in the root frame.
 
         Joint i's unit motion is the twist ξ_i = S_i (as in `regressor`: (o0_i × s0_i, s0_i) for a
@@ -407,7 +408,7 @@ class Serial(_Configuration):
         return self.rnea(q, zero, qdd_r, theta) + self.coriolis_times(q, qd, qd_r, theta)
 
     # -- regressors ---------------------------------------------------------------------------
-    def regressor(self, q: Array, qd: Array, qdd: Array, gravity: bool = True) -> Array:
+    def regressor(self, q: Vector, qd: Vector, qdd: Vector, gravity: bool = True) -> Array:
         """Y (n, 11 n) with τ = Y θ (θ in the order of `rigid_names`), in closed form.
 
         Link j's wrench about its origin is linear in its ten parameters, (f, n) = A_j θ_j with
@@ -568,7 +569,7 @@ def base_parameters(serial: Serial, samples: int = 200, seed: int = 0, tol: floa
     qd, qdd = rng.standard_normal((2, samples, n))
     with jax.enable_x64(True):  # the numerical rank needs float64
         Y = np.asarray(jax.jit(jax.vmap(serial.regressor))(q, qd, qdd)).reshape(samples * n, -1)
-    _, R, perm = scipy.linalg.qr(Y, mode="economic", pivoting=True)
+    _, R, perm = scipy.linalg.qr(Y, mode="economic", pivoting=True)  # pyright: ignore[reportAssignmentType]
     diagonal = np.abs(np.diag(R))
     r = int(np.sum(diagonal > tol * diagonal[0]))
     beta = scipy.linalg.solve_triangular(R[:r, :r], R[:r, r:])
@@ -725,7 +726,7 @@ class SerialBase(Reparametrized):
         theta_b = jnp.stack([jnp.asarray(p[k]) for k in self.base_names])
         return jnp.zeros(len(self.serial.rigid_names), theta_b.dtype).at[jnp.asarray(self.columns)].set(theta_b)
 
-    def regressor(self, q: Array, qd: Array, qdd: Array) -> Array:
+    def regressor(self, q: Vector, qd: Vector, qdd: Vector) -> Array:
         """The base regressor (n, r)."""
         return self.serial.regressor(q, qd, qdd)[:, jnp.asarray(self.columns)]
 

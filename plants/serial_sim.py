@@ -31,12 +31,13 @@ from manus.plants.closed_loop import simulate
 from manus.plants.recording import from_trajectory
 from manus.plants.references import PositionReference
 from manus.plants.stepper import Controller, RefSample
+from manus.plants.structures import Structure
 
 
 class Feedforward(Controller):
     """Computed-torque feedforward along the reference plus a PD on the error (see the module docstring)."""
 
-    structure: object  # a Serial (or its base form)
+    structure: Structure  # a Serial (or its base form)
     params: dict  # its rigid parameters (nominal)
     stiffness: Array  # K (n,) [N·m/rad]
     damping: Array  # B (n,) [N·m·s/rad]

@@ -197,6 +197,7 @@ class Simulator(Plant):
         key = jax.random.PRNGKey(0) if key is None else key
         n = self.model.n_joints
         q = self.q0 if q0 is None else jnp.asarray(q0, float)
+        assert q is not None  # (set by __init__)
         q = jnp.broadcast_to(q, (n,)).astype(float)
         qd = jnp.zeros(n) if qd0 is None else jnp.broadcast_to(jnp.asarray(qd0, float), (n,))
         link = (q, qd) if self.compliance is not None else (None, None)
@@ -216,6 +217,7 @@ class Simulator(Plant):
         commands = jnp.concatenate([u[None], state.commands[:-1]])
         key = state.key
         held = commands  # zero-order hold + delay: sub-step j applies held[lag_j]
+        assert state.tick is not None  # (set by reset)
         if self.torque_noise:  # the key stays; the period's counter picks the draw
             held = held + self.torque_noise * white_noise(key, state.tick, u.shape[0]).astype(held.dtype)
         tick = state.tick + jnp.uint32(1)
@@ -237,28 +239,31 @@ class Simulator(Plant):
         q, qd = joints(state.q, n), joints(state.qd, n)
         if self.compliance is None:
 
-            def body(carry, is_late):
-                return self._substep_rigid(*carry, tau_of(is_late), h), None
+            def rigid(carry, is_late):
+                q, qd, pose, shift, bounds = carry
+                return self._substep_rigid(q, qd, pose, shift, bounds, tau_of(is_late), h), None
 
             carry = (q, qd, s.pose(q), self._half_shift(qd, h), self._bounds_ahead(q, qd, h))
-            (q, qd, *_), _ = jax.lax.scan(body, carry, xs, length=self.substeps)
+            (q, qd, *_), _ = jax.lax.scan(rigid, carry, xs, length=self.substeps)
             new = SimState(jnp.stack(q), jnp.stack(qd), None, None, commands, key, tick)
         else:
+            assert state.link_q is not None and state.link_qd is not None  # (set by reset with compliance)
             lq, lqd = joints(state.link_q, n), joints(state.link_qd, n)
 
-            def body(carry, is_late):
-                return self._substep_compliant(*carry, tau_of(is_late), h), None
+            def compliant(carry, is_late):
+                th, thd, q, qd, pose, shift, bounds = carry
+                return self._substep_compliant(th, thd, q, qd, pose, shift, bounds, tau_of(is_late), h), None
 
             carry = (q, qd, lq, lqd, s.pose(lq), self._half_shift(lqd, h), self._bounds_ahead(q, qd, h, "motor"))
-            (q, qd, lq, lqd, *_), _ = jax.lax.scan(body, carry, xs, length=self.substeps)
+            (q, qd, lq, lqd, *_), _ = jax.lax.scan(compliant, carry, xs, length=self.substeps)
             new = SimState(jnp.stack(q), jnp.stack(qd), jnp.stack(lq), jnp.stack(lqd), commands, key, tick)
         return new, self.measure(new)
 
     # -- dynamics, on per-joint scalars -----------------------------------------------------
     def _torque(self, q: Joints, qd: Joints, only, side=None) -> Joints:
         """The model's torques of the effects `only` accepts (`Model.torque` at q̈ = 0), per joint."""
-        qd = jnp.stack(qd)
-        tau = self.model.torque(jnp.stack(q), qd, jnp.zeros_like(qd), self.params, only=only, side=side)
+        v = jnp.stack(qd)
+        tau = self.model.torque(jnp.stack(q), v, jnp.zeros_like(v), self.params, only=only, side=side)
         return joints(tau, self.model.n_joints)
 
     def _friction_bounds(self, q: Joints, qd: Joints, side=None) -> tuple[Joints, Joints]:
@@ -303,7 +308,7 @@ class Simulator(Plant):
     # them: as a loop output XLA evaluates them once, not again inside each of their consumers.
     def _accel_rigid(self, q, qd, pose, tau):
         s, p = self.model.structure, self.params
-        r = [t - b - l for t, b, l in zip(tau, s.bias(pose, qd, p), self._torque(q, qd, is_load), strict=True)]
+        r = tuple(t - b - l for t, b, l in zip(tau, s.bias(pose, qd, p), self._torque(q, qd, is_load), strict=True))
         return s.mass(pose, p).solve(r)
 
     def _substep_rigid(self, q, qd, pose, shift, bounds, tau, h):
@@ -319,6 +324,7 @@ class Simulator(Plant):
 
     def _accel_compliant(self, th, thd, q, qd, pose, tau):
         s, p, c = self.model.structure, self.params, self.compliance
+        assert c is not None  # (the compliant sub-step runs with compliance only)
         H = s.mass(pose, p)
         jm = tuple(c.motor_fraction * x for x in H.diagonal())  # motor rotor inertia; the link has the rest
         shaft = []
@@ -328,7 +334,7 @@ class Simulator(Plant):
         motor = self._torque(th, thd, is_load, "motor")
         link = self._torque(q, qd, is_load, "link")
         am = tuple((t - x - m) / j for t, x, m, j in zip(tau, shaft, motor, jm, strict=True))
-        rl = [x - b - l for x, b, l in zip(shaft, s.bias(pose, qd, p), link, strict=True)]
+        rl = tuple(x - b - l for x, b, l in zip(shaft, s.bias(pose, qd, p), link, strict=True))
         return am, H.minus_diagonal(jm).solve(rl), jm
 
     def _substep_compliant(self, th, thd, q, qd, pose, shift, bounds, tau, h):

@@ -259,7 +259,7 @@ class Structure(eqx.Module):
 
     # -- joint-tuple form -------------------------------------------------------------------
     @abc.abstractmethod
-    def pose(self, q: Joints) -> tuple:
+    def pose(self, q: Joints | Array) -> tuple:
         """What H and C need of the configuration q (manus2: cos and sin of q2 − q1)."""
 
     @abc.abstractmethod

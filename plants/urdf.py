@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 import pathlib
 import xml.etree.ElementTree as ET
-from typing import NamedTuple
+from typing import NamedTuple, cast
 
 import numpy as np
 
@@ -106,11 +106,14 @@ def read(path) -> tuple[dict, dict]:
         R, p = _origin(j)
         axis = _floats(j.find("axis"), "xyz", "1 0 0")
         dynamics = j.find("dynamics")
+        # a malformed file's missing attribute (None) or element (AttributeError) is refused by Serial.from_urdf
+        parent = j.find("parent").get("link")  # pyright: ignore[reportOptionalMemberAccess]
+        child = j.find("child").get("link")  # pyright: ignore[reportOptionalMemberAccess]
         joints[j.get("name")] = Joint(
-            j.get("name"),
-            j.get("type"),
-            j.find("parent").get("link"),
-            j.find("child").get("link"),
+            cast(str, j.get("name")),
+            cast(str, j.get("type")),
+            cast(str, parent),
+            cast(str, child),
             R,
             p,
             axis / np.linalg.norm(axis),

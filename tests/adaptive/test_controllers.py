@@ -1,5 +1,7 @@
 """The controller registry: names, gains, estimators by name, and clear refusals."""
 
+from typing import cast
+
 import pytest
 
 from manus.adaptive import CONTROLLERS, Composite, Impedance, SlotineLi, make_controller
@@ -19,15 +21,17 @@ def test_every_name_builds_its_controller():
     assert isinstance(sl, SlotineLi) and sl.composite is None
     assert list(sl.gamma) == [0.2, 0.2, 0.5, 3.0, 5.0] and list(sl.kd) == [4.0, 6.0]  # thesis Γ for a1..a3
     assert sl.lead == 0.0005 and sl.velocity_lag == pytest.approx(0.0005)
-    comp = make_controller("slotine-li-composite", Model(Axis(n_joints=1), "rigid,coulomb"), 1e-3, weight=7.0)
+    comp = cast(
+        SlotineLi, make_controller("slotine-li-composite", Model(Axis(n_joints=1), "rigid,coulomb"), 1e-3, weight=7.0)
+    )
     assert comp.composite == Composite(weight=7.0)
 
 
 def test_estimators_come_by_name_and_model_based_ones_use_the_controllers_model():
-    sl = make_controller("slotine-li", MODEL, 1e-3, "kalman_model")
-    assert sl.estimator.dynamics.model.names == MODEL.names
+    sl = cast(SlotineLi, make_controller("slotine-li", MODEL, 1e-3, "kalman_model"))
+    assert sl.estimator.model is not None and sl.estimator.model.names == MODEL.names
     assert sl.velocity_lag == 0.0
-    ffd = make_controller("slotine-li", MODEL, 1e-3, FilteredFirstDifference())
+    ffd = cast(SlotineLi, make_controller("slotine-li", MODEL, 1e-3, FilteredFirstDifference()))
     assert ffd.velocity_lag == pytest.approx(1 / 188.5, rel=0.01)  # the filter's 1/λ
 
 

@@ -4,6 +4,7 @@ checked against pinocchio in tests/plants/test_serial.py), the projection agains
 semidefinite solution, and a closed loop whose estimates stay physically consistent."""
 
 import pathlib
+from typing import cast
 
 import cvxpy as cp
 import equinox as eqx
@@ -86,7 +87,7 @@ def test_projection_is_the_closest_consistent_point(chain):
     )
     prob = cp.Problem(cp.Minimize(cp.sum(cp.multiply(1 / gamma[idx], cp.square(x - bad[idx])))), [J >> 0])
     prob.solve(solver=cp.CLARABEL)
-    np.testing.assert_allclose(out[idx], x.value, atol=1e-6)
+    np.testing.assert_allclose(out[idx], cast(np.ndarray, x.value), atol=1e-6)
     # the rest of θ untouched
     rest = [k for k in range(len(good)) if k not in idx]
     assert np.array_equal(out[rest], bad[rest])
@@ -108,7 +109,7 @@ def test_closed_loop_converges_and_stays_consistent(chain, law):
     truth = model.defaults()
     theta0 = {k: v * (0.5 if k.startswith("J") else 0.0) for k, v in truth.items()}
     name = "slotine-li" if law == "gradient" else "slotine-li-composite"
-    ctl = make_controller(name, model, plant.dt, theta0=theta0, limit=50.0)
+    ctl = cast(SlotineLi, make_controller(name, model, plant.dt, theta0=theta0, limit=50.0))
     log, _ = rollout(plant, ctl, MultiSine(jnp.zeros(2), 0.8, seed=1), 8000, key=jax.random.PRNGKey(0))
     err = np.sqrt(np.mean((np.asarray(log.q) - np.asarray(log.q_ref)) ** 2, axis=1))
     first, last = np.sqrt(np.mean(err[:2000] ** 2)), np.sqrt(np.mean(err[-2000:] ** 2))
@@ -134,7 +135,9 @@ def test_composite_identifies_the_base_parameters(chain):
     model = Model(base, "rigid,viscous,coulomb")
     truth = model.defaults()
     theta0 = {k: v * (0.5 if k in base.base_names else 0.0) for k, v in truth.items()}
-    ctl = make_controller("slotine-li-composite", model, plant.dt, theta0=theta0, limit=50.0, project=False)
+    ctl = cast(
+        SlotineLi, make_controller("slotine-li-composite", model, plant.dt, theta0=theta0, limit=50.0, project=False)
+    )
     log, _ = rollout(plant, ctl, MultiSine(jnp.zeros(2), 0.8, seed=1), 8000, key=jax.random.PRNGKey(0))
     final = dict(zip(model.names, np.asarray(log.theta)[-1], strict=True))
     for k, v in truth.items():

@@ -2,6 +2,8 @@
 Python loop vs the closed loop, the composite law's prediction error, model-based estimators fed
 with the estimates, and bad input (errors before the run, a safe stop during it)."""
 
+from typing import cast
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -108,7 +110,7 @@ def test_composite_prediction_error_of_the_true_parameters_is_small_and_timing_m
 
 def test_composite_gain_stays_symmetric_positive_definite_and_shrinks(run):
     _, traj, refs = run
-    ctrl = make_controller("slotine-li-composite", TRUTH, 1e-3, theta0=0.7 * THETA)
+    ctrl = cast(SlotineLi, make_controller("slotine-li-composite", TRUTH, 1e-3, theta0=0.7 * THETA))
     states, _ = replay(ctrl, traj.q, refs)  # the controller cannot tell a recording from its own loop
     P = np.asarray(states.composite.P[-1])
     np.testing.assert_allclose(P, P.T, atol=1e-14)

@@ -1,10 +1,12 @@
 """Each effect is defined once by its torque; its regressor must reproduce it exactly."""
 
+from typing import cast
+
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from manus.plants.effects import VOCABULARY, Model, is_dry, is_load, parse_effects
+from manus.plants.effects import VOCABULARY, Compliance, Delay, Model, is_dry, is_load, parse_effects
 from manus.plants.errors import ModelError
 from manus.plants.structures import Axis, Manus2
 
@@ -100,7 +102,7 @@ def test_boundary_layer_replaces_the_sign_by_a_saturated_ramp():
 def test_parse_specs_and_errors():
     effects = parse_effects("delay:2ms, rigid,cogging:39,stribeck:0.02")
     assert [e.name for e in effects] == ["rigid", "stribeck", "cogging", "delay"]
-    assert effects[-1].seconds == pytest.approx(0.002)
+    assert cast(Delay, effects[-1]).seconds == pytest.approx(0.002)
     assert Model(Manus2(), effects).spec == "rigid,stribeck:0.02,cogging:39,delay:2ms"
     with pytest.raises(ModelError, match=r"unknown effect 'friction'.*vocabulary is rigid"):
         parse_effects("rigid,friction")
@@ -150,15 +152,15 @@ def test_the_vocabulary_is_a_registry_and_each_effect_parses_its_own_argument():
 def test_thesis_defaults():
     d = Model(Manus2(), "rigid,viscous,coulomb").defaults()
     assert d == {"a1": 0.349, "a2": 0.241, "a3": 0.246, "b1": 0.222, "b2": 0.181, "Fc1": 0.099, "Fc2": 0.139}
-    c = parse_effects("compliance")[0]
+    c = cast(Compliance, parse_effects("compliance")[0])
     k, b = c.shaft(jnp.asarray(1.0))  # the thesis's 1-DOF model: m = 0.1, m2 = 0.9
     assert float(k) == pytest.approx(170000, rel=0.001) and float(b) == pytest.approx(2.0, rel=0.01)
 
 
 def test_a_delay_per_joint_reads_writes_and_grows_one_joint_at_a_time():
-    from manus.plants.effects import Delay, Span
+    from manus.plants.effects import Span
 
-    (d,) = parse_effects("delay:1ms/3ms")
+    (d,) = cast(tuple[Delay], parse_effects("delay:1ms/3ms"))
     assert d.seconds == pytest.approx((1e-3, 3e-3)) and parse_effects(d.spec)[0] == d
     assert d.describe() == {"delay_ms": [1.0, 3.0]}
     with pytest.raises(ModelError, match="negative"):
@@ -167,9 +169,9 @@ def test_a_delay_per_joint_reads_writes_and_grows_one_joint_at_a_time():
         d.per_joint(3)
     span = Span(1e-3, 10.0, np.ones(2), 1e-5, np.ones(2), (False, False))
     grown = Delay(seconds=0.002).grow(span)
-    grid = [v.seconds for v in Delay().space(span)]
+    grid = [cast(float, v.seconds) for v in Delay().space(span)]
     assert len(grown) == 2 * (len(grid) - 1)  # every other value, on one joint, the other at 2 ms
-    assert all(sum(x != 0.002 for x in g.seconds) == 1 for g in grown)
+    assert all(sum(x != 0.002 for x in cast(tuple, g.seconds)) == 1 for g in grown)
     assert Delay(seconds=0.002).grow(Span(1e-3, 10.0, np.ones(1), 1e-5, np.ones(1), (False,))) == ()
-    assert "joint 2" in Delay(seconds=(0.0, grid[-1])).edge(span)
+    assert "joint 2" in cast(str, Delay(seconds=(0.0, grid[-1])).edge(span))
     assert Delay(seconds=(0.0, 0.002)).edge(span) is None  # a joint at 0 while the other is late: a value

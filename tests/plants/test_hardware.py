@@ -12,6 +12,7 @@ import threading
 import time
 import warnings
 from pathlib import Path
+from typing import IO, cast
 
 import jax.numpy as jnp
 import numpy as np
@@ -22,7 +23,7 @@ from manus.plants.hardware import realtime_jax
 
 realtime_jax()
 
-from manus.plants.device import open_device  # noqa: E402
+from manus.plants.device import UdpDevice, open_device  # noqa: E402
 from manus.plants.hardware import CompiledTick, run_loop  # noqa: E402
 from manus.plants.recording import RecordingWriter, read  # noqa: E402
 from manus.plants.stepper import Controller, Plant  # noqa: E402
@@ -90,8 +91,8 @@ def stepper(rigs):
     return compiled_tick(info, "slotine-li", "kalman_cv", TRUTH, None, "benign")
 
 
-def _device(rigs, name):
-    dev = open_device(f"udp://127.0.0.1:{rigs[name][1]}")
+def _device(rigs, name) -> UdpDevice:
+    dev = cast(UdpDevice, open_device(f"udp://127.0.0.1:{rigs[name][1]}"))
     dev.connect()
     dev.stop()
     return dev
@@ -139,7 +140,7 @@ def test_a_two_second_run_tracks_its_reference_and_leaves_a_readable_recording(r
     # (through the 12-bit D/A), wherever that command arrived in time
     nxt = [by_seq.get(int(s) + 1) for s in rec.extra["seq"][:-1]]
     ok = np.array([j is not None and not int(dev_rec.extra["flags"][j]) & P.STATUS_LATE for j in nxt])
-    applied = dev_rec.tau[[j for j, o in zip(nxt, ok, strict=True) if o]]
+    applied = dev_rec.tau[[j for j, o in zip(nxt, ok, strict=True) if o and j is not None]]
     assert ok.any()
     assert np.max(np.abs(applied - rec.tau[:-1][ok])) <= HALF_LSB_TORQUE + 1e-6
     # and the session ended at zero torque
@@ -190,7 +191,8 @@ def test_a_controller_returning_nan_stops_the_run_at_zero_torque(rigs, tmp_path)
 
     dev = _device(rigs, "clean")
     ctrl = NaNAfter(make_controller("impedance", Model(structure_named("manus2", 2), TRUTH), 1e-3), 300)
-    tick = CompiledTick(ctrl, Benign(), 1e-3, dev.info.counts_per_rev, 2, dev.info.torque_limit)
+    info = cast(P.Info, dev.info)
+    tick = CompiledTick(ctrl, Benign(), 1e-3, info.counts_per_rev, 2, info.torque_limit)
     tick.warm_up()
     r = run_loop(dev, tick, 2.0, tmp_path / "nan.csv", watchdog=0.5)
     dev.close()
@@ -311,7 +313,7 @@ def test_kill_9_of_the_loop_leaves_the_device_at_zero_torque_and_a_readable_reco
     try:
         end = time.monotonic() + 90
         while time.monotonic() < end and (not rec_path.exists() or rec_path.read_text().count("\n") < 600):
-            assert loop.poll() is None, loop.stderr.read().decode()
+            assert loop.poll() is None, cast(IO[bytes], loop.stderr).read().decode()
             time.sleep(0.05)
         os.kill(loop.pid, signal.SIGKILL)
         loop.wait()

@@ -84,7 +84,7 @@ def test_inverse_dynamics_mass_matrix_and_regressor_agree_with_pinocchio(robot):
     standard = np.concatenate([model.inertias[j + 1].toDynamicParameters()[PIN_ORDER] for j in range(n)])
     np.testing.assert_allclose(theta[: 10 * n], standard, rtol=0, atol=1e-12)
     q, qd, qdd, _ = states(serial, 20, seed=1)
-    tau = jax.jit(jax.vmap(lambda *x: serial.rnea(*x, theta)))(q, qd, qdd)
+    tau = jax.jit(jax.vmap(lambda q, qd, qdd: serial.rnea(q, qd, qdd, theta)))(q, qd, qdd)
     H = jax.jit(jax.vmap(lambda q: serial.mass_matrix(q, theta)))(q)
     Y = jax.jit(jax.vmap(serial.regressor))(q, qd, qdd)
     worst = {"tau": 0.0, "H": 0.0, "Y": 0.0}
@@ -204,7 +204,7 @@ def test_double_pendulum_matches_its_closed_form(tmp_path):
     assert serial.joint_names == ("shoulder", "elbow") and serial.rigid_defaults[-2:] == (0.0, 0.004)
     theta = np.append(serial.defaults[:-1], 0.0)  # the closed form has no armature
     q, qd, qdd, _ = states(serial, 5, seed=5)
-    tau = jax.jit(jax.vmap(lambda *x: serial.rnea(*x, theta)))(q, qd, qdd)
+    tau = jax.jit(jax.vmap(lambda q, qd, qdd: serial.rnea(q, qd, qdd, theta)))(q, qd, qdd)
     H = jax.jit(jax.vmap(lambda q: serial.mass_matrix(q, theta)))(q)
     for k in range(len(q)):
         H_ref, tau_ref = pendulum_closed_form(q[k], qd[k], qdd[k])

@@ -3,6 +3,9 @@ form, `structure_named("urdf", ...)` and `structure: urdf` recordings (with `# r
 References: pinocchio's inverse dynamics (rigid, gravity included) plus the friction laws in
 closed form; the regressor against the model's torque."""
 
+from pathlib import Path
+from typing import cast
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -37,7 +40,7 @@ def test_a_model_of_a_serial_chain_is_its_rigid_torque_plus_friction_per_joint(p
     p.update({f"Fc{i}": v for i, v in enumerate(rng.uniform(0.1, 1, n), 1)})
     p.update({f"off{i}": v for i, v in enumerate(rng.uniform(-1, 1, n), 1)})
     q, qd, qdd, _ = states(serial, 5, seed=8)
-    tau = jax.jit(jax.vmap(lambda *x: m.torque(*x, p)))(q, qd, qdd)
+    tau = jax.jit(jax.vmap(lambda q, qd, qdd: m.torque(q, qd, qdd, p)))(q, qd, qdd)
     Y = jax.jit(jax.vmap(m.regressor))(q, qd, qdd)
     b, Fc, off = (np.array([p[f"{k}{i}"] for i in range(1, n + 1)]) for k in ("b", "Fc", "off"))
     for k in range(len(q)):
@@ -145,12 +148,12 @@ def test_a_urdf_recording_names_its_robot_relative_to_itself(tmp_path):
             assert "# robot: ../robots/pendulum.urdf\n" in path.read_text()
         back = recording.read(path)
         assert back.structure_name == "urdf" and back.meta["robot"] == "../robots/pendulum.urdf"
-        assert back.robot.resolve() == robot.resolve()
+        assert cast(Path, back.robot).resolve() == robot.resolve()
         assert isinstance(back.structure, Serial) and back.structure.joint_names == ("shoulder", "elbow")
         assert back.prismatic == (False, False)
         # written again elsewhere, the path follows
         again = recording.write(back, tmp_path / "other" / "deeper" / path.name)
-        assert recording.read(again).robot.resolve() == robot.resolve()
+        assert cast(Path, recording.read(again).robot).resolve() == robot.resolve()
     # --robot (read(robot=...)) makes any recording a serial chain's
     plain = recording.write(_pendulum_recording(), tmp_path / "plain.csv")
     assert recording.read(plain).structure_name == "manus2"

@@ -1,12 +1,16 @@
 """Simulating a serial chain: the coupled stick-slip step against a direct solution, and the
 simulator's serial robot against the equations of motion it integrates (pinocchio's ABA)."""
 
+from pathlib import Path
+from typing import cast
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 import scipy.optimize
 
+from manus.plants.serial import Serial
 from manus.plants.serial_friction import ROUNDS, SWEEPS, Dense, box_friction, pgs
 from tests.plants.test_serial import load
 
@@ -45,7 +49,7 @@ def _cases(count: int, seed: int):
 
 def test_the_friction_step_is_the_exact_box_qp_solution():
     H, v, lo, hi, dt = _cases(200, seed=1)
-    f, exact = jax.jit(jax.vmap(lambda *x: box_friction(*x, dt)))(H, v, lo, hi)
+    f, exact = jax.jit(jax.vmap(lambda H, v, lo, hi: box_friction(H, v, lo, hi, dt)))(H, v, lo, hi)
     start = jnp.clip(jnp.einsum("kij,kj->ki", H, v) / dt, -lo, hi)
     W = dt * np.linalg.inv(H)
     pgs_only = jax.jit(jax.vmap(lambda W, v, lo, hi, f: pgs(W, v, lo, hi, f, ROUNDS * SWEEPS)))(W, v, lo, hi, start)
@@ -180,5 +184,5 @@ def test_a_simulated_panda_recording_says_structure_urdf(tmp_path):
     assert tracking < 0.01  # the feed-forward controller holds the arm up along the reference
     path = recording.write(rec, tmp_path / "panda.csv")
     back = recording.read(path)
-    assert back.structure_name == "urdf" and back.robot.resolve() == __import__("pathlib").Path(serial.source).resolve()
-    assert back.structure.joint_names == serial.joint_names and back.n_joints == 7
+    assert back.structure_name == "urdf" and cast(Path, back.robot).resolve() == Path(serial.source).resolve()
+    assert cast(Serial, back.structure).joint_names == serial.joint_names and back.n_joints == 7

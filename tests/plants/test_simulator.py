@@ -6,6 +6,7 @@ import math
 import pathlib
 import subprocess
 import sys
+from typing import cast
 
 import equinox as eqx
 import jax
@@ -14,7 +15,7 @@ import numpy as np
 import pytest
 
 from manus.adaptive.impedance import Impedance
-from manus.plants import Model, Simulator
+from manus.plants import Actuator, Model, Simulator
 from manus.plants.closed_loop import simulate, simulate_batch
 from manus.plants.effects import is_dry, is_load
 from manus.plants.references import Complex, MultiSine
@@ -89,7 +90,7 @@ def test_positions_are_reported_on_the_encoder_grid():
 def test_actuator_chain_quantizes_and_saturates():
     sim = Simulator(Model(Manus2(), "rigid"))
     lsb = 20 / 4096 * 0.6 * 3.7
-    out = np.asarray(sim.actuator(jnp.array([0.1234, 100.0, -100.0])))
+    out = np.asarray(cast(Actuator, sim.actuator)(jnp.array([0.1234, 100.0, -100.0])))
     np.testing.assert_allclose(out, [round(0.1234 / lsb) * lsb, 2047 * lsb, -2048 * lsb])
 
 
@@ -210,7 +211,7 @@ def test_the_torque_noise_is_white_and_gaussian_as_numpys_generator_is():
         tails = np.mean(np.abs(z) > 3.0)  # 0.27 % for a Gaussian
         assert abs(tails - 0.0027) < 4.5 * math.sqrt(0.0027 / z.size)
     assert abs(corr(ours[:, 0], other_key[:, 0])) < bound
-    assert ks_2samp(ours.ravel(), numpys.ravel()).pvalue > 1e-3
+    assert ks_2samp(ours.ravel(), numpys.ravel()).pvalue > 1e-3  # pyright: ignore[reportAttributeAccessIssue]
     assert np.abs(ours).max() < 5.5  # 24 random bits per draw: the tails stop at 5.4
 
 
