@@ -122,6 +122,18 @@ class Candidate:
         """Significant, and nothing stops it from being proposed."""
         return self.significant and not self.problems
 
+    def fitted(self) -> Fit:
+        """The model with this candidate, fitted on every row (a structural mode, judged in its
+        frequency band, has none)."""
+        assert self.fit is not None, f"{self.effect} was judged in its frequency band: it has no fit"
+        return self.fit
+
+    def found(self) -> Effect:
+        """Its effect with its non-linear parameter as found (in `fitted`'s model)."""
+        e = self.fitted().model.get(self.effect)
+        assert e is not None, f"{self.effect} is in its own fit"
+        return e
+
     @property
     def brings(self) -> tuple[str, ...]:
         """The effects it brings with it."""
@@ -265,6 +277,7 @@ def judge(ctx: Context, offer: Offer) -> Candidate:
         # bound (the others explain nothing physical: their statistic would be the wrong sign's)
         free = g.free(ctx.whole)
         scores = [block_scores(g.exact(i), tested, groups) for i in range(len(g.values))]
+        assert g.lower is not None, "a linear effect's grid holds its bounds"
         signed = np.isfinite(g.lower)[tested]  # (its columns whose physics fixes their sign: a one-sided test)
         judged = [x for x, ok in zip(scores, free, strict=True) if ok]
         tests["score"], _, how = score_p(judged, ctx.alpha / len(SIGNIFICANCE), signed=signed)

@@ -50,7 +50,9 @@ class Step:
     @property
     def verdict(self) -> Candidate:
         """The candidate the step added."""
-        return self.diagnosis.verdict
+        v = self.diagnosis.verdict
+        assert v is not None, "a step adds its diagnosis's verdict"
+        return v
 
     def report(self) -> dict:
         """The step in `manus discover`'s JSON."""
@@ -127,11 +129,13 @@ def effect_params(f: Fit, effect: str) -> dict:
     """The fitted parameters of one effect of `f`: {name: {"value", "std"}} plus its
     non-linear parameters (order, vs, delay_ms) as plain numbers."""
     e = f.model.get(effect)
+    assert e is not None, f"{effect} is in the fitted model"
     report = f.report()["params"]
     out = {k: report[k] for k in e.names(f.model.structure)}
     for b in e.brings:  # what it brought with it (a spring's preload: the offset)
-        if f.model.has(b):
-            out.update({k: report[k] for k in f.model.get(b).names(f.model.structure)})
+        brought = f.model.get(b)
+        if brought is not None:
+            out.update({k: report[k] for k in brought.names(f.model.structure)})
     out.update(e.describe())
     return out
 
@@ -149,7 +153,8 @@ def _refine(data: Data, cols: Columns, current: Fit, given: set[str], method: st
         return current, ""
     keep = {e.name for e in current.model.effects} - {e.name for e in free}
     again = fit(data, current.model, fixed=keep, columns=cols, method=method)
-    changed = [(e, again.model.get(e.name)) for e in free if again.model.get(e.name).spec != e.spec]
+    found = [(e, again.model.get(e.name)) for e in free]
+    changed = [(a, b) for a, b in found if b is not None and b.spec != a.spec]
     if not changed or not again.rel_error < current.rel_error or any(b.edge(span) for _, b in changed):
         return current, ""
     return again, ", ".join(f"{a.spec} -> {b.spec}" for a, b in changed)
@@ -214,7 +219,7 @@ def discover(
             )
             say(f"step {len(steps)}: + {v.spec} (frequency response; not refitted)")
             return Discovery(start, steps, None, "compliance (not refitted)", notes)
-        spec = v.fit.model.spec  # the model with the verdict's effect as found (its search fixed)
+        spec = v.fitted().model.spec  # the model with the verdict's effect as found (its search fixed)
         current = fit(data, spec, columns=cols, method=method)
         current, moved = _refine(data, cols, current, given, method)
         spec = current.model.spec

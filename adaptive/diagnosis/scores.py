@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import NamedTuple, cast
 
 import numpy as np
 from scipy import stats
@@ -32,7 +32,7 @@ def block_scores(st: Stats, test: np.ndarray, blocks: np.ndarray) -> Scores:
     so that Z̃ᵀX = 0; Z = X for least squares). Their sum is what the tested columns would
     explain; a block's information Q_b = (Z̃ᵀE)_b is its share of the signal they carry: fitted,
     they take Q_b β̂ out of block b's score. `blocks` (G, S): the segments each block holds."""
-    A, b = (st.H, st.h) if st.iv else (st.G, st.g)
+    A, b = st.normal()
     test = np.asarray(test, bool)
     idx = np.r_[np.flatnonzero(~test), np.flatnonzero(test)]
     A, b = A[:, idx][:, :, idx], b[:, idx]
@@ -282,7 +282,7 @@ def _noncentrality(k: int, dof: int, alpha: float, power: float) -> float:
     top = 10.0
     while gap(top) < 0 and top < 1e6:
         top *= 4
-    return float(brentq(gap, 1e-9, top))
+    return float(cast(float, brentq(gap, 1e-9, top)))
 
 
 def _solve_psd(omega: np.ndarray, m: np.ndarray) -> np.ndarray:
@@ -309,5 +309,5 @@ def correlation_time(x: np.ndarray, dt: float) -> float:
         taus = 1 + 2 * np.cumsum(ac[1 : n // 4])  # the estimate summed up to each lag m = 1, 2, ...
         window = np.flatnonzero(np.arange(1, taus.size + 1) >= 5 * taus)
         tau = taus[window[0]] if window.size else taus[-1]
-        out = max(out, tau * dt)
+        out = max(out, float(tau * dt))
     return out

@@ -129,8 +129,10 @@ def diagnose(
         raise ModelError("diagnose: the columns given were computed on other data")
     cols = columns or Columns(data)
     span = data.span()
-    reuse = fitted is not None and fitted.data is data and fitted.model.spec == parsed.spec
-    base = fitted if reuse else fit(data, model, columns=cols, method=method)
+    if fitted is not None and fitted.data is data and fitted.model.spec == parsed.spec:
+        base = fitted
+    else:
+        base = fit(data, model, columns=cols, method=method)
     icols = base.instruments if base.method == "iv" else None
     k = _blocks_for(data, blocks)
     guard = int(np.ceil(1.0 / (data.cutoff_hz * data.dt)))
@@ -182,7 +184,7 @@ def _aliases(ctx: Context, cands: list[Candidate]) -> None:
     fitted = [c for c in cands if c.fit is not None and c.significant]
     for i, a in enumerate(fitted):
         for b in fitted[i + 1 :]:
-            ea, eb = a.fit.model.get(a.effect), b.fit.model.get(b.effect)
+            ea, eb = a.found(), b.found()
             Ya, Yb, Y0 = cols.effect(ea), cols.effect(eb), cols.model(base.model)
             ab = lsq.unidentifiable(np.concatenate([Y0, Yb, Ya], 2), 1e-5)
             ba = lsq.unidentifiable(np.concatenate([Y0, Ya, Yb], 2), 1e-5)
@@ -207,9 +209,10 @@ def _choose(cands: list[Candidate], alpha: float, cutoff_hz: float = np.inf) -> 
     if modes_:
         mode = modes_[0]
         if ok:
+            f_hz = mode.mode.f_hz if mode.mode is not None else np.inf
             where = (
-                f"it rings at {mode.mode.f_hz:.3g} Hz, inside the identification band (cut-off {cutoff_hz:.3g} Hz)"
-                if mode.mode.f_hz < cutoff_hz
+                f"it rings at {f_hz:.3g} Hz, inside the identification band (cut-off {cutoff_hz:.3g} Hz)"
+                if f_hz < cutoff_hz
                 else "its resonance peak is evidence no other effect leaves"
             )
             mode.note = (
@@ -236,7 +239,7 @@ def _choose(cands: list[Candidate], alpha: float, cutoff_hz: float = np.inf) -> 
             best = alone
     if best.aliases:
         group = [best] + [c for c in ok if c.effect in best.aliases]
-        s = best.fit.model.structure
+        s = best.fitted().model.structure
         pick = min(group, key=lambda c: (_bounded(c, s), c.n_params, c.cv_sse.sum()))
         others = [c.effect for c in group if c is not pick]
         how = _apart(c.effect for c in group)
@@ -273,18 +276,21 @@ def _encompassing(ctx: Context, verdict: Candidate, cands: list[Candidate]) -> C
         ),
         key=lambda c: c.cv_sse.sum(),
     )
+    with_v = verdict.fitted()
     for c in rivals:
-        if verdict.fit.model.has(c.effect):
+        if with_v.model.has(c.effect):
             continue
-        model = verdict.fit.model
-        for e in c.fit.model.effects:  # the rival with what it brings
+        model = with_v.model
+        for e in c.fitted().model.effects:  # the rival with what it brings
             model = model if model.has(e.name) else model.with_effect(e)
         both = ctx.fit(model)
-        extra, adds = _adds(ctx, model, verdict.fit, both)
+        extra, adds = _adds(ctx, model, with_v, both)
         if not adds:
             continue
-        nested = {e.name for e in model.effects} == {e.name for e in c.fit.model.effects}  # (a delay has no columns)
-        if nested or not _adds(ctx, model, c.fit, both)[1]:
+        nested = {e.name for e in model.effects} == {
+            e.name for e in c.fitted().model.effects
+        }  # (a delay has no columns)
+        if nested or not _adds(ctx, model, c.fitted(), both)[1]:
             c.note = ((c.note + "; ") if c.note else "") + (
                 f"it accounts for what {verdict.spec} explains and more: on top of {verdict.spec} it adds "
                 f"{100 * extra:.2f}% of the torque, significantly, while {verdict.spec} adds nothing significant on "
@@ -306,14 +312,13 @@ def _mark_overlaps(ctx: Context, verdict: Candidate, cands: list[Candidate]) -> 
     for c in cands:
         if c is verdict or not c.significant or c.fit is None or c.effect in verdict.aliases:
             continue
-        e = c.fit.model.get(c.effect)
         if with_v.model.has(c.effect):
             continue
-        model = with_v.model.with_effect(e)
+        model = with_v.model.with_effect(c.found())
         both = ctx.fit(model)
         extra, adds = _adds(ctx, model, with_v, both)
         if not adds:
-            if not _adds(ctx, model, c.fit, both)[1]:  # nor back
+            if not _adds(ctx, model, c.fitted(), both)[1]:  # nor back
                 same.append(c.spec)
                 names.append(c.effect)
             c.overlaps = verdict.effect

@@ -19,13 +19,12 @@ import numpy as np
 from manus.adaptive.identify.prepare import PREFETCH_BYTES, Data
 from manus.estimators.offline import lowpass
 from manus.plants.effects import Effect, Model
-from manus.plants.serial import Serial
 
 
 def identified(structure):
     """The form of a structure that identification fits: a serial chain's base parameters, the
     others as they are."""
-    return structure.base() if isinstance(structure, Serial) else structure
+    return structure.identified_form()
 
 
 @functools.lru_cache(maxsize=1)
@@ -79,9 +78,9 @@ class Columns:
         # (other rows than the data's, rests included: the plain low-pass)
         self.smoothed = data.smoothed if rows is None else (lambda x, at: lowpass(x, data.dt, data.cutoff_hz)[at])
         self._cache: dict[str, np.ndarray] = {}
-        kin = kinematics if kinematics is not None else (data.q, data.qd, data.qdd)
-        self._kin = tuple(np.asarray(x) for x in kin)
-        self._args = tuple(jnp.asarray(x) for x in kin)
+        q, qd, qdd = kinematics if kinematics is not None else (data.q, data.qd, data.qdd)
+        self._kin = (np.asarray(q), np.asarray(qd), np.asarray(qdd))
+        self._args = (jnp.asarray(q), jnp.asarray(qd), jnp.asarray(qdd))
 
     def effect(self, e: Effect) -> np.ndarray:
         """(rows, n, p) columns of one linear effect, low-passed like the torque."""
@@ -127,8 +126,8 @@ class Columns:
     def screen(self, e: Effect) -> np.ndarray:
         """The columns of `e` on the used rows without the low-pass: a cheap stand-in to rank
         the many values of a grid search before the best few are evaluated exactly."""
-        args = tuple(jnp.asarray(x[self.rows]) for x in self._kin)
-        out = np.asarray(effect_columns(e, self.structure, *args, self.data.dt))
+        q, qd, qdd = (jnp.asarray(x[self.rows]) for x in self._kin)
+        out = np.asarray(effect_columns(e, self.structure, q, qd, qdd, self.data.dt))
         return out if self.mask is None else out * self.mask
 
     def model(self, model: Model) -> np.ndarray:

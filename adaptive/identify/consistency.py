@@ -36,7 +36,7 @@ TIE = 1e-2  # cost of a standard parameter 100 % away from the URDF's, in square
 LINK = 10  # standard parameters per link: m, mx, my, mz, Ixx, Ixy, Ixz, Iyy, Iyz, Izz
 
 
-def pseudo_inertia(p) -> np.ndarray:
+def pseudo_inertia(p) -> np.ndarray | list:
     """The 4x4 pseudo-inertia of one link's 10 standard parameters (numpy, or cvxpy expressions
     when `p` is a cvxpy vector: then a list of rows for `cvxpy.bmat`)."""
     m, mx, my, mz, ixx, ixy, ixz, iyy, iyz, izz = (p[k] for k in range(LINK))
@@ -88,7 +88,7 @@ def consistent(f: Fit) -> Consistency:
     cp = require("cvxpy", "consistency")
 
     s = f.model.structure
-    if not hasattr(s, "K"):
+    if s.combinations is None:
         raise ModelError(
             "physically consistent parameters are a serial chain's (structure urdf): "
             f"{type(s).__name__} has no standard inertial parameters"

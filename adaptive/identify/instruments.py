@@ -82,13 +82,12 @@ def simulate(data: Data, model: Model, params: dict) -> tuple[np.ndarray, np.nda
     tau = np.concatenate([data.rec.tau, np.repeat(data.rec.tau[-1:], pad, 0)]).reshape(count, W, n)
     starts = np.minimum(np.arange(count) * W, T - 1)
     sim = Simulator(sim_model, p, rate_hz=1 / dt, substeps=10, actuator=None, encoder=None)
-    q, qd = _windows(sim, jnp.asarray(data.q[starts]), jnp.asarray(data.qd[starts]), jnp.asarray(tau))
-    q, qd = np.asarray(q).reshape(-1, n)[:T], np.asarray(qd).reshape(-1, n)[:T]
+    q_sim, qd_sim = _windows(sim, jnp.asarray(data.q[starts]), jnp.asarray(data.qd[starts]), jnp.asarray(tau))
+    q, qd = np.asarray(q_sim).reshape(-1, n)[:T], np.asarray(qd_sim).reshape(-1, n)[:T]
     if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
         return None
-    qdd = np.gradient(
-        qd.reshape(-1, W, n) if pad == 0 else np.pad(qd, ((0, pad), (0, 0))).reshape(-1, W, n), dt, axis=1
-    ).reshape(-1, n)[:T]
+    per_window = qd.reshape(-1, W, n) if pad == 0 else np.pad(qd, ((0, pad), (0, 0))).reshape(-1, W, n)
+    qdd = np.asarray(np.gradient(per_window, dt, axis=1)).reshape(-1, n)[:T]
     return q, qd, qdd
 
 

@@ -17,6 +17,7 @@ from a heteroscedasticity- and autocorrelation-consistent (Newey–West) covaria
 from __future__ import annotations
 
 import itertools
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -75,19 +76,36 @@ class Stats:
         """Instrumental variables (else least squares)."""
         return self.H is not None
 
-    def extend(self, E: np.ndarray, Ez: np.ndarray | None = None, budget: float = 8e6) -> Stats:
+    def normal(self) -> tuple[np.ndarray, np.ndarray]:
+        """The per-segment normal equations (A, b): (H, h) with instruments, else (G, g)."""
+        if self.H is not None and self.h is not None:
+            return self.H, self.h
+        return self.G, self.g
+
+    def extend(
+        self,
+        E: np.ndarray | Sequence[np.ndarray],
+        Ez: np.ndarray | Sequence[np.ndarray] | None = None,
+        budget: float = 8e6,
+    ) -> Stats:
         """These statistics with the columns E (rows, n, k) appended (instruments Ez), reusing
         the sums of the columns already here: what a grid search over an effect's non-linear
         parameter needs per grid point. E (V, rows, n, k): V sets of columns, each appended on
         its own (a grid's values at once; or a list of V arrays (rows, n, k), stacked a chunk at a
         time): statistics with a leading axis V (`one(i)` is value i's), worked out `budget`
         floats of products at a time. Without `Ez`, the result is least squares."""
+        X, tau = self.X, self.tau
+        assert X is not None and tau is not None, "extended statistics hold no rows: they are not extended again"
         if isinstance(E, (list, tuple)) or (np.ndim(E) == 4):
             rows, k = np.shape(E[0])[0], np.shape(E[0])[-1]
-            step = int(max(1, budget // max(rows * (self.X.shape[2] + k) * k, 1)))
+            step = int(max(1, budget // max(rows * (X.shape[2] + k) * k, 1)))
             if isinstance(E, (list, tuple)) or len(E) > step:
                 parts = [
-                    self.extend(np.stack(E[i : i + step]), None if Ez is None else np.stack(Ez[i : i + step]), budget)
+                    self.extend(
+                        np.stack(list(E[i : i + step])),
+                        None if Ez is None else np.stack(list(Ez[i : i + step])),
+                        budget,
+                    )
                     for i in range(0, len(E), step)
                 ]
                 return parts[0] if len(parts) == 1 else _stacked(parts)
@@ -97,29 +115,30 @@ class Stats:
         Es = E / sE[..., None, None, :]
         lead = E.shape[:ax]
         scale = np.concatenate([np.broadcast_to(self.scale, lead + self.scale.shape), sE], -1)
-        XE = _segments(np.einsum("rnp,...rnq->...rpq", self.X, Es), self.starts, ax)
+        XE = _segments(np.einsum("rnp,...rnq->...rpq", X, Es), self.starts, ax)
         EE = _segments(np.einsum("...rnp,...rnq->...rpq", Es, Es), self.starts, ax)
         G = _blocks(self.G, XE, np.swapaxes(XE, -1, -2), EE)
         g = np.concatenate(
             [
                 np.broadcast_to(self.g, lead + self.g.shape),
-                _segments(np.einsum("...rnp,rn->...rp", Es, self.tau), self.starts, ax),
+                _segments(np.einsum("...rnp,rn->...rp", Es, tau), self.starts, ax),
             ],
             -1,
         )
         H = h = None
-        if self.iv and Ez is not None:
+        if self.H is not None and self.h is not None and Ez is not None:
+            assert self.Z is not None, "statistics with instruments keep their rows' instruments"
             Ez = np.asarray(Ez)
             Zs = Ez / (np.sqrt(np.mean(Ez**2, axis=(-3, -2))) + 1e-300)[..., None, None, :]
             # old instruments × new columns, new instruments × old columns, new × new
             ZE = _segments(np.einsum("rnp,...rnq->...rpq", self.Z, Es), self.starts, ax)
-            EX = _segments(np.einsum("...rnp,rnq->...rpq", Zs, self.X), self.starts, ax)
+            EX = _segments(np.einsum("...rnp,rnq->...rpq", Zs, X), self.starts, ax)
             EEz = _segments(np.einsum("...rnp,...rnq->...rpq", Zs, Es), self.starts, ax)
             H = _blocks(self.H, ZE, EX, EEz)
             h = np.concatenate(
                 [
                     np.broadcast_to(self.h, lead + self.h.shape),
-                    _segments(np.einsum("...rnp,rn->...rp", Zs, self.tau), self.starts, ax),
+                    _segments(np.einsum("...rnp,rn->...rp", Zs, tau), self.starts, ax),
                 ],
                 -1,
             )
@@ -139,11 +158,8 @@ class Stats:
     def coef(self, use: np.ndarray) -> np.ndarray:
         """Scaled coefficients fitted on the segments `use` (bool mask): minimum-norm least
         squares, or the instrumental-variable solution when instruments were given."""
-        if not self.iv:
-            A, b = self.G[use].sum(0), self.g[use].sum(0)
-        else:
-            A, b = self.H[use].sum(0), self.h[use].sum(0)
-        return np.linalg.lstsq(A, b, rcond=RCOND)[0]
+        A, b = self.normal()
+        return np.linalg.lstsq(A[use].sum(0), b[use].sum(0), rcond=RCOND)[0]
 
     def coefs(self, masks: np.ndarray, lower: np.ndarray | None = None) -> np.ndarray:
         """`coef` on each of the segment masks (F, S) at once: (F, P), one batched pseudo-inverse
@@ -152,7 +168,7 @@ class Stats:
         that falls below its bound is held there and the others fitted again, until none does
         (an active set that only grows: exact where the bounded columns are nearly orthogonal,
         as per-joint friction columns are)."""
-        A, b = (self.H, self.h) if self.iv else (self.G, self.g)
+        A, b = self.normal()
         m = np.asarray(masks, float)
         M, r = _over_masks(m, A), m @ b
         C = self._solve(M, r)
@@ -216,8 +232,8 @@ def _stacked(parts: list[Stats]) -> Stats:
         G=np.concatenate([p.G for p in parts]),
         g=np.concatenate([p.g for p in parts]),
         scale=np.concatenate([p.scale for p in parts]),
-        H=None if first.H is None else np.concatenate([p.H for p in parts]),
-        h=None if first.h is None else np.concatenate([p.h for p in parts]),
+        H=None if first.H is None else np.concatenate([p.H for p in parts if p.H is not None]),
+        h=None if first.h is None else np.concatenate([p.h for p in parts if p.h is not None]),
     )
 
 

@@ -126,10 +126,11 @@ class Data:
     def weight(self) -> np.ndarray:
         """(T,) `moving_weight` of the rests (computed by `prepare`, kept here)."""
         if "weight" not in self._tau:
+            assert self.rest is not None, "only a recording with rests is weighted"
             self._tau["weight"] = moving_weight(self.rest, self.dt, self.cutoff_hz)
         return self._tau["weight"]
 
-    def tau(self, delay: float = 0.0, full: bool = False) -> np.ndarray:
+    def tau(self, delay: float | np.ndarray = 0.0, full: bool = False) -> np.ndarray:
         """The torque acting on the joints, aligned with the positions, filtered like the columns.
         (The kinematic band's low-pass and the fractional shift are linear and time-invariant:
         they commute, so the torque goes through that filter once. The cut-off's low-pass leaves

@@ -91,7 +91,7 @@ class Fit:
             out["nonlinear"] = nonlinear
         if self.data.lost:
             out["gaps"] = self.data.lost
-        combos = getattr(self.model.structure, "combinations", None)
+        combos = self.model.structure.combinations
         if combos is not None:  # a serial chain: what each base parameter is, and its value in the URDF
             s = self.model.structure
             out["base_parameters"] = dict(zip(s.rigid_names, combos, strict=True))

@@ -7,7 +7,7 @@ see. Long grids are ranked first on unfiltered columns and only the best few eva
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,8 +37,8 @@ class Grid:
     on the same segments (so a fold can choose its own value on its training segments)."""
 
     values: list  # the effect at each grid value
-    stats: list  # lsq.Stats of the rest of the model plus that value (exact columns), or None until needed
-    screen: list | None  # lsq.Stats on unfiltered columns (long grids), else None
+    stats: list[lsq.Stats | None]  # the rest of the model plus that value (exact columns), or None until needed
+    screen: list[lsq.Stats] | None  # on unfiltered columns (long grids), else None
     build: Callable[[int], lsq.Stats] | None  # value index -> exact lsq.Stats
     lower: np.ndarray | None = None  # each column's lower bound (the effect's physical ones; −inf: none)
     own: np.ndarray | None = None  # which columns are the effect's (a mask: the last ones)
@@ -46,9 +46,15 @@ class Grid:
 
     def exact(self, i: int) -> lsq.Stats:
         """Value i's exact statistics (built on first use)."""
-        if self.stats[i] is None:
-            self.stats[i] = self.every.one(i) if self.every is not None else self.build(i)
-        return self.stats[i]
+        st = self.stats[i]
+        if st is None:
+            if self.every is not None:
+                st = self.every.one(i)
+            else:
+                assert self.build is not None, "a grid without statistics builds them"
+                st = self.build(i)
+            self.stats[i] = st
+        return st
 
     def choose(self, use: np.ndarray) -> tuple[int, np.ndarray]:
         """The value with the least squared error on the segments `use` (those a fit sees), and
@@ -74,7 +80,7 @@ class Grid:
         else:
             keep = np.ones((F, V), bool)
         for i in np.flatnonzero(keep.any(0)):
-            st, on = self.exact(i), keep[:, i]
+            st, on = self.exact(int(i)), keep[:, i]
             errs[on, i] = st.sses(st.coefs(masks[on], self.lower), masks[on])
         return np.argmin(errs, axis=1), errs
 
@@ -101,7 +107,7 @@ def grid(
     rest: Model,
     effect: Effect,
     starts: np.ndarray,
-    values: tuple | None = None,
+    values: Sequence[Effect] | None = None,
     icols: Columns | None = None,
     keep: np.ndarray | None = None,
     exact: bool = False,
@@ -110,36 +116,36 @@ def grid(
     effect changes the columns, a timing effect the torque. `icols`: instruments (IV). `keep`: a
     mask over the effect's columns (the others held at 0, their physical bound). `exact`: every
     value's statistics built now, their columns computed together (no screening)."""
-    values = list(values if values is not None else effect.space(data.span()))
-    if keep is not None:
-        cols, icols = _Kept(cols, keep), (None if icols is None else _Kept(icols, keep))
+    vals: list[Effect] = list(values if values is not None else effect.space(data.span()))
+    src: Columns | _Kept = cols if keep is None else _Kept(cols, keep)
+    isrc: Columns | _Kept | None = icols if keep is None or icols is None else _Kept(icols, keep)
     delay = delay_of(rest)
-    Y = cols.model(rest)
-    Z = icols.model(rest) if icols is not None else None
+    Y = src.model(rest)
+    Z = isrc.model(rest) if isrc is not None else None
     base = lsq.Stats.of(Y, data.tau(delay), starts, Z)
     if effect.timing:
-        build = lambda i: lsq.Stats.of(Y, data.tau(_timing(values[i], rest, delay)), starts, Z)
-        return Grid(values, [None] * len(values), None, build)
-    build = lambda i: base.extend(cols.effect(values[i]), icols.effect(values[i]) if icols is not None else None)
+        build = lambda i: lsq.Stats.of(Y, data.tau(_timing(vals[i], rest, delay)), starts, Z)
+        return Grid(vals, [None] * len(vals), None, build)
+    build = lambda i: base.extend(src.effect(vals[i]), isrc.effect(vals[i]) if isrc is not None else None)
     bounds = np.asarray(effect.lower_bounds(rest.structure), float)  # the effect's own columns' physical bounds
     bounds = bounds if keep is None else bounds[np.asarray(keep, bool)]
     lower = np.r_[np.full(Y.shape[2], -np.inf), bounds]
     mine = np.r_[np.zeros(Y.shape[2], bool), np.ones(bounds.size, bool)]
     if exact:
-        for c in (cols, icols):
+        for c in (src, isrc):
             if c is not None:
-                c.prefetch(values)
+                c.prefetch(vals)
         every = (
-            base.extend([cols.effect(v) for v in values], None if icols is None else [icols.effect(v) for v in values])
-            if values
+            base.extend([src.effect(v) for v in vals], None if isrc is None else [isrc.effect(v) for v in vals])
+            if vals
             else None
         )
-        return Grid(values, [None] * len(values), None, build, lower, mine, every)
+        return Grid(vals, [None] * len(vals), None, build, lower, mine, every)
     screen = None
-    if len(values) > SCREEN_ABOVE:
+    if len(vals) > SCREEN_ABOVE:
         rough = lsq.Stats.of(Y, data.tau(delay), starts)
-        screen = [rough.extend(cols.screen(v)) for v in values]
-    return Grid(values, [None] * len(values), screen, build, lower, mine)
+        screen = [rough.extend(src.screen(v)) for v in vals]
+    return Grid(vals, [None] * len(vals), screen, build, lower, mine)
 
 
 def _timing(value: Effect, rest: Model, delay) -> float | np.ndarray:
@@ -154,16 +160,20 @@ class _Kept:
     def __init__(self, cols: Columns, keep: np.ndarray):
         self.cols, self.keep = cols, keep
 
-    def model(self, model):
+    def model(self, model: Model) -> np.ndarray:
+        """The model's columns, all of them."""
         return self.cols.model(model)
 
-    def effect(self, e):
+    def effect(self, e: Effect) -> np.ndarray:
+        """The effect's columns that are kept."""
         return self.cols.effect(e)[..., self.keep]
 
-    def screen(self, e):
+    def screen(self, e: Effect) -> np.ndarray:
+        """`Columns.screen` of the columns that are kept."""
         return self.cols.screen(e)[..., self.keep]
 
-    def prefetch(self, effects):
+    def prefetch(self, effects: Sequence[Effect]) -> None:
+        """`Columns.prefetch`."""
         self.cols.prefetch(effects)
 
 
