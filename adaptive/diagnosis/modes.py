@@ -61,9 +61,9 @@ def band(fs: float) -> tuple[float, float]:
 # Bins below this coherence carry no usable frequency response. The variance of H1 in a bin is
 # (1 − γ²)/(2 n γ²) over n averaged segments: at γ² = 0.1 and the ~90 segments of 12 s at 1 kHz
 # it is ~5 %, enough to weigh, and a bin of no coherence at all reaches 0.1 with probability
-# 0.9^(n−1) ~ 1e-4. (Calibrated: 0.3 -> 0.1 finds the arm's mode under open-loop steps with white
-# noise on the recorded torque, where the mode's bins reach only γ² ≈ 0.1-0.16, in 4 of 8
-# calibration recordings instead of 1; 0.5 -> 0.3 had found it in 18 of 20 with the torque exact.)
+# 0.9^(n−1) ~ 1e-4. (Calibrated: under open-loop steps with white noise on the recorded torque,
+# where the mode's bins reach only γ² ≈ 0.1-0.16, the arm's mode is found in 4 of 8 calibration
+# recordings at 0.1 against 1 at 0.3; with the torque exact, 0.3 finds it in 18 of 20.)
 MIN_COHERENCE = 0.1
 # The shaft itself is lightly damped, but friction on the motor side damps the mode it makes
 # (ζ_extra = b / (2 J_m ω): a light motor with viscous friction, e.g. a linear axis, rings at
