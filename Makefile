@@ -8,8 +8,6 @@
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
-# the installed packages one level below `manus` (pdoc walks each one's modules)
-API = $(shell $(BIN)/python -c "import tomllib; print(*[p for p in tomllib.load(open('pyproject.toml', 'rb'))['tool']['setuptools']['packages'] if p.count('.') < 2])")
 # one worker per core, each test file on one worker (its module fixtures computed once)
 PYTEST := $(BIN)/python -m pytest -q -n auto --dist loadfile
 
@@ -26,7 +24,6 @@ $(VENV)/.installed-demo: pyproject.toml | $(BIN)/python
 
 $(VENV)/.installed-test: pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install -q -e ".[test]"
-	$(BIN)/python .ci/typing_paths.py
 	touch $@ $(VENV)/.installed-demo
 
 setup: $(VENV)/.installed-test
@@ -41,11 +38,11 @@ lint: $(VENV)/.installed-test
 
 # the API reference must build (into a scratch directory)
 apicheck: $(VENV)/.installed-test
-	tmp=$$(mktemp -d) && $(BIN)/pdoc -o $$tmp $(API) && rm -rf $$tmp
+	tmp=$$(mktemp -d) && $(BIN)/pdoc -o $$tmp manus && rm -rf $$tmp
 
 docs: $(VENV)/.installed-test
 	rm -rf docs/api
-	$(BIN)/pdoc -o docs/api $(API)
+	$(BIN)/pdoc -o docs/api manus
 
 # pytest's exit 5 (no test selected) is no failure
 test: lint apicheck

@@ -32,7 +32,7 @@ def default_emps() -> Path:
     env = os.environ.get("MANUS_EMPS")
     if env:
         return Path(env)
-    return Path(__file__).resolve().parents[2] / "shared" / "data" / "emps" / EMPS_NAME
+    return Path(__file__).resolve().parents[3] / "shared" / "data" / "emps" / EMPS_NAME
 
 
 def add_arguments(p) -> None:
