@@ -46,8 +46,9 @@ def test_kernel_without_reduction_on_its_interval():
 
 def test_derivatives_are_the_exact_ones():
     x = RNG.uniform(-50, 50, 64)
-    ds, dc, dds = jax.jit(jax.vmap(lambda x: (jax.grad(fastmath.sin)(x), jax.grad(fastmath.cos)(x),
-                                              jax.grad(jax.grad(fastmath.sin))(x))))(x)
+    ds, dc, dds = jax.jit(
+        jax.vmap(lambda x: (jax.grad(fastmath.sin)(x), jax.grad(fastmath.cos)(x), jax.grad(jax.grad(fastmath.sin))(x)))
+    )(x)
     np.testing.assert_allclose(ds, np.cos(x), rtol=0, atol=2.3e-16)
     np.testing.assert_allclose(dc, -np.sin(x), rtol=0, atol=2.3e-16)
     np.testing.assert_allclose(dds, -np.sin(x), rtol=0, atol=2.3e-16)
@@ -55,7 +56,9 @@ def test_derivatives_are_the_exact_ones():
 
 def test_sign_is_jnp_sign_including_signed_zeros_nan_and_its_zero_derivative():
     x = jnp.array([-0.0, 0.0, np.nan, -np.inf, np.inf, 1e-300, -2.5, 3.0])
-    ours, ref, slope = map(np.asarray, jax.jit(lambda x: (fastmath.sign(x), jnp.sign(x), jax.vmap(jax.grad(fastmath.sign))(x)))(x))
+    ours, ref, slope = map(
+        np.asarray, jax.jit(lambda x: (fastmath.sign(x), jnp.sign(x), jax.vmap(jax.grad(fastmath.sign))(x)))(x)
+    )
     np.testing.assert_array_equal(ours, ref)
     np.testing.assert_array_equal(np.signbit(ours), np.signbit(ref))
     assert np.all(slope[[0, 1, 3, 4, 5, 6, 7]] == 0)

@@ -59,8 +59,12 @@ def test_sequence_order_wraps_around():
 
 
 def test_device_urls_are_checked():
-    for url, words in [("tcp://127.0.0.1:5", "unknown transport"), ("udp://127.0.0.1", "expected udp://HOST:PORT"),
-                       ("127.0.0.1:5", "unknown transport"), ("udp://:5", "expected udp://HOST:PORT")]:
+    for url, words in [
+        ("tcp://127.0.0.1:5", "unknown transport"),
+        ("udp://127.0.0.1", "expected udp://HOST:PORT"),
+        ("127.0.0.1:5", "unknown transport"),
+        ("udp://:5", "expected udp://HOST:PORT"),
+    ]:
         with pytest.raises(DeviceError, match=words):
             open_device(url)
 

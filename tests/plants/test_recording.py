@@ -40,12 +40,22 @@ def test_round_trip(tmp_path, suffix):
     rng = np.random.default_rng(0)
     t = np.arange(500) * 1e-3
     step = 2 * np.pi / 131072
-    rec = Recording(t, np.round(0.3 * rng.normal(size=(500, 2)) / step) * step, rng.normal(size=(500, 2)),
-                    rng.normal(size=(500, 2)), {"sample_rate_hz": "1000", "counts_per_rev": "131072"},
-                    {"qref1": rng.normal(size=500)})
+    rec = Recording(
+        t,
+        np.round(0.3 * rng.normal(size=(500, 2)) / step) * step,
+        rng.normal(size=(500, 2)),
+        rng.normal(size=(500, 2)),
+        {"sample_rate_hz": "1000", "counts_per_rev": "131072"},
+        {"qref1": rng.normal(size=500)},
+    )
     back = recording.read(recording.write(rec, tmp_path / f"r{suffix}"))
-    for a, b in [(rec.t, back.t), (rec.q, back.q), (rec.tau, back.tau), (rec.qd, back.qd),
-                 (rec.extra["qref1"], back.extra["qref1"])]:
+    for a, b in [
+        (rec.t, back.t),
+        (rec.q, back.q),
+        (rec.tau, back.tau),
+        (rec.qd, back.qd),
+        (rec.extra["qref1"], back.extra["qref1"]),
+    ]:
         np.testing.assert_allclose(a, b, rtol=1e-11, atol=1e-15)
     counts = back.q / step
     np.testing.assert_allclose(counts, np.round(counts), atol=1e-6)  # still on the grid
@@ -102,13 +112,18 @@ def test_samples_with_nan_are_lost_samples(tmp_path):
     from manus.adaptive import fit
     from manus.experiments import calibration
 
-    rec = calibration.case(1, None, structure="arm", rate=1000, excitation="multisine", torque="exact", hold="stated").rec
+    rec = calibration.case(
+        1, None, structure="arm", rate=1000, excitation="multisine", torque="exact", hold="stated"
+    ).rec
     whole = fit(rec, "rigid,viscous,coulomb", method="ls")
     rec.q, rec.tau = rec.q.copy(), rec.tau.copy()
     rec.q[4000, 0], rec.tau[7000, 1], rec.q[9000, 1] = np.nan, np.inf, np.nan
     p = recording.write(rec, tmp_path / "nan.csv")
-    with pytest.warns(recording.RecordingNote, match=r"nan.csv: 3 samples with a NaN or infinite value \(the first at "
-                      r"line \d+, 'q1' = nan\) read as lost"):
+    with pytest.warns(
+        recording.RecordingNote,
+        match=r"nan.csv: 3 samples with a NaN or infinite value \(the first at "
+        r"line \d+, 'q1' = nan\) read as lost",
+    ):
         back = recording.read(p)
     assert len(back) == len(rec) - 3
     f = fit(back, "rigid,viscous,coulomb", method="ls")
@@ -153,12 +168,15 @@ def _on_grid(step, n=2000, joints=2):
     return np.round(np.stack([0.3 * np.sin(2 * np.pi * 0.7 * t + j) + 0.5 for j in range(joints)], 1) / step) * step
 
 
-@pytest.mark.parametrize("unit, factor, meta, message", [
-    ("degrees", 180 / np.pi, {"counts_per_rev": "131072"}, r"57.2958 times .* degrees, not radians\?"),
-    ("revolutions", 1 / (2 * np.pi), {"counts_per_rev": "131072"}, r"revolutions, not radians\?"),
-    ("counts", 131072 / (2 * np.pi), {"counts_per_rev": "131072"}, r"raw encoder counts, not positions\?"),
-    ("millimetres", 1000.0, {"position_step": "1e-06", "joints": "prismatic"}, r"millimetres, not metres\?"),
-])
+@pytest.mark.parametrize(
+    "unit, factor, meta, message",
+    [
+        ("degrees", 180 / np.pi, {"counts_per_rev": "131072"}, r"57.2958 times .* degrees, not radians\?"),
+        ("revolutions", 1 / (2 * np.pi), {"counts_per_rev": "131072"}, r"revolutions, not radians\?"),
+        ("counts", 131072 / (2 * np.pi), {"counts_per_rev": "131072"}, r"raw encoder counts, not positions\?"),
+        ("millimetres", 1000.0, {"position_step": "1e-06", "joints": "prismatic"}, r"millimetres, not metres\?"),
+    ],
+)
 def test_positions_in_another_unit_than_the_declared_grid_are_refused(tmp_path, unit, factor, meta, message):
     """Positions on the declared encoder grid read; the same positions in another unit (their
     grid a unit's factor off the declared one) are refused, naming the unit."""
@@ -176,7 +194,9 @@ def test_positions_off_the_grid_for_other_reasons_are_read(tmp_path):
     """Noisy or interpolated positions are off the declared grid without a unit's factor: read."""
     step = 2 * np.pi / 131072
     q = _on_grid(step) + np.random.default_rng(0).normal(0, 1e-4, (2000, 2))
-    rec = Recording(np.arange(2000) * 1e-3, q, np.ones_like(q), None, {"sample_rate_hz": "1000", "counts_per_rev": "131072"})
+    rec = Recording(
+        np.arange(2000) * 1e-3, q, np.ones_like(q), None, {"sample_rate_hz": "1000", "counts_per_rev": "131072"}
+    )
     assert len(recording.read(recording.write(rec, tmp_path / "noisy.csv"))) == 2000
 
 
