@@ -9,6 +9,8 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 # one worker per core, each test file on one worker (its module fixtures computed once)
+# every module of the package (pdoc documents only what a package's __all__ names, so list them all)
+MODULES = $(shell find manus -name '*.py' | sed -e 's|/__init__\.py$$||' -e 's|\.py$$||' -e 's|/|.|g' | sort)
 PYTEST := $(BIN)/python -m pytest -q -n auto --dist loadfile
 
 .PHONY: demo test lint apicheck docs setup clean
@@ -38,11 +40,11 @@ lint: $(VENV)/.installed-test
 
 # the API reference must build (into a scratch directory)
 apicheck: $(VENV)/.installed-test
-	tmp=$$(mktemp -d) && $(BIN)/pdoc -o $$tmp manus && rm -rf $$tmp
+	tmp=$$(mktemp -d) && $(BIN)/pdoc -o $$tmp $(MODULES) && rm -rf $$tmp
 
 docs: $(VENV)/.installed-test
 	rm -rf docs/api
-	$(BIN)/pdoc -o docs/api manus
+	$(BIN)/pdoc -o docs/api $(MODULES)
 
 # pytest's exit 5 (no test selected) is no failure
 test: lint apicheck
