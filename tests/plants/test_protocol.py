@@ -3,6 +3,7 @@ reason, and the UDP device takes only newer samples from its peer (a fake device
 
 import socket
 import time
+from typing import TypeVar
 
 import numpy as np
 import pytest
@@ -10,19 +11,28 @@ import pytest
 from manus.plants import protocol as P
 from manus.plants.device import DeviceError, UdpDevice, open_device
 
+_Packet = TypeVar("_Packet", P.Sensor, P.Command, P.Info, P.Header)
+
+
+def _decode(kind: type[_Packet], data: bytes) -> _Packet:
+    """The packet `data` holds, of the kind the test sent."""
+    packet = P.decode(data)
+    assert isinstance(packet, kind)
+    return packet
+
 
 def test_packets_round_trip_exactly():
     counts = np.array([-7, 2**31 - 1, 123456], np.int32)
-    s = P.decode(P.encode_sensor(41, 123_456_789_012, counts, P.STATUS_LATE | P.STATUS_SATURATED))
+    s = _decode(P.Sensor, P.encode_sensor(41, 123_456_789_012, counts, P.STATUS_LATE | P.STATUS_SATURATED))
     assert (s.seq, s.time_ns, s.flags) == (41, 123_456_789_012, P.STATUS_LATE | P.STATUS_SATURATED)
     assert s.counts.tolist() == counts.tolist()
-    c = P.decode(P.encode_command(7, 99, 41, [1.5, -0.25], P.CMD_VOLTS))
+    c = _decode(P.Command, P.encode_command(7, 99, 41, [1.5, -0.25], P.CMD_VOLTS))
     assert (c.seq, c.time_ns, c.ack, c.flags) == (7, 99, 41, P.CMD_VOLTS)
     assert c.values.tolist() == [1.5, -0.25]  # exact in float32
     info = P.Info(2, 1000.0, 131072.0, 2.22, 10.0)
     assert P.decode(P.encode_info(0, 5, info)) == info
     assert info.torque_limit == pytest.approx(22.2)
-    h = P.decode(P.encode_hello(3, 8, 1))
+    h = _decode(P.Header, P.encode_hello(3, 8, 1))
     assert (h.kind, h.seq, h.time_ns) == (P.HELLO, 3, 8)
     # documented sizes: 20-byte header, 4-byte CRC
     assert [P.size(k, 2) for k in (P.SENSOR, P.COMMAND, P.HELLO, P.INFO)] == [32, 36, 24, 56]
@@ -125,9 +135,9 @@ def test_udp_device_takes_only_newer_samples_from_its_peer(fake_device):
     assert dict(host.refused) == {"address": 1, "order": 2, "magic": 1, "joints": 1, "kind": 1}
     # the command answering sample 5 reaches the device intact
     host.send(5, [0.5, -1.0], P.CMD_VOLTS)
-    cmd = P.decode(dev_sock.recvfrom(2048)[0])
+    cmd = _decode(P.Command, dev_sock.recvfrom(2048)[0])
     assert (cmd.ack, cmd.flags, cmd.values.tolist()) == (5, P.CMD_VOLTS, [0.5, -1.0])
     host.stop()
-    stops = [P.decode(dev_sock.recvfrom(2048)[0]) for _ in range(3)]
+    stops = [_decode(P.Command, dev_sock.recvfrom(2048)[0]) for _ in range(3)]
     assert all(c.flags & P.CMD_STOP and not np.any(c.values) for c in stops)
     stranger.close()
