@@ -21,6 +21,7 @@ from manus.adaptive import diagnose
 from manus.adaptive.impedance import Impedance
 from manus.plants import Model, Simulator
 from manus.plants.closed_loop import simulate
+from manus.plants.effects import Effect
 from manus.plants.recording import from_trajectory
 from manus.plants.references import MultiSine
 from manus.plants.structures import Manus2
@@ -37,11 +38,18 @@ def truth_params(hidden: tuple[str, ...]) -> dict[str, float]:
     every other effect zero."""
     model = Model(STRUCTURE, ALL_LINEAR)
     nominal = Model(STRUCTURE, ",".join(NOMINAL)).defaults()
-    extra = {}
+    extra: dict[str, float] = {}
     for h in hidden:
         if h not in NOMINAL and h != "delay":
             extra.update(Model(STRUCTURE, h).defaults())
     return {k: nominal.get(k, extra.get(k, 0.0)) for k in model.defaults()}
+
+
+def effect(model: Model, name: str) -> Effect:
+    """The effect `name` of `model`, which the test knows the model holds."""
+    found = model.get(name)
+    assert found is not None, f"the model holds no {name}"
+    return found
 
 
 def nominal_without(hidden: tuple[str, ...]) -> str:
@@ -54,6 +62,7 @@ def recording(hidden: tuple[str, ...] = (), seconds: float = SECONDS, seed: int 
     """A closed-loop recording whose truth holds the nominal effects plus `hidden`."""
     spec = ALL_LINEAR + (",delay:1ms" if "delay" in hidden else "")
     plant = Simulator(Model(STRUCTURE, spec), truth_params(hidden))
+    assert plant.actuator is not None
     reference = MultiSine((0.464, 2.409), AMPLITUDE, seed=seed)
     controller = Impedance(30.0, 1.0, n_joints=2, limit=plant.actuator.limit)
     traj = simulate(plant, controller, reference, seconds, key=jax.random.PRNGKey(seed))

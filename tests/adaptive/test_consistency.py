@@ -26,12 +26,15 @@ def test_pseudo_inertia_is_pinocchios():
         m, c = rng.uniform(0.5, 3), rng.normal(size=3) * 0.2
         a, b, h = rng.uniform(0.05, 0.5, 3)  # a box, turned at random: a real body
         R = np.linalg.qr(rng.normal(size=(3, 3)))[0]
-        inertia = pin.Inertia(m, c, R @ np.diag(m / 12 * np.array([b**2 + h**2, a**2 + h**2, a**2 + b**2])) @ R.T)
+        rotational = R @ np.diag(m / 12 * np.array([b**2 + h**2, a**2 + h**2, a**2 + b**2])) @ R.T
+        inertia = pin.Inertia(m, c, rotational)  # pyright: ignore[reportAttributeAccessIssue]  (compiled, no stubs)
         p_pin = inertia.toDynamicParameters()
         ours = np.empty(10)
         ours[OURS_TO_PIN] = p_pin
         np.testing.assert_allclose(
-            pseudo_inertia(ours), pin.PseudoInertia.FromDynamicParameters(p_pin).toMatrix(), atol=1e-12
+            pseudo_inertia(ours),
+            pin.PseudoInertia.FromDynamicParameters(p_pin).toMatrix(),  # pyright: ignore[reportAttributeAccessIssue]
+            atol=1e-12,
         )
         assert np.linalg.eigvalsh(pseudo_inertia(ours))[0] > 0
 
@@ -51,7 +54,8 @@ def swing():
     q = np.einsum("jk,tjk->tj", a, np.sin(arg))
     qd = np.einsum("jk,tjk->tj", a * w, np.cos(arg))
     qdd = np.einsum("jk,tjk->tj", -a * w**2, np.sin(arg))
-    tau = np.asarray(jax.jit(jax.vmap(lambda *x: serial.rnea(*x, serial.defaults)))(q, qd, qdd)) + 0.02 * qd
+    rnea = jax.jit(jax.vmap(lambda q1, qd1, qdd1: serial.rnea(q1, qd1, qdd1, serial.defaults)))
+    tau = np.asarray(rnea(q, qd, qdd)) + 0.02 * qd
     tau += 0.01 * np.std(tau, 0) * np.random.default_rng(0).normal(size=tau.shape)
     rec = Recording(
         t, q, tau, qd, {"sample_rate_hz": "500", "command_hold": "none", "structure": "urdf", "robot": str(URDF)}
@@ -134,7 +138,8 @@ def test_an_inconsistent_estimate_against_log_cholesky(swing):
     prior = np.asarray(base.serial.defaults)
     z0 = []
     for i in range(n):
-        U = np.linalg.cholesky(pseudo_inertia(prior[LINK * i : LINK * (i + 1)])[::-1, ::-1])[::-1, ::-1]  # J = U Uᵀ
+        J = np.asarray(pseudo_inertia(prior[LINK * i : LINK * (i + 1)]))
+        U = np.linalg.cholesky(J[::-1, ::-1])[::-1, ::-1]  # J = U Uᵀ
         z0 += list(U[tri])
     z0 += list(np.sqrt(prior[LINK * n :]))
     z0 += [np.sqrt(max(theta[j], 0)) if j in bounded else theta[j] for j in others]

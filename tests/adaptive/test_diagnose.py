@@ -159,6 +159,7 @@ def test_emps_physics_rules_and_joint_kinds():
     search took a velocity where friction falls at low speed, dFs < 0), and what is left of it
     is not proposed."""
     d = diagnose(hidden.emps(), "rigid,viscous,coulomb,offset")
+    assert d.verdict is not None
     assert d.verdict.effect == "asymmetry"
     assert all(c.effect != "gravity" for c in d.candidates)
     assert any(n.startswith("gravity: not tried") and "prismatic" in n for n in d.notes)
@@ -344,7 +345,7 @@ def test_prepared_data_and_fixed_nonlinear_parameters_are_kept():
     rec = hidden.recording(("offset", "cogging"))
     data = prepare(rec)
     d = diagnose(data, "rigid,viscous,coulomb,offset,cogging:20")
-    assert d.base.model.get("cogging").describe()["order"] == 20.0
+    assert hidden.effect(d.base.model, "cogging").describe()["order"] == 20.0
     assert d.base.data is data
     # a cogging candidate here is one more order on top of the fixed 20/rev
     assert all(c.detail["orders"][0] == 20.0 for c in d.candidates if c.effect == "cogging")

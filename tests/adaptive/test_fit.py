@@ -117,10 +117,10 @@ def test_nonlinear_parameters_are_found_by_search():
     delayed = fit(hidden.recording(("delay",)), "rigid,viscous,coulomb,delay")
     assert delayed.delay == pytest.approx(1e-3, abs=0.1e-3)
     cogging = fit(hidden.recording(("cogging",)), "rigid,viscous,coulomb,cogging")
-    assert cogging.model.get("cogging").describe()["order"] == 39.0
+    assert hidden.effect(cogging.model, "cogging").describe()["order"] == 39.0
     assert cogging.params["A1"] == pytest.approx(0.02, rel=0.05)
     fixed = fit(hidden.recording(("cogging",)), "rigid,viscous,coulomb,cogging:20")  # fixed, not searched
-    assert fixed.model.get("cogging").describe()["order"] == 20.0 and fixed.rel_error > cogging.rel_error
+    assert hidden.effect(fixed.model, "cogging").describe()["order"] == 20.0 and fixed.rel_error > cogging.rel_error
 
 
 # -- bad input (issue 4, item 5) ----------------------------------------------------------------
@@ -349,5 +349,6 @@ def test_a_rest_s_torque_does_not_reach_the_rows_around_it():
     b = fit(held, "rigid,viscous,coulomb", method="ls")
     for k in truth:
         assert b.params[k] == pytest.approx(a.params[k], rel=0.01), k
+    assert data.rest is not None
     gap = np.array([np.min(np.abs(np.flatnonzero(data.rest) - r)) for r in data.rows])
     assert np.any(gap * data.dt < 0.5 / data.cutoff_hz)

@@ -13,7 +13,7 @@ from manus.adaptive.impedance import Impedance
 from manus.experiments.calibration import pendulum
 from manus.plants import Model, Simulator
 from manus.plants.closed_loop import simulate
-from manus.plants.effects import Coulomb, parse_effects, sign, stack
+from manus.plants.effects import Coulomb, Delay, parse_effects, sign, stack
 from manus.plants.recording import from_trajectory, read
 from manus.plants.references import MultiSine
 from manus.plants.structures import Manus2
@@ -28,6 +28,7 @@ def arm(truth: dict, effects: str, seconds: float = 12.0, seed: int = 3, extra: 
     `truth` (others at their defaults)."""
     model = Model(Manus2(), parse_effects(effects) + tuple(extra))
     plant = Simulator(model, truth)
+    assert plant.actuator is not None
     ref = MultiSine((0.464, 2.409), 0.3, seed=seed)
     traj = simulate(
         plant, Impedance(30.0, 1.0, n_joints=2, limit=plant.actuator.limit), ref, seconds, key=jax.random.PRNGKey(seed)
@@ -177,6 +178,7 @@ def test_a_tiny_structure_left_by_a_right_model_is_not_something_left():
     from manus.plants.references import Benign
 
     plant = Simulator(Model(Manus2(), "rigid,viscous,coulomb"))
+    assert plant.actuator is not None
     traj = simulate(
         plant, Impedance(30.0, 1.0, n_joints=2, limit=plant.actuator.limit), Benign(), 20.0, key=jax.random.PRNGKey(0)
     )
@@ -197,7 +199,7 @@ def test_a_searched_value_is_searched_again_once_the_loop_adds_what_bent_it():
     rec = arm(truth, "rigid,viscous,coulomb,cogging:39+6", seconds=20.0, seed=0)
     disc = discover(rec, "rigid,viscous,coulomb")
     assert [s.effect for s in disc.steps][:2] == ["cogging", "gravity"]
-    assert disc.final_fit.model.get("cogging").spec == "cogging:39"
+    assert hidden.effect(disc.final_fit.model, "cogging").spec == "cogging:39"
     assert "cogging:39" in disc.model
 
 
@@ -216,7 +218,7 @@ def rippled_axis(ripple: float = 0.08, order: int = 6, seconds: float = 20.0, se
     n = int(seconds * rate)
     t = np.arange(n) * dt
     f, ph = rng.uniform(0.2, 2.5, 6), rng.uniform(0, 2 * math.pi, 6)
-    ref = sum(0.12 * np.sin(2 * math.pi * fi * t + p) for fi, p in zip(f, ph, strict=True))
+    ref = np.asarray(sum(0.12 * np.sin(2 * math.pi * fi * t + p) for fi, p in zip(f, ph, strict=True)))
     q = v = vf = q_last = 0.0
     qs, taus = np.zeros(n), np.zeros(n)
     smooth = 1 - math.exp(-2 * math.pi * 30 * dt)
@@ -280,6 +282,7 @@ def test_a_delay_that_differs_between_joints_is_found_joint_by_joint():
     d = discover(rec, "rigid,viscous,coulomb")
     assert [s.effect for s in d.steps] == ["delay"] * len(d.steps) and len(d.steps) >= 2
     final = d.final_fit.model.get("delay")
+    assert isinstance(final, Delay)
     assert final.seconds == pytest.approx((0.5e-3, 4e-3), abs=0.15e-3)
     assert d.steps[-1].rel_error < 0.8 * d.steps[0].rel_error  # the refinement is worth its steps
 
