@@ -68,7 +68,7 @@ from manus.plants.effects import ORDER, VOCABULARY, Cogging, Compliance, Delay, 
 from manus.plants.recording import Recording, from_trajectory
 from manus.plants.references import Hold, MultiSine, Reaching
 from manus.plants.simulator import Actuator, Encoder, Simulator
-from manus.plants.structures import Axis, Manus2
+from manus.plants.structures import Axis, Manus2, Structure
 
 # -- the conditions ------------------------------------------------------------------------------
 STRUCTURES = ("arm", "axis")
@@ -95,7 +95,7 @@ class Setup:
     """What a structure needs to be simulated and excited."""
 
     name: str
-    structure: object
+    structure: Structure
     nominal: dict  # the nominal effects' true values
     centre: tuple
     encoder_step: float  # [rad or m]
@@ -188,7 +188,9 @@ def reaching(setup: Setup, seconds: float, rng: np.random.Generator) -> Reaching
     for _ in range(m):
         target = centre + rng.uniform(-setup.swing, setup.swing, setup.n)
         d = rng.uniform(0.4, 1.0)
-        t0.append(t), dur.append(d), delta.append(target - now)
+        t0.append(t)
+        dur.append(d)
+        delta.append(target - now)
         now, t = target, t + d + rng.uniform(0.3, 1.0)
     return Reaching(jnp.asarray(centre), jnp.asarray(t0), jnp.asarray(dur), jnp.asarray(np.array(delta)))
 
@@ -215,8 +217,8 @@ def coloured(steps: int, dt: float, rms: np.ndarray, corner_hz: float, rng: np.r
     """Low-passed white noise (2nd-order Butterworth at `corner_hz`), RMS `rms` per joint."""
     from scipy import signal
 
-    b, a = signal.butter(2, corner_hz, fs=1.0 / dt)
-    x = signal.lfilter(b, a, rng.standard_normal((steps + 2000, len(rms))), axis=0)[2000:]
+    b, a = signal.butter(2, corner_hz, fs=1.0 / dt)  # pyright: ignore[reportAssignmentType, reportGeneralTypeIssues] (the default output="ba")
+    x = np.asarray(signal.lfilter(b, a, rng.standard_normal((steps + 2000, len(rms))), axis=0))[2000:]
     return x * (np.asarray(rms) / np.sqrt(np.mean(x**2, axis=0)))
 
 

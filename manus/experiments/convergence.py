@@ -150,12 +150,14 @@ def summarize(tr: Trials) -> dict:
     for i, name in enumerate(tr.names):
         final = tr.theta_final[ok, i]
         truth = float(tr.truth[i])
-        entry = {"truth": truth, "final": float(final.mean()), "final_std": float(final.std())}
+        mean = float(final.mean())
+        entry: dict[str, float | None] = {"truth": truth, "final": mean, "final_std": float(final.std())}
         if truth != 0:
             settle = tr.settle[ok, i]
-            entry["error"] = (entry["final"] - truth) / abs(truth)
-            entry["settled"] = float(np.mean(np.isfinite(settle)))
-            entry["t_within_5pct"] = float(np.nanmedian(settle)) if entry["settled"] >= 0.5 else None
+            settled = float(np.mean(np.isfinite(settle)))
+            entry["error"] = (mean - truth) / abs(truth)
+            entry["settled"] = settled
+            entry["t_within_5pct"] = float(np.nanmedian(settle)) if settled >= 0.5 else None
         else:  # not in the plant: only an absolute figure means something
             entry.update(error=None, settled=None, t_within_5pct=None)
         params[name] = entry

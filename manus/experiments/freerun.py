@@ -79,8 +79,8 @@ def _controller(rec, n: int, limit: float | None):
     m = re.match(r"\s*impedance\s+K=([0-9.eE+-]+)\s+B=([0-9.eE+-]+)", meta.get("controller", ""))
     if m:
         k, b = float(m.group(1)), float(m.group(2))
-        clip = {} if limit is None else {"limit": limit}
-        return Impedance(k, b, n_joints=n, **clip), f"impedance K={k:g} B={b:g} (filtered first difference)"
+        controller = Impedance(k, b, n_joints=n) if limit is None else Impedance(k, b, n_joints=n, limit=limit)
+        return controller, f"impedance K={k:g} B={b:g} (filtered first difference)"
     if all(k in meta for k in ("kp", "kv", "gtau")) and "qg" in rec.extra:
         kp, kv, gtau = (float(meta[k]) for k in ("kp", "kv", "gtau"))
         return PPD(kp, kv, gtau, rec.dt), f"the EMPS P-PD loop kp={kp:g} kv={kv:g} gtau={gtau:.4g}"
@@ -123,6 +123,7 @@ def free_run(f, open_loop: bool = False) -> FreeRun:
     q = rec.q[: len(q_sim)]
     out = FreeRun(rec.t[: len(q_sim)], q, q_sim, mode, how, nrmse_fit(q, q_sim))
     if mode == "closed loop":
+        assert ref is not None  # the closed loop follows the recorded reference
         out.q_ref = ref[: len(q_sim)]
         out.fit_tracking = nrmse_fit(q - out.q_ref, q_sim - out.q_ref)
     return out

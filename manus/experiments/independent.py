@@ -30,6 +30,7 @@ import math
 import os
 import tempfile
 import time
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -42,7 +43,7 @@ from manus.experiments.sizing import rms
 RATES = (1000, 500, 200)
 A1, A2, A3 = 0.349, 0.241, 0.246  # kg m²: M11, the coupling, M22 (thesis §3.5.5)
 M_MIN = 0.051  # the smallest eigenvalue of the arm's mass matrix (at cos = 1) [kg m²]
-ARM = dict(
+ARM: dict[str, Any] = dict(
     n=2,
     b=(0.161, 0.107),
     fc=(0.099, 0.139),
@@ -56,7 +57,7 @@ ARM = dict(
     vs=0.05,
     eps=1e-3,
 )
-AXIS = dict(
+AXIS: dict[str, Any] = dict(
     n=1,
     m=2.5,
     b=(15.0,),
@@ -273,8 +274,8 @@ def case(seed: int, hidden: str | None = None, rates: tuple = RATES, amplitude: 
     info: dict = {}
     if torque == "coloured":
         level, corner = rng.uniform(0.03, 0.08), rng.uniform(1.0, 5.0)
-        b, a = signal.butter(2, corner * 2 / rate)
-        w = signal.lfilter(b, a, rng.standard_normal((steps, n)), axis=0)
+        b, a = signal.butter(2, corner * 2 / rate)  # pyright: ignore[reportAssignmentType, reportGeneralTypeIssues] (the default output="ba")
+        w = np.asarray(signal.lfilter(b, a, rng.standard_normal((steps, n)), axis=0))
         disturbance = w / w.std(0) * level * rms(u)
         info.update(disturbance_fraction=round(float(level), 3), disturbance_corner_hz=round(float(corner), 2))
     if hidden in ("stribeck", "asymmetry", "offset", "gravity", "spring", "cogging"):

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import time
+from typing import Any
 
 import numpy as np
 
@@ -75,7 +76,7 @@ def judge(
         out["condition"] = {**c.condition, "lost_samples": int((~keep).sum())}
     t0 = time.perf_counter()
     try:
-        options = {k: v for k, v in (("alpha", alpha), ("blocks", blocks)) if v is not None}
+        options: dict[str, Any] = {k: v for k, v in (("alpha", alpha), ("blocks", blocks)) if v is not None}
         d = diagnose(rec, c.start, **options)
     except ManusError as e:
         out.update(outcome="error", error=str(e), diagnose_s=time.perf_counter() - t0)
@@ -113,7 +114,9 @@ def judge(
         # the verdict says the recording hardly tells it from the hidden effect (a tilted plane,
         # a spring with its preload and an offset on a small swing) and names that reading too
         out["reading"] = bool(not named and v is not None and any(hidden in _effects(x) for x in v.readings))
-        out["right_joint"] = bool((named or out["reading"]) and (c.joint is None or v.joint == c.joint))
+        out["right_joint"] = bool(
+            v is not None and (named or out["reading"]) and (c.joint is None or v.joint == c.joint)
+        )
         out["outcome"] = "named" if named else ("reading" if out["reading"] else "missed" if v is None else "wrong")
     return out
 

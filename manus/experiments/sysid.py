@@ -91,7 +91,8 @@ def fit_oscillation(t, x, tau, dt: float, cutoff_hz: float = 20.0, min_speed: fl
     Phi = np.stack([xdd, xd, np.sign(xd)], 1)[use]
     theta, *_ = np.linalg.lstsq(Phi, y[use], rcond=None)
     rel = float(np.linalg.norm(y[use] - Phi @ theta) / np.linalg.norm(y[use]))
-    return Fit(*map(float, theta), rel, int(use.sum()))
+    inertia, damping, friction = (float(x) for x in theta)
+    return Fit(inertia, damping, friction, rel, int(use.sum()))
 
 
 def simulate_test(

@@ -35,16 +35,16 @@ def test_k_max_without_damping_is_the_closed_form():
     """b_c = 0: L = e^{−jωτ}/(jω(jωm + b)); the phase crossover solves ωτ + atan(ωm/b) = π/2 and
     k_max = ω √(m²ω² + b²)."""
     tau = 1e-3
-    w = scipy.optimize.brentq(lambda w: w * tau + np.arctan(w * M / B) - np.pi / 2, 1.0, 1e4, xtol=1e-14)
+    w: float = scipy.optimize.brentq(lambda w: w * tau + np.arctan(w * M / B) - np.pi / 2, 1.0, 1e4, xtol=1e-14)  # pyright: ignore[reportAssignmentType] (a float without full_output)
     assert LinearAxis().k_max(0.0) == pytest.approx(w * np.hypot(M * w, B), rel=1e-6)
 
 
 @pytest.mark.parametrize("b_c", [2.0, 10.0, 30.0])
 def test_k_max_matches_python_control_margins(b_c):
     """python-control's gain margin of the same loop as a transfer function with a Padé delay."""
-    s = control.tf("s")
-    delay = control.tf(*control.pade(1e-3, 8))
-    plant = 1 / (M * s**2 + B * s)
+    s: control.TransferFunction = control.tf("s")  # pyright: ignore[reportAssignmentType] (python-control is untyped)
+    delay: control.TransferFunction = control.tf(*control.pade(1e-3, 8))  # pyright: ignore[reportAssignmentType]
+    plant = 1 / (M * s**2 + B * s)  # pyright: ignore[reportOperatorIssue] (TransferFunction.__pow__ is untyped)
     loop = control.feedback(delay * plant, b_c * LAM * s / (s + LAM))
     gm = np.atleast_1d(control.stability_margins(loop, returnall=True)[0])
     assert LinearAxis().k_max(b_c) == pytest.approx(gm[gm > 0].min(), rel=1e-4)

@@ -22,8 +22,10 @@ def local_grid():
 def test_distributed_sweep_equals_the_local_one(local_grid):
     from distributed import LocalCluster
 
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
-        remote = sweep.grid(TEST, B_CS, KS, cluster=cluster.scheduler_address, chunk=8, progress=True)
+    # distributed's annotations: dashboard_address=None (no dashboard) is documented but typed str, and the
+    # context manager's type covers the asynchronous cluster too
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:  # pyright: ignore[reportArgumentType]
+        remote = sweep.grid(TEST, B_CS, KS, cluster=cluster.scheduler_address, chunk=8, progress=True)  # pyright: ignore[reportAttributeAccessIssue]
     for name, a, b in zip(local_grid._fields, local_grid, remote, strict=True):
         assert a.shape == (len(B_CS), len(KS)), name
         if name == "psd":  # the FFT's rounding may depend on its batch: equal to 1e-12

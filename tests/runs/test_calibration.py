@@ -10,6 +10,8 @@ hidden on one); the pendulum (errors in the variables: a 4096-count encoder at 2
 its inertia and gravity within 10 %.
 """
 
+from typing import Any
+
 import pytest
 
 from manus.adaptive import diagnose, fit
@@ -30,7 +32,7 @@ NULLS = [
 ]
 # one per hidden effect, at an easy condition: the arm at 1 kHz under the multi-sine, exact
 # torque, hold stated (compliance: under the open-loop steps, the only excitation that rings it)
-EASY = dict(structure="arm", rate=1000, excitation="multisine", torque="exact", hold="stated")
+EASY: dict[str, Any] = dict(structure="arm", rate=1000, excitation="multisine", torque="exact", hold="stated")
 HIDDEN = calibration.hidden_effects()
 
 
@@ -200,7 +202,7 @@ def test_calibration_a_mode_at_2khz_is_found_and_one_the_encoder_cannot_resolve_
     assert comp.detail["f_hz"] == pytest.approx(379.0, rel=0.02) and comp.detail["resonance_peak"]
     step = 2 * np.pi / 16384
     c.rec.q = np.round(c.rec.q / step) * step
-    c.rec.meta["counts_per_rev"] = 16384
+    c.rec.meta["counts_per_rev"] = "16384"
     d = diagnose(c.rec, c.start)
     assert d.verdict is None or d.verdict.effect != "compliance"
     comp = next((x for x in d.candidates if x.effect == "compliance"), None)

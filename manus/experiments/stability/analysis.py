@@ -47,14 +47,14 @@ def eq41_poles(k: float = 100.0, b_c: float = 2.0) -> dict:
     import control
 
     p = np.sort_complex(control.poles(LinearAxis(delay=0.0).closed_loop(k, b_c)))
-    wn = float(np.abs(p[np.argmax(np.abs(p.imag))]))
+    wn = float(np.abs(p[np.argmax(np.abs(np.imag(p)))]))
     return {
         "k": k,
         "b_c": b_c,
         "poles": [[float(z.real), float(z.imag)] for z in p],
         "thesis": [[float(np.real(z)), float(np.imag(z))] for z in THESIS_POLES],
         "natural_hz": wn / (2 * np.pi),
-        "damping_ratio": float(-p[np.argmax(np.abs(p.imag))].real / wn),
+        "damping_ratio": float(-p[np.argmax(np.abs(np.imag(p)))].real / wn),
     }
 
 

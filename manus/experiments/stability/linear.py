@@ -65,7 +65,7 @@ class LinearAxis:
         m, b, ke = self.mass, self.damping, self.spring
         if self.shaft is None:
             return np.array([[0, 1], [-ke / m, -b / m]]), np.array([[0], [1 / m]]), np.array([[1.0, 0]])
-        k2, b2 = (float(x) for x in self.shaft.shaft(m))
+        k2, b2 = (float(x) for x in self.shaft.shaft(m))  # pyright: ignore[reportArgumentType] (shaft takes any array-like)
         mm = self.shaft.motor_fraction * m  # motor: friction b, measured; link: the rest, the spring
         ml = m - mm
         A = np.array(
@@ -80,16 +80,16 @@ class LinearAxis:
 
     # -- the loop broken at k ---------------------------------------------------------------------
     def plant(self) -> control.StateSpace:
-        return control.ss(*self.state_space(), 0)
+        return control.ss(*self.state_space(), 0)  # pyright: ignore[reportReturnType] (python-control is untyped)
 
     def filter(self, rate_hz: float | None = None) -> control.TransferFunction:
         """The velocity estimator λ s/(s + λ), or its Tustin form at `rate_hz`."""
         lam = self.corner
         if rate_hz is None:
-            return control.tf([lam, 0], [1, lam])
+            return control.tf([lam, 0], [1, lam])  # pyright: ignore[reportReturnType] (python-control is untyped)
         T = 1.0 / rate_hz
         a, g = (2 - lam * T) / (2 + lam * T), 2 * lam / (2 + lam * T)
-        return control.tf([g, -g], [1, -a], T)
+        return control.tf([g, -g], [1, -a], T)  # pyright: ignore[reportReturnType] (python-control is untyped)
 
     def closed_loop(self, k: float, b_c: float) -> control.TransferFunction:
         """x/x_d without the delay: eq. 4.1 (eq. 4.2 with a spring)."""
@@ -103,7 +103,7 @@ class LinearAxis:
             forward = delay * self.plant()
         else:
             forward = self.sampled(rate_hz)
-        return control.feedback(forward, b_c * self.filter(rate_hz))
+        return control.feedback(forward, b_c * self.filter(rate_hz))  # pyright: ignore[reportReturnType, reportArgumentType] (python-control is untyped)
 
     def sampled(self, rate_hz: float) -> control.StateSpace:
         """The plant with zero-order hold and delay, exact at the sampling instants.
@@ -127,7 +127,7 @@ class LinearAxis:
         if regs:
             Bd[nx, 0] = 1.0
             Ad[nx + 1 :, nx:-1] = np.eye(regs - 1)
-        return control.ss(Ad, Bd, np.hstack([C, np.zeros((1, regs))]), 0, 1.0 / rate_hz)
+        return control.ss(Ad, Bd, np.hstack([C, np.zeros((1, regs))]), 0, 1.0 / rate_hz)  # pyright: ignore[reportReturnType] (python-control is untyped)
 
     def _hold(self, T: float):
         """(Φ, Γ0, Γ1, n) of `sampled` (cached: searches ask for the same plant many times)."""
@@ -137,19 +137,21 @@ class LinearAxis:
     def response(self, b_c: float, rate_hz: float | None = None):
         """ω ↦ L(jω) (or L(e^{jωT})), ω [rad/s] an array, with the delay exact (e^{−jωτ})."""
         A, B, C = self.state_space()
+        sampled = None
         if rate_hz is not None:
             T = 1.0 / rate_hz
-            phi, gamma0, gamma1, n = self._hold(T)
+            sampled = (T, *self._hold(T))
         f = self.filter(rate_hz)
         num, den = f.num[0][0], f.den[0][0]
         eye = np.eye(A.shape[0])
 
         def at(w):
             w = np.atleast_1d(np.asarray(w, float))
-            if rate_hz is None:
+            if sampled is None:
                 s = 1j * w
                 a, b, forward = A, B, np.exp(-s * self.delay)
             else:
+                T, phi, gamma0, gamma1, n = sampled
                 s = np.exp(1j * w * T)
                 a, b, forward = phi, gamma0 + gamma1 / s[:, None, None], s ** (-n)
             b = np.broadcast_to(b, (w.size, *b.shape[-2:]))
@@ -161,7 +163,7 @@ class LinearAxis:
     # -- thresholds ---------------------------------------------------------------------------------
     def closed_poles(self, k: float, b_c: float, rate_hz: float | None = None) -> np.ndarray:
         """Poles of the closed loop with the delay (Padé, or sampled: z-plane)."""
-        return control.poles(control.feedback(self.loop(b_c, rate_hz), k))
+        return control.poles(control.feedback(self.loop(b_c, rate_hz), k))  # pyright: ignore[reportArgumentType] (python-control is untyped)
 
     def stable(self, k: float, b_c: float, rate_hz: float | None = None) -> bool:
         return _inside(self.closed_poles(k, b_c, rate_hz), rate_hz, strict=True)
@@ -183,7 +185,7 @@ class LinearAxis:
         cross = np.flatnonzero((np.sign(L.imag[:-1]) * np.sign(L.imag[1:]) < 0) & (L.real[:-1] < 0))
         rough = -1 / L.real[cross]
         for i in cross[rough <= 1.5 * rough.min()] if cross.size else ():  # refine the likely minima
-            wc = scipy.optimize.brentq(lambda x: at(x)[0].imag, w[i], w[i + 1], xtol=1e-12 * w[i])
+            wc = scipy.optimize.brentq(lambda x: at(x)[0].imag, w[i], w[i + 1], xtol=float(1e-12 * w[i]))
             re = at(wc)[0].real
             if re < 0:
                 gains.append(-1 / re)
@@ -202,10 +204,10 @@ class LinearAxis:
 
 
 @functools.lru_cache(maxsize=64)
-def _hold(A: tuple, B: tuple, delay: float, T: float):
+def _hold(a_rows: tuple, b_rows: tuple, delay: float, T: float):
     """(Φ, Γ0, Γ1, n) for the system (A, B) sampled every T with an input delay, each from one
-    matrix exponential of [[A, B], [0, 0]]."""
-    A, B = np.array(A), np.array(B)
+    matrix exponential of [[A, B], [0, 0]]; A and B as tuples of rows (hashable: cached)."""
+    A, B = np.array(a_rows), np.array(b_rows)
     nx = A.shape[0]
 
     def hold(t):  # (e^{At}, ∫0^t e^{Aσ} dσ B)
@@ -223,13 +225,13 @@ def _hold(A: tuple, B: tuple, delay: float, T: float):
 
 @functools.lru_cache(maxsize=16)
 def _pade(delay: float) -> control.StateSpace:
-    return control.ss(control.tf(*control.pade(delay, PADE_ORDER)))
+    return control.ss(control.tf(*control.pade(delay, PADE_ORDER)))  # pyright: ignore[reportReturnType] (python-control is untyped)
 
 
 def _inside(poles: np.ndarray, rate_hz: float | None, strict: bool) -> bool:
     """All poles in the stable region (open when `strict`, else marginal poles allowed)."""
     margin = -1e-12 if strict else 1e-9
-    return bool(np.all(np.abs(poles) - 1 < margin) if rate_hz else np.all(poles.real < margin))
+    return bool(np.all(np.abs(poles) - 1 < margin) if rate_hz else np.all(np.real(poles) < margin))
 
 
 def curve(model: LinearAxis, b_cs, rate_hz: float | None = None) -> np.ndarray:

@@ -47,6 +47,7 @@ from typing import ClassVar, NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax import Array
 
 from manus.adaptive.impedance import Impedance
 from manus.estimators.base import FilteredFirstDifference
@@ -80,14 +81,15 @@ class EnvironmentSpring(Effect):
 
 
 class Metrics(NamedTuple):
-    """What the last second of one trial shows (arrays, one entry per trial)."""
+    """What the last second of one trial shows (arrays, one entry per trial: JAX arrays where the
+    trials are traced, numpy ones once gathered)."""
 
-    amplitude: np.ndarray  # max |x − x_eq| [m], x_eq the equilibrium after the step
-    move: np.ndarray  # x_eq: how far the step moves the equilibrium [m] (the step, uncoupled)
-    psd: np.ndarray  # PSD peak in the band, thesis normalization at 1 kHz [m²]; 0 without a band
-    psd_hz: np.ndarray  # where that peak is [Hz]
-    dominant_hz: np.ndarray  # the strongest spectral line of the last second [Hz]
-    samples: np.ndarray  # samples in the last second (N of the native |X|²/N)
+    amplitude: Array | np.ndarray  # max |x − x_eq| [m], x_eq the equilibrium after the step
+    move: Array | np.ndarray  # x_eq: how far the step moves the equilibrium [m] (the step, uncoupled)
+    psd: Array | np.ndarray  # PSD peak in the band, thesis normalization at 1 kHz [m²]; 0 without a band
+    psd_hz: Array | np.ndarray  # where that peak is [Hz]
+    dominant_hz: Array | np.ndarray  # the strongest spectral line of the last second [Hz]
+    samples: Array | np.ndarray  # samples in the last second (N of the native |X|²/N)
 
 
 @dataclass(frozen=True)
