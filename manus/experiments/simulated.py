@@ -37,7 +37,7 @@ def controller_for(plant, serial: bool, stiffness=None, damping=None):
             f"B={', '.join(f'{x:.3g}' for x in b)}"
         )
         # per-joint gains: Feedforward broadcasts them (its gains are unannotated, so read as float)
-        return Feedforward(chain, plant.dt, stiffness=k, damping=b), how  # pyright: ignore[reportArgumentType]
+        return Feedforward(chain, plant.dt, stiffness=k, damping=b), how
     k, b = (30.0 if stiffness is None else stiffness), (1.0 if damping is None else damping)
     return Impedance(k, b, n_joints=n, limit=plant.actuator.limit), f"impedance K={k:g} B={b:g}"
 

@@ -58,6 +58,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
+from jax.typing import ArrayLike
 
 from manus.plants import fastmath
 from manus.plants.errors import ModelError
@@ -677,7 +678,7 @@ class Compliance(Effect):
     zeta: Array = eqx.field(default=0.0081, converter=jnp.asarray)
     motor_fraction: float = eqx.field(default=0.1, static=True)
 
-    def shaft(self, inertia: Array) -> tuple[Array, Array]:
+    def shaft(self, inertia: ArrayLike) -> tuple[Array, Array]:
         """Shaft stiffness and damping for a joint of total inertia `inertia`."""
         mu = inertia * self.motor_fraction * (1 - self.motor_fraction)
         w = 2 * jnp.pi * self.f_hz

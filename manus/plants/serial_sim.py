@@ -26,6 +26,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
+from jax.typing import ArrayLike
 
 from manus.plants.closed_loop import simulate
 from manus.plants.recording import from_trajectory
@@ -49,8 +50,8 @@ class Feedforward(Controller):
         structure,
         dt: float,
         params: dict | None = None,
-        stiffness=400.0,
-        damping=20.0,
+        stiffness: ArrayLike = 400.0,
+        damping: ArrayLike = 20.0,
         velocity_hz: float = 100.0,
     ):
         n = structure.n_joints

@@ -65,7 +65,7 @@ class LinearAxis:
         m, b, ke = self.mass, self.damping, self.spring
         if self.shaft is None:
             return np.array([[0, 1], [-ke / m, -b / m]]), np.array([[0], [1 / m]]), np.array([[1.0, 0]])
-        k2, b2 = (float(x) for x in self.shaft.shaft(m))  # pyright: ignore[reportArgumentType] (shaft takes any array-like)
+        k2, b2 = (float(x) for x in self.shaft.shaft(m))
         mm = self.shaft.motor_fraction * m  # motor: friction b, measured; link: the rest, the spring
         ml = m - mm
         A = np.array(
