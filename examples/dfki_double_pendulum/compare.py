@@ -132,7 +132,7 @@ def render(r: dict) -> str:
 def main(argv=None) -> int:
     from manus.plants.errors import ManusError
 
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
     p.add_argument("recordings", nargs="+", help="DFKI exports (A0_trajectory_XX.csv)")
     p.add_argument("--json", action="store_true", help="one JSON object on stdout")
     args = p.parse_args(argv)

@@ -57,7 +57,7 @@ def main(argv=None) -> int:
     from manus.plants import recording
     from manus.plants.errors import ManusError
 
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
     p.add_argument("recordings", nargs="+", help="DFKI exports (A0_trajectory_XX.csv)")
     p.add_argument("-o", "--out", default="runs/out/dfki", help="folder for the relative recordings")
     args = p.parse_args(argv)

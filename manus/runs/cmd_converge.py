@@ -77,6 +77,7 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> dict:
+    from manus.adaptive.slotine_li import SlotineLi
     from manus.experiments.convergence import base_summary, controller_for, run_trials, summarize, trajectory
     from manus.plants.effects import Model
     from manus.plants.errors import ManusError
@@ -89,10 +90,11 @@ def run(args) -> dict:
     if args.trajectory is None:
         args.trajectory = "complex" if model.structure.thesis_arm else "multisine"
     reference = trajectory(args.trajectory, model)
-    gains = parse_pairs(args.gain, "--gain")
+    gains: dict[str, float | dict[str, float]] = dict(parse_pairs(args.gain, "--gain"))
     if args.gamma:
         gains["gamma"] = parse_pairs(args.gamma, "--gamma")
     controller = controller_for(plant, model, args.law, args.estimator, args.form, args.uncompensated, **gains)
+    assert isinstance(controller, SlotineLi)  # controller_for makes a Slotine–Li law
     note(
         f"{args.trials} trials of {args.seconds:g} s on the {args.trajectory} trajectory: truth {plant.model.spec}, "
         f"model {model.spec}, {args.law} law, {args.estimator} ..."

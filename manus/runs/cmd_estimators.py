@@ -55,7 +55,7 @@ def run(args) -> dict:
     if args.cutoff <= 0:
         raise ManusError("--cutoff must be positive")
     rec = read_recording(args)
-    model_knobs = {"structure": rec.structure_name}
+    model_knobs: dict[str, str | Model | dict[str, float]] = {"structure": rec.structure_name}
     if args.model or rec.structure_name == "urdf":  # a serial chain's model is built on the recording's robot
         from manus.estimators.registry import NOMINAL_MODEL
 

@@ -18,6 +18,7 @@ EXAMPLE = pathlib.Path(__file__).resolve().parents[2] / "examples" / "dfki_doubl
 
 def _module(name):
     spec = importlib.util.spec_from_file_location(name, EXAMPLE / f"{name}.py")
+    assert spec is not None and spec.loader is not None  # a .py file has a spec with a loader
     sys.path.insert(0, str(EXAMPLE))
     try:
         mod = importlib.util.module_from_spec(spec)
@@ -76,10 +77,11 @@ def test_to_relative_writes_a_urdf_recording(files, tmp_path):
         text=True,
     )
     assert out.returncode == 0, out.stderr
-    from manus.plants import recording
+    from manus.plants import Serial, recording
 
     rel = recording.read(out.stdout.strip())
     src = recording.read(files[1])
+    assert isinstance(rel.structure, Serial)  # a urdf recording's structure is its chain
     assert rel.structure_name == "urdf" and rel.structure.joint_names == ("shoulder", "elbow")
     np.testing.assert_allclose(rel.q[:, 1], src.q[:, 1] - src.q[:, 0], atol=2 * 3.82e-4)  # relative = θ2 − θ1
     np.testing.assert_allclose(rel.tau @ np.array([[1.0, 0.0], [-1.0, 1.0]]), src.tau, atol=1e-9)  # motors -> absolute

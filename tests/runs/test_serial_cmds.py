@@ -12,7 +12,7 @@ import jax
 import numpy as np
 import pytest
 
-from manus.plants import Serial, recording
+from manus.plants import Serial, SerialBase, recording
 from manus.plants.recording import Recording
 from manus.runs.bench import robot as robot_bench
 from manus.runs.cli import main
@@ -36,7 +36,8 @@ def pendulum(tmp_path_factory):
     qd = np.einsum("jk,tjk->tj", a * w, np.cos(w[None] * t[:, None, None] + 0.3))
     qdd = np.einsum("jk,tjk->tj", -a * w**2, np.sin(w[None] * t[:, None, None] + 0.3))
     tau = (
-        np.asarray(jax.jit(jax.vmap(lambda *x: serial.rnea(*x, serial.defaults)))(q, qd, qdd)) + np.array(VISCOUS) * qd
+        np.asarray(jax.jit(jax.vmap(lambda q, qd, qdd: serial.rnea(q, qd, qdd, serial.defaults)))(q, qd, qdd))
+        + np.array(VISCOUS) * qd
     )
     rec = Recording(t, q, tau, qd, {"sample_rate_hz": "1000", "command_hold": "none"})
     path = recording.write(rec, folder / "swing.csv")
@@ -381,6 +382,7 @@ def test_fit_recovers_the_pandas_base_parameters(panda_data):
     f = fit(data, "rigid,viscous,coulomb,offset", columns=cols, method="ls")
     report = f.report()
     base = f.model.structure
+    assert isinstance(base, SerialBase)  # a serial chain is fitted in its base parameters
     assert list(report["base_parameters"]) == list(base.rigid_names) and len(base.rigid_names) == 48
     a = robot_bench.accuracy(f, truth, cols)
     print(

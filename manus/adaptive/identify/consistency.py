@@ -31,6 +31,7 @@ import numpy as np
 from manus.adaptive.identify.columns import Columns
 from manus.adaptive.identify.result import Fit
 from manus.plants.errors import ModelError, require
+from manus.plants.serial import SerialBase
 
 TIE = 1e-2  # cost of a standard parameter 100 % away from the URDF's, in squared standard deviations of the fit
 LINK = 10  # standard parameters per link: m, mx, my, mz, Ixx, Ixy, Ixz, Iyy, Iyz, Izz
@@ -65,7 +66,9 @@ class Consistency:
             for j, k in enumerate(names)
             if np.isfinite(f.std[j]) and f.std[j] > 0
         }
-        serial = f.model.structure.serial
+        s = f.model.structure
+        assert isinstance(s, SerialBase)  # `consistent` is a serial chain's, in its base parameters
+        serial = s.serial
         per_link = [self.standard[LINK * i : LINK * (i + 1)] for i in range(serial.n_joints)]
         links = [
             {"mass": float(p[0]), "min_eigenvalue": float(np.linalg.eigvalsh(pseudo_inertia(p))[0])} for p in per_link
@@ -88,7 +91,7 @@ def consistent(f: Fit) -> Consistency:
     cp = require("cvxpy", "consistency")
 
     s = f.model.structure
-    if s.combinations is None:
+    if not isinstance(s, SerialBase):  # the one structure whose rigid parameters are combinations
         raise ModelError(
             "physically consistent parameters are a serial chain's (structure urdf): "
             f"{type(s).__name__} has no standard inertial parameters"

@@ -15,7 +15,7 @@ import numpy as np
 from manus.adaptive.identify import lsq
 from manus.adaptive.identify.columns import Columns
 from manus.adaptive.identify.prepare import Data
-from manus.plants.effects import Effect, Model
+from manus.plants.effects import Delay, Effect, Model
 
 
 def delay_of(model: Model) -> float | np.ndarray:
@@ -24,6 +24,7 @@ def delay_of(model: Model) -> float | np.ndarray:
     e = next((e for e in model.effects if e.timing), None)
     if e is None:
         return 0.0
+    assert isinstance(e, Delay)  # the vocabulary's one timing effect
     return e.per_joint(model.n_joints) if isinstance(e.seconds, tuple) else float(e.seconds)
 
 
@@ -151,6 +152,7 @@ def grid(
 def _timing(value: Effect, rest: Model, delay) -> float | np.ndarray:
     """The delay a timing value gives on top of `rest` (which holds none: its delay is `delay`,
     0): one number, or one per joint."""
+    assert isinstance(value, Delay)  # the vocabulary's one timing effect
     return value.per_joint(rest.n_joints) if isinstance(value.seconds, tuple) else delay + value.seconds
 
 

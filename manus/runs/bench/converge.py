@@ -103,7 +103,7 @@ def run(args) -> dict:
     import jax
     import jax.numpy as jnp
 
-    from manus.adaptive.slotine_li import trial
+    from manus.adaptive.slotine_li import SlotineLi, trial
     from manus.experiments.convergence import EVERY, RECORD, controller_for, run_trials, summarize
     from manus.plants import Model, Simulator
     from manus.plants.errors import ManusError
@@ -116,6 +116,7 @@ def run(args) -> dict:
     plant = Simulator(Model(Manus2(), "rigid,viscous,coulomb"), torque_noise=0.005)
     model = Model(Manus2(), args.model)
     controller = controller_for(plant, model, args.law, "kalman_cv")
+    assert isinstance(controller, SlotineLi)  # controller_for makes a Slotine–Li law
     reference = Complex()
     steps = EVERY * max(1, int(round(args.seconds / plant.dt / EVERY)))
     seconds = steps * plant.dt

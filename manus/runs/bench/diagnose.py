@@ -126,7 +126,7 @@ def arm_torque(theta: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray
     return np.stack([t1, t2], 1)
 
 
-def scipy_fit(data, delay: float = 0.0) -> tuple[np.ndarray, float]:
+def scipy_fit(data, delay: float | np.ndarray = 0.0) -> tuple[np.ndarray, float]:
     """The baseline: non-linear least squares from a generic start; returns θ and rel_error. The
     predicted torque is low-passed like the measured one (`Data.smoothed`, as `fit` filters its
     columns: the rests left out), else the sharp sgn(q̇) is compared with a smooth torque and the

@@ -73,15 +73,18 @@ def run(args) -> dict:
         note(f"JAX: best of {args.repeats} ...")
         jax_s = best_time(lambda: regressors(q, qd, qdd).block_until_ready(), args.repeats)
 
-    model = pin.buildModelFromUrdf(path)
-    model = pin.buildReducedModel(
+    model = pin.buildModelFromUrdf(path)  # pyright: ignore[reportAttributeAccessIssue] (pinocchio's compiled module has no stubs)
+    model = pin.buildReducedModel(  # pyright: ignore[reportAttributeAccessIssue] (pinocchio's compiled module has no stubs)
         model, [model.getJointId(k) for k in model.names[1:] if k not in serial.joint_names], np.zeros(model.nq)
     )
     data = model.createData()
     m = min(args.pinocchio_states, args.states)
 
     def loop():
-        return [pin.computeJointTorqueRegressor(model, data, q[k], qd[k], qdd[k]).copy() for k in range(m)]
+        return [
+            pin.computeJointTorqueRegressor(model, data, q[k], qd[k], qdd[k]).copy()  # pyright: ignore[reportAttributeAccessIssue] (pinocchio's compiled module has no stubs)
+            for k in range(m)
+        ]
 
     note(f"pinocchio: {m} states in a Python loop, best of {args.repeats} ...")
     pin_s = best_time(loop, args.repeats)

@@ -31,7 +31,9 @@ def _xcorr(a: np.ndarray, b: np.ndarray, lags: int) -> np.ndarray:
 
 def _binned(x: np.ndarray, y: np.ndarray, bins: int = BINS, edges=None):
     """Mean of y and its standard error in bins of x (bins with fewer than 5 points dropped)."""
-    edges = np.linspace(*np.percentile(x, [0.5, 99.5]), bins + 1) if edges is None else edges
+    if edges is None:
+        lo, hi = np.percentile(x, [0.5, 99.5])
+        edges = np.linspace(lo, hi, bins + 1)
     k = np.digitize(x, edges) - 1
     centre, mean, se = [], [], []
     for j in range(len(edges) - 1):
@@ -207,6 +209,7 @@ def evidence_figure(d, c, out: Path, name: str, title: str = "") -> str:
         if c.mode is not None:
             _compliance_panel(ax, c, i)
             continue
+        assert c.fit is not None and effect is not None  # a candidate without a mode is a fitted effect
         how = HOW.get(effect.evidence, "")
         if effect.evidence == "shift":
             x = np.gradient(data.tau(d.base.delay, full=True)[:, i], data.dt)[rows]
@@ -216,6 +219,7 @@ def evidence_figure(d, c, out: Path, name: str, title: str = "") -> str:
             N = float(effect.describe().get("orders", [effect.describe()["order"]])[-1])
             x, xl = np.mod(N * q[:, i], 2 * np.pi), f"phase N·q{i + 1} mod 2π (N = {N:g})"
             how = "residual against position modulo the period"
+            assert term is not None  # every effect but the delay and the modes is linear
             y = term[:, i]
         else:
             x, xl = {
@@ -224,6 +228,7 @@ def evidence_figure(d, c, out: Path, name: str, title: str = "") -> str:
                 "time": (data.rec.t[rows], "t [s]"),
                 "acceleration": (data.qdd[rows, i], f"q̈{i + 1}"),
             }[effect.evidence]
+            assert term is not None  # every effect but the delay and the modes is linear
             y = term[:, i]
         ax.plot(x, e[:, i], ".", ms=1.5, color="0.65", alpha=0.45, rasterized=True)
         bc, bm, bse = _binned(x, e[:, i])

@@ -95,7 +95,9 @@ def estimator_figures(rec, report: dict, estimates: dict, out) -> dict:
     from manus.estimators.response import frequency_response
 
     t = rec.t[0] + rec.dt * np.arange(len(estimates["reference"]))  # the sample grid (lost samples filled)
-    paths = {"estimates": [estimates_figure(t, estimates, report, out, j) for j in range(rec.n_joints)]}
+    paths: dict[str, list[str] | str] = {
+        "estimates": [estimates_figure(t, estimates, report, out, j) for j in range(rec.n_joints)]
+    }
     freqs = np.geomspace(0.5, 0.45 / rec.dt, 40)
     amplitude = float(np.max(np.std(rec.q, axis=0)))
     responses = {}

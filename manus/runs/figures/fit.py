@@ -90,7 +90,6 @@ def waterfall_figure(discovery, out: Path, name: str = "waterfall.png", title: s
         labels.append(f"+ {s.spec}")
         levels.append(100 * s.rel_error)
     fig, ax = plt.subplots(figsize=(1.6 * len(levels) + 2.5, 4))
-    x = np.arange(len(levels))
     ax.bar(0, levels[0], color="0.55", width=0.6)
     for k in range(1, len(levels)):
         drop = levels[k - 1] - levels[k]
@@ -100,7 +99,7 @@ def waterfall_figure(discovery, out: Path, name: str = "waterfall.png", title: s
     ax.bar(len(levels), levels[-1], color="C2", width=0.6)
     ax.text(len(levels), levels[-1], f"{levels[-1]:.2f} %", ha="center", va="bottom", fontsize=8)
     ax.text(0, levels[0], f"{levels[0]:.2f} %", ha="center", va="bottom", fontsize=8)
-    ax.set_xticks(list(x) + [len(levels)], labels + ["final"], fontsize=8)
+    ax.set_xticks(np.arange(len(levels) + 1), labels + ["final"], fontsize=8)
     ax.set_ylabel("rel_error ‖τ − τ̂‖ / ‖τ‖ [%]")
     ax.set_ylim(0, 1.12 * max(levels))
     fig.suptitle(f"{title}: the error falling as effects are added (stopped: {discovery.stopped})", fontsize=9)

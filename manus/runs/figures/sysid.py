@@ -25,9 +25,11 @@ def oscillations(traces: dict, replays: dict, out) -> str:
     return save(fig, out, "sysid_oscillations.png")
 
 
-def workspace(points, cart, out) -> str:
+def workspace(points: np.ndarray, cart, out) -> str:
     """Figs. 3-21 to 3-23: ellipses and parallelograms over the workspace, drawn to scale per panel."""
     plt = pyplot()
+    from matplotlib.patches import Circle, Rectangle
+
     fig, axes = plt.subplots(1, 3, figsize=(15, 5))
     theta = np.linspace(0, 2 * np.pi, 80)
     unit = np.stack([np.cos(theta), np.sin(theta)])
@@ -43,12 +45,13 @@ def workspace(points, cart, out) -> str:
             shape = (c[key] @ unit).T if key != "friction" else np.vstack([c[key], c[key][:1]])
             ax.plot(*(p + spacing * shape / size).T, lw=0.9)
             ax.plot(*p, "k.", ms=2)
-        for r in np.linspace(*np.percentile(np.hypot(*points.T), [0, 100]), 4):  # arcs of constant radius
+        smallest, largest = np.percentile(np.hypot(*points.T), [0, 100])
+        for r in np.linspace(smallest, largest, 4):  # arcs of constant radius
             a = np.linspace(0.2, np.pi - 0.2, 100)
             ax.plot(r * np.cos(a), r * np.sin(a), "k:", lw=0.5)
-        ax.add_patch(plt.Circle((0, 0), 0.05, fill=False, lw=1.5))  # the actuators
+        ax.add_patch(Circle((0, 0), 0.05, fill=False, lw=1.5))  # the actuators
         lo, hi = points.min(0) - spacing, points.max(0) + spacing
-        ax.add_patch(plt.Rectangle(lo, *(hi - lo), fill=False, lw=1.2))  # the workspace
+        ax.add_patch(Rectangle(lo, *(hi - lo), fill=False, lw=1.2))  # the workspace
         ax.set(
             aspect="equal",
             xlabel="x [m]",
