@@ -1,4 +1,4 @@
-"""`manus demo` (what `make demo` runs): the model-vs-measurement story of issue 4, twice.
+"""`manus demo` (what `make demo` runs): the model-vs-measurement story, twice.
 
 (a) The MANUS-2 arm is simulated under impedance control with effects the analysis is not told
     about (the thesis's plant plus 39/rev cogging: `rigid,viscous,coulomb,delay,cogging:39`).

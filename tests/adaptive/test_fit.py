@@ -123,7 +123,7 @@ def test_nonlinear_parameters_are_found_by_search():
     assert hidden.effect(fixed.model, "cogging").describe()["order"] == 20.0 and fixed.rel_error > cogging.rel_error
 
 
-# -- bad input (issue 4, item 5) ----------------------------------------------------------------
+# -- bad input ----------------------------------------------------------------
 
 
 def test_too_short_names_every_parameter(nominal):

@@ -1,4 +1,4 @@
-"""Discovery you can trust on recordings nobody here made (issue 12): the cases that broke it,
+"""Discovery you can trust on recordings nobody here made: the cases that broke it,
 each built from physics written down here, checked against the truth it was built with (or the
 published values of a real rig)."""
 

@@ -118,7 +118,7 @@ MODEL = "rigid,viscous,coulomb,offset"
 
 
 def panda_case(path: str):
-    """The Panda of issue 13's acceptance (its URDF at `path`, armatures 0.1..0.3 kg m²) with
+    """The Panda (its URDF at `path`, armatures 0.1..0.3 kg m²) with
     viscous and Coulomb friction per joint and an offset on joint 4, 1 kHz, 2 sub-steps, and the
     Fourier excitation it tracks: (serial, simulator, reference, truth)."""
     from manus.plants import Model, Simulator
