@@ -117,7 +117,8 @@ def encoder_steps(rec: Recording) -> np.ndarray:
     """(n,) each joint's position grid: the smallest non-zero change of its position, at least the
     metadata's step (0 for a joint that never moves)."""
     d = np.abs(np.diff(rec.q, axis=0))
-    own = np.array([d[d[:, j] > 0, j].min() if (d[:, j] > 0).any() else 0.0 for j in range(rec.n_joints)])
+    own = np.where(d > 0, d, np.inf).min(axis=0, initial=np.inf)
+    own[~np.isfinite(own)] = 0.0
     declared = rec.position_step or 0.0
     return np.maximum(own, declared)
 
@@ -151,28 +152,31 @@ def runs(rec: Recording, steps: np.ndarray | None = None) -> Runs:
     start = np.r_[0, change]
     length = np.diff(np.r_[start, len(rec)])
     moving, edge = np.zeros(start.size, bool), np.zeros(start.size, bool)
-    if start.size >= 4:
-        jump = np.diff(rec.q[start], axis=0)  # (runs - 1, n): J_r, the jump out of run r
+    if start.size < 4:
+        return Runs(start, length, moving, edge)
+    jump = np.diff(rec.q[start], axis=0)  # (runs - 1, n): J_r, the jump out of run r
+    fast = (np.abs(jump) > MOVING_STEPS * steps) & (steps > 0)
+    # runs 1 .. R-3 (each has a jump before and after it); a one-row run moves where the joints go on
+    inner = fast[:-2] & fast[2:] & (jump[:-2] * jump[1:-1] > 0) & (jump[1:-1] * jump[2:] > 0)
+    moving[1:-2] = np.any(inner, axis=1) & (length[1:-2] == 1)
+    held = np.flatnonzero(length[1:-2] > 1) + 1  # the runs that hold: their pace decides
+    if held.size:
         pace = np.abs(jump) / length[:-1, None]  # |J_r| / L_r
-        here = slice(1, -1)
+        before, here, after = pace[held - 1], pace[held], pace[held + 1]
         with np.errstate(divide="ignore", invalid="ignore"):
-            side = []
-            for there in (slice(0, -2), slice(2, None)):
-                ratio = pace[here] / pace[there]
-                side.append(
-                    (np.abs(jump[there]) > MOVING_STEPS * steps)
-                    & (jump[there] * jump[here] > 0)
-                    & (ratio > 1 / PACE)
-                    & (ratio < PACE)
-                    & (steps > 0)
-                )
-            ratio = pace[here] / ((pace[:-2] + pace[2:]) / 2)
-        both = (np.abs(jump[:-2]) > MOVING_STEPS * steps) & (np.abs(jump[2:]) > MOVING_STEPS * steps)
-        one_way = (jump[:-2] * jump[here] > 0) & (jump[here] * jump[2:] > 0)
-        steady = both & one_way & (ratio > 1 / PACE) & (ratio < PACE) & (steps > 0)
-        moving[1:-2] = np.any(steady, axis=1)
-        edge[1:-2] = np.any(side[0] | side[1], axis=1)
+            steady = _within(here / ((before + after) / 2))
+            sides = [
+                fast[held + d] & (jump[held + d] * jump[held] > 0) & _within(here / there)
+                for d, there in ((-1, before), (1, after))
+            ]
+        moving[held] = np.any(inner[held - 1] & steady, axis=1)
+        edge[held] = np.any(sides[0] | sides[1], axis=1)
     return Runs(start, length, moving, edge)
+
+
+def _within(ratio: np.ndarray) -> np.ndarray:
+    """A pace ratio within a factor `PACE` of one."""
+    return (ratio > 1 / PACE) & (ratio < PACE)
 
 
 def _held(r: Runs) -> tuple[int, int] | None:
