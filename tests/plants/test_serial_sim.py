@@ -21,8 +21,8 @@ def _direct(H: np.ndarray, v: np.ndarray, lo: np.ndarray, hi: np.ndarray, dt: fl
     ½‖Lᵀf − L⁻¹v‖² up to a constant."""
     W = dt * np.linalg.inv(H)
     W = 0.5 * (W + W.T)
-    on = np.flatnonzero(np.maximum(lo, hi) > 0)  # a joint without friction has f = 0 (and BVLS wants lo < hi)
-    L = np.linalg.cholesky(W[np.ix_(on, on)])
+    on = np.maximum(lo, hi) > 0  # a joint without friction has f = 0 (and BVLS wants lo < hi)
+    L = np.linalg.cholesky(W[on][:, on])
     f = np.zeros_like(v)
     f[on] = scipy.optimize.lsq_linear(
         L.T, np.linalg.solve(L, v[on]), bounds=(-lo[on], hi[on]), method="bvls", tol=1e-14
