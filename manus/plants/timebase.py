@@ -46,6 +46,7 @@ MOVING_STEPS = 2.5  # a joint moves when its position changes by more than this 
 JITTER = 0.01  # stamps scattering less than this share of the period (RMS) are read as clean
 QUANTIZATION_MARGIN = 3.0  # ... and less than this many times their own resolution's q/√12
 PACE = 3.0  # a joint moving through a run of held positions keeps within this factor of its pace either side
+TORQUE_REPEATS = 0.01  # torques that repeat in at most this share of the moving rows: a copied torque is a copy
 MAX_COPIES = 4  # copies where the motion starts or stops: a packet read up to five times
 HELD_SHARE = 0.5  # positions are held when this share of the moving stretches' rows lie in runs of one length k
 PHASE_SHARE = 0.9  # ... and repaired when this share of those runs start at one phase modulo k
@@ -137,13 +138,22 @@ def runs(rec: Recording, steps: np.ndarray | None = None) -> Runs:
     """`rec`'s runs of equal positions, and which lie where the joints move through them.
 
     Each run r holds its positions for L_r rows, then jumps by J_r. A joint moves through run r
-    when the runs either side jump by more than `MOVING_STEPS` encoder steps, the three jumps go
-    one way, and its pace through the run, |J_r| / L_r per row, is within a factor `PACE` of the
-    mean of theirs, |J_{r±1}| / L_{r±1}: the motion went on while the positions stood (a copied
-    row, a held sample). A joint that stops and starts again (stiction, a rest between moves)
-    jumps out of a stop of L rows by its breakaway's first step, under 2/L of its pace either
-    side (on the calibration recordings at 200 Hz, stops of 5 to 50 rows pace at 0.1 % to 10 %
-    of it); a reversal changes direction; a slow joint's quantized staircase jumps by one step.
+    when all of these hold:
+    - the runs either side jump by more than `MOVING_STEPS` encoder steps and the three jumps go
+      one way (a reversal changes direction; a slow joint's quantized staircase jumps by a step);
+    - its pace through the run, |J_r| / L_r per row, is within a factor `PACE` of the mean of
+      theirs, |J_{r±1}| / L_{r±1}: the motion went on while the positions stood (a joint that
+      stops for L rows and starts again jumps out by its breakaway's first step, under 2/L of its
+      pace either side: on the calibration recordings at 200 Hz, stops of 5 to 50 rows pace at
+      0.1 % to 10 % of it);
+    - where the recorded torques often repeat from one moving row to the next (more than
+      `TORQUE_REPEATS` of them: an open-loop schedule of steps), a copied torque tells nothing,
+      and the positions alone must show the copy: standing still for a row and going on needs a
+      second difference of the positions of about a row's motion, min(|J_{r−1}|, |J_r|), more
+      than the joint shows anywhere in its uninterrupted motion (`_smooth_limit`); a joint whose
+      motion does turn that sharply (a shaft mode ringing through stick-slip) may have stood
+      still, and is left be. Where the torques change at nearly every row (a closed loop, a
+      measured torque), a row whose positions and torques all equal the row before is a copy.
     `edge`: the same on one side only (a copy just before the motion comes to rest, or just after
     it starts), which a stop's own first or last rows can show as well: `_repeated` takes it for
     short runs whose torques are copied too."""
@@ -163,15 +173,38 @@ def runs(rec: Recording, steps: np.ndarray | None = None) -> Runs:
     if held.size:
         pace = np.abs(jump) / length[:-1, None]  # |J_r| / L_r
         before, here, after = pace[held - 1], pace[held], pace[held + 1]
+        sharp = np.minimum(np.abs(jump[held - 1]), np.abs(jump[held])) > _smooth_limit(rec.q)
+        if _torque_repeats(rec, change) <= TORQUE_REPEATS:
+            sharp[:] = True
         with np.errstate(divide="ignore", invalid="ignore"):
             steady = _within(here / ((before + after) / 2))
             sides = [
                 fast[held + d] & (jump[held + d] * jump[held] > 0) & _within(here / there)
                 for d, there in ((-1, before), (1, after))
             ]
-        moving[held] = np.any(inner[held - 1] & steady, axis=1)
-        edge[held] = np.any(sides[0] | sides[1], axis=1)
+        moving[held] = np.any(inner[held - 1] & steady & sharp, axis=1)
+        edge[held] = np.any((sides[0] | sides[1]) & sharp, axis=1)
     return Runs(start, length, moving, edge)
+
+
+def _torque_repeats(rec: Recording, change: np.ndarray) -> float:
+    """The share of the rows whose positions moved (`change`) whose torques all equal the row
+    before's."""
+    if not change.size:
+        return 1.0
+    return float(np.mean(np.all(rec.tau[change] == rec.tau[change - 1], axis=1)))
+
+
+def _smooth_limit(q: np.ndarray) -> np.ndarray:
+    """(n,) per joint, the largest |Δ²q| (second difference of the positions) over the rows of
+    its uninterrupted motion: its steps either side non-zero, and no row within two where every
+    position stands (a candidate copy) — 0 where there are none (a log whose every step is
+    followed by a hold)."""
+    d = np.diff(q, axis=0)  # step i: row i to i + 1
+    stand = np.all(d == 0, axis=1).astype(float)
+    near = np.convolve(np.r_[0.0, 0.0, stand, 0.0, 0.0], np.ones(6), mode="valid")  # steps i-2 .. i+3
+    ok = (d[:-1] != 0) & (d[1:] != 0) & (near == 0)[:, None]  # Δ²q at row i + 1: steps i and i + 1
+    return np.where(ok, np.abs(np.diff(d, axis=0)), 0.0).max(axis=0, initial=0.0)
 
 
 def _within(ratio: np.ndarray) -> np.ndarray:
