@@ -24,18 +24,16 @@ import math
 import os
 import re
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, NoReturn
+from typing import NoReturn
 
 import numpy as np
 
 from manus.plants.catalog import structure_named
 from manus.plants.errors import RecordingError, RecordingNote
 from manus.plants.structures import Structure
-
-if TYPE_CHECKING:
-    from manus.plants.timebase import TimeBase
+from manus.plants.timebase import TimeBase, examine, grid
 
 STRUCTURES = ("manus2", "axis", "urdf")
 
@@ -216,12 +214,24 @@ def _on_its_time_base(rec: Recording) -> Recording:
     """The recording on its true sample grid (`manus.plants.timebase`: repeated rows, jittered or
     alternating stamps, positions held by a resampling, each repaired where the positions show
     the grid), with a note saying what was found; a clean recording as it is."""
-    from manus.plants.timebase import repair
-
     out = repair(rec)
     if out.time_base is not None:
         warnings.warn(f"{rec.path}: {out.time_base.note}", RecordingNote, stacklevel=3)
     return out
+
+
+def repair(rec: Recording) -> Recording:
+    """The recording on its true sample grid, its finding kept (`Recording.time_base`); a clean
+    recording comes back as it is (the same object)."""
+    tb, keep, stamps = examine(rec)
+    if not tb:
+        return rec
+    out = rec.rows(keep) if not keep.all() else rec.rows(slice(None))
+    if stamps is not None:
+        out.t = stamps
+    if tb.held_every > 1 and tb.repaired and "sample_rate_hz" in out.meta:
+        out.meta["sample_rate_hz"] = f"{tb.rate_hz:.12g}"
+    return replace(out, time_base=tb)
 
 
 def _fail(path, line, problem) -> NoReturn:
@@ -499,8 +509,6 @@ def _check_meta(path, meta, n, t):
 def _grid_period(t: np.ndarray) -> float:
     """The period of the uniform grid the stamps scatter around (`manus.plants.timebase.grid`:
     alternating 10/12 ms steps have a median step of 10 or 12 ms, their grid's period is 11)."""
-    from manus.plants.timebase import grid
-
     return grid(t)[2] if t.size >= 4 else float(np.median(np.diff(t)))
 
 

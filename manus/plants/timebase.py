@@ -12,13 +12,16 @@ artefact:
   left as a lost sample (`manus.plants.gaps` fills it for the filters and leaves it out);
 - **jittered or alternating stamps**: the stamps scatter around their grid t₀ + i T (a PC's
   clock read when the packet arrives; a cobot logged at ~100 Hz with steps of 10 and 12 ms).
-  The scatter is the RMS deviation of the stamps from the best uniform grid (least squares over
-  the rows' grid indices), as a share of the period. A uniform clock written with a resolution
-  q (a decimal digit, float32's or float64's spacing at the recording's last stamp) scatters by
-  q/√12: `QUANTIZATION_MARGIN` times that is the clock's own. Below `JITTER` of the period the
-  scatter is left alone whatever its cause: a sample read 1 % of a period late is off the
-  motion by 1 % of its step per period, under an encoder step's quantization noise (Δ/√12) up
-  to ~30 steps per period. Repair: each stamp goes to its grid point t₀ + i T, i = round((t −
+  The scatter is the RMS deviation of the stamps from the best uniform grid (`grid`), as a
+  share of the period. A uniform clock written with a resolution q (a decimal digit, float32's
+  or float64's spacing at the recording's last stamp) scatters by q/√12 at most:
+  `QUANTIZATION_MARGIN` times that is the clock's own. Below `JITTER` of the period the scatter
+  is left alone whatever its cause: a sample read 1 % of a period late is off the motion by 1 %
+  of its step per period, under an encoder step's quantization noise (Δ/√12) up to ~30 steps
+  per period. Whatever the scatter, stamps whose median step misreads the grid's period by more
+  than `JITTER` (steps alternating between two values: 10 and 12 ms, or a uniform clock's
+  period rounded to a coarser resolution) are put on the grid too, where the rate is read from
+  them. Repair: each stamp goes to its grid point t₀ + i T, i = round((t −
   t₀)/T); a row whose index collides with its neighbour's moves to a free neighbouring slot (its
   stamp was more than half a period off), else it is a doubled sample and dropped; a skipped
   index is a lost sample, left as a gap;
@@ -36,11 +39,28 @@ A clean recording (none of the three) is returned exactly as it is.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
-from manus.plants.recording import Recording
+
+class Logged(Protocol):
+    """What the time base reads of a recording (`manus.plants.recording.Recording`)."""
+
+    t: np.ndarray
+    q: np.ndarray
+    tau: np.ndarray
+    meta: dict
+
+    def __len__(self) -> int: ...
+
+    @property
+    def position_step(self) -> float | None: ...
+
+    @property
+    def sample_rate_hz(self) -> float: ...
+
 
 MOVING_STEPS = 2.5  # a joint moves when its position changes by more than this many encoder steps per sample
 JITTER = 0.01  # stamps scattering less than this share of the period (RMS) are read as clean
@@ -62,7 +82,7 @@ class TimeBase:
     rate_hz: float  # the true sample rate (of the repaired recording where it was repaired)
     repeated_rows: int = 0  # rows that copy the row before while the joints move (dropped)
     jitter: float = 0.0  # RMS deviation of the stamps from their uniform grid, in periods
-    jittered: bool = False  # the stamps scatter more than a uniform clock's (put on the grid)
+    jittered: bool = False  # the stamps scatter more than a uniform clock's, or misread its period (put on the grid)
     held_rows: int = 0  # rows that hold the positions of a resampled log (dropped: one kept per run)
     held_every: int = 1  # k: the positions update every k-th row
     doubled: int = 0  # rows whose grid slot another row holds (dropped)
@@ -114,7 +134,7 @@ class TimeBase:
 # -- the encoder's step and the runs of held positions ------------------------------------------
 
 
-def encoder_steps(rec: Recording) -> np.ndarray:
+def encoder_steps(rec: Logged) -> np.ndarray:
     """(n,) each joint's position grid: the smallest non-zero change of its position, at least the
     metadata's step (0 for a joint that never moves)."""
     d = np.abs(np.diff(rec.q, axis=0))
@@ -134,7 +154,7 @@ class Runs:
     edge: np.ndarray  # (bool) the joints move into or out of the run at its pace (`runs`)
 
 
-def runs(rec: Recording, steps: np.ndarray | None = None) -> Runs:
+def runs(rec: Logged, steps: np.ndarray | None = None) -> Runs:
     """`rec`'s runs of equal positions, and which lie where the joints move through them.
 
     Each run r holds its positions for L_r rows, then jumps by J_r. A joint moves through run r
@@ -187,7 +207,7 @@ def runs(rec: Recording, steps: np.ndarray | None = None) -> Runs:
     return Runs(start, length, moving, edge)
 
 
-def _torque_repeats(rec: Recording, change: np.ndarray) -> float:
+def _torque_repeats(rec: Logged, change: np.ndarray) -> float:
     """The share of the rows whose positions moved (`change`) whose torques all equal the row
     before's."""
     if not change.size:
@@ -228,7 +248,7 @@ def _held(r: Runs) -> tuple[int, int] | None:
     return k, phase if np.mean(phases == phase) >= PHASE_SHARE else -1
 
 
-def _repeated(rec: Recording, r: Runs) -> np.ndarray:
+def _repeated(rec: Logged, r: Runs) -> np.ndarray:
     """(bool, per row) the rows that copy the row before, positions and torques, while the joints
     move through their run, or move into or out of a run of at most `MAX_COPIES` copies."""
     out = np.zeros(len(rec), bool)
@@ -342,7 +362,7 @@ def _settle(i: np.ndarray, resid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 # -- examine and repair ---------------------------------------------------------------------------
 
 
-def examine(rec: Recording) -> tuple[TimeBase, np.ndarray, np.ndarray | None]:
+def examine(rec: Logged) -> tuple[TimeBase, np.ndarray, np.ndarray | None]:
     """What the recording's stamps and positions say: the finding, the rows kept, and the kept
     rows' stamps on the grid (None where the stamps are left as they are)."""
     keep = np.ones(len(rec), bool)
@@ -367,8 +387,9 @@ def examine(rec: Recording) -> tuple[TimeBase, np.ndarray, np.ndarray | None]:
     resid = t - (t0 + i * T)
     jitter = float(np.sqrt(np.mean(resid**2)) / T)
     clock = QUANTIZATION_MARGIN * stamp_resolution(rec.t) / math.sqrt(12) / T
-    jittered = jitter > max(JITTER, clock)
     d = np.diff(t)
+    misread = d.size > 0 and abs(float(np.median(d)) / T - 1) > JITTER
+    jittered = jitter > max(JITTER, clock) or misread
     out = None
     doubled = lost = 0
     if jittered:
@@ -395,17 +416,3 @@ def examine(rec: Recording) -> tuple[TimeBase, np.ndarray, np.ndarray | None]:
         **found,
     )
     return tb, keep, out
-
-
-def repair(rec: Recording) -> Recording:
-    """The recording on its true sample grid, its finding kept (`Recording.time_base`); a clean
-    recording comes back as it is (the same object)."""
-    tb, keep, stamps = examine(rec)
-    if not tb:
-        return rec
-    out = rec.rows(keep) if not keep.all() else rec.rows(slice(None))
-    if stamps is not None:
-        out.t = stamps
-    if tb.held_every > 1 and tb.repaired and "sample_rate_hz" in out.meta:
-        out.meta["sample_rate_hz"] = f"{tb.rate_hz:.12g}"
-    return replace(out, time_base=tb)

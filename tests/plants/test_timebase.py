@@ -25,8 +25,8 @@ from manus.adaptive import fit
 from manus.experiments.calibration import case
 from manus.plants import recording
 from manus.plants.gaps import gaps
-from manus.plants.recording import Recording
-from manus.plants.timebase import JITTER, TimeBase, examine, grid, repair, stamp_resolution
+from manus.plants.recording import Recording, repair
+from manus.plants.timebase import JITTER, TimeBase, examine, grid, stamp_resolution
 from tests.conftest import SHARED
 
 MODEL = "rigid,viscous,coulomb"
@@ -106,6 +106,8 @@ def _clean_recordings():
     for seed in range(6):
         for rate in (1000, 200):
             yield f"calibration seed {seed} at {rate} Hz", case(seed, None, rates=(rate,)).rec
+    for seed in (0, 1):  # open-loop torque steps on a compliant shaft: stick-slip stops the motion for a row
+        yield f"calibration seed {seed}, a shaft mode", case(seed, "compliance", rates=(1000,)).rec
     for path in sorted((SHARED / "data" / "emps").glob("*.mat")) + sorted(
         (SHARED / "data" / "real" / "dfki_double_pendulum").glob("*.csv")
     ):
@@ -113,9 +115,9 @@ def _clean_recordings():
 
 
 def test_clean_recordings_are_left_exactly_as_they_are():
-    """Twelve simulated recordings (six seeds, 1000 and 200 Hz), the two EMPS files and the six
-    DFKI recordings: no finding, the same object back; read from a file, the recording has no
-    `time_base` and its arrays are the file's."""
+    """Fourteen simulated recordings (six seeds at 1000 and 200 Hz, two with a shaft mode ringing
+    through stick-slip under open-loop steps), the two EMPS files and the six DFKI recordings:
+    no finding, the same object back; read from a file, no `time_base`."""
     found = []
     n = 0
     for name, rec in _clean_recordings():
@@ -124,7 +126,7 @@ def test_clean_recordings_are_left_exactly_as_they_are():
         if tb or not keep.all() or stamps is not None or repair(rec) is not rec or rec.time_base is not None:
             found.append(f"{name}: {tb.note}")
         assert tb.jitter < JITTER / 10, name  # (a uniform clock: its stamps' quantization only)
-    assert n >= 12 + 8 * SHARED.exists()
+    assert n >= 14 + 8 * SHARED.exists()
     assert not found, f"{len(found)} of {n} clean recordings read as blurred: {found}"
 
 
@@ -139,6 +141,20 @@ def test_a_clean_file_reads_back_unchanged_and_a_blurred_one_with_a_note(tmp_pat
     with pytest.warns(recording.RecordingNote, match=r"bad.csv: time base: \d+ repeated rows .* stamps scatter"):
         back = recording.read(bad)
     assert back.time_base and back.time_base.repaired and gaps(back).at.size != 0
+
+
+def test_stated_rate_of_alternating_stamps_is_their_grids(tmp_path):
+    """A cobot's log at 90.9 Hz, stamps 10 and 12 ms apart in turn, its metadata stating the rate:
+    read (the median step, 10 or 12 ms, is 9 % off the rate; the grid's 11 ms is not), put on
+    the grid, said."""
+    k = np.arange(2000)
+    t = np.cumsum(np.r_[0.0, np.where(k[1:] % 2 == 1, 0.010, 0.012)])
+    q = np.round(np.sin(2 * np.pi * 0.5 * t) / 1e-4)[:, None] * 1e-4
+    rec = Recording(t, q, np.cos(2 * np.pi * 0.5 * t)[:, None], None, {"sample_rate_hz": "90.9091"})
+    with pytest.warns(recording.RecordingNote, match=r"stamps scatter by 4.55 % .* steps 10 to 12 ms"):
+        back = recording.read(recording.write(rec, tmp_path / "cobot.csv"))
+    assert back.time_base and back.time_base.rate_hz == pytest.approx(1000 / 11)
+    assert np.allclose(np.diff(back.t), 0.011)
 
 
 # -- the stamps' grid -----------------------------------------------------------------------------
