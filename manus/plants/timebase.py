@@ -1,5 +1,5 @@
-"""What a recording's time stamps and positions say about its true sample grid (`examine`), and the
-recording put back on that grid (`repair`).
+"""What a recording's time stamps and positions say about its true sample grid (`examine`; the
+recording put back on that grid is `manus.plants.recording.repair`'s, applied by `read`).
 
 A rig samples on a uniform grid; a logger on a PC can blur it in three ways, each of which makes
 the positions look broadband (a staircase) and so would set the identification band from the
@@ -7,9 +7,11 @@ artefact:
 
 - **repeated rows**: a row whose every position and torque equals the previous row's while the
   joints move (the logger read the same packet twice; the sample of that instant is lost). A
-  joint moving more than `MOVING_STEPS` encoder steps per sample on both sides of a row cannot
-  stand still for that row: such a copy is an artefact. Repair: the copy is dropped and its slot
-  left as a lost sample (`manus.plants.gaps` fills it for the filters and leaves it out);
+  joint moving more than `MOVING_STEPS` encoder steps per sample either side of a row, at the
+  pace it keeps through it, does not stand still for that row (`runs` says when it may: a stop,
+  a reversal, a motion that turns as sharply elsewhere while its torques repeat): such a copy
+  is an artefact. Repair: the copy is dropped and its slot left as a lost sample
+  (`manus.plants.gaps` fills it for the filters and leaves it out);
 - **jittered or alternating stamps**: the stamps scatter around their grid t₀ + i T (a PC's
   clock read when the packet arrives; a cobot logged at ~100 Hz with steps of 10 and 12 ms).
   The scatter is the RMS deviation of the stamps from the best uniform grid (`grid`), as a
@@ -77,7 +79,7 @@ SEARCH = 0.05  # ... within this share of the steps' own reading
 
 @dataclass(frozen=True)
 class TimeBase:
-    """What `examine` found in a recording's time base, and what `repair` did about it."""
+    """What `examine` found in a recording's time base, and what its repair does about it."""
 
     rate_hz: float  # the true sample rate (of the repaired recording where it was repaired)
     repeated_rows: int = 0  # rows that copy the row before while the joints move (dropped)
