@@ -112,6 +112,7 @@ def on_grid(rec: Recording) -> tuple[Recording, np.ndarray]:
         {name: fill(v) for name, v in rec.extra.items()},
         rec.path,
         rec.serial,
+        rec.time_base,
     ), filled
 
 

@@ -24,7 +24,7 @@ import math
 import os
 import re
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import NoReturn
 
@@ -33,6 +33,7 @@ import numpy as np
 from manus.plants.catalog import structure_named
 from manus.plants.errors import RecordingError, RecordingNote
 from manus.plants.structures import Structure
+from manus.plants.timebase import TimeBase, examine, grid
 
 STRUCTURES = ("manus2", "axis", "urdf")
 
@@ -48,6 +49,8 @@ class Recording:
     path: str = "<memory>"
     # a serial chain read once (structure urdf), or given by whoever made the recording in memory
     serial: Structure | None = field(default=None, repr=False, compare=False)
+    # what the stamps and positions said about the true sample grid, where `read` repaired it
+    time_base: TimeBase | None = field(default=None, repr=False, compare=False)
 
     @property
     def n_joints(self) -> int:
@@ -146,6 +149,7 @@ class Recording:
             {k: v[which] for k, v in self.extra.items()},
             self.path,
             self.serial,
+            self.time_base,
         )
 
 
@@ -203,7 +207,31 @@ def read(path: str | os.PathLike, robot: str | os.PathLike | None = None) -> Rec
     if rec.structure_name == "urdf":
         rec.structure  # noqa: B018 (read and checked now: a bad robot is the recording's error)
         _unwrap(rec, lambda r: f" sample {r}")
-    return rec
+    return _on_its_time_base(rec)
+
+
+def _on_its_time_base(rec: Recording) -> Recording:
+    """The recording on its true sample grid (`manus.plants.timebase`: repeated rows, jittered or
+    alternating stamps, positions held by a resampling, each repaired where the positions show
+    the grid), with a note saying what was found; a clean recording as it is."""
+    out = repair(rec)
+    if out.time_base is not None:
+        warnings.warn(f"{rec.path}: {out.time_base.note}", RecordingNote, stacklevel=3)
+    return out
+
+
+def repair(rec: Recording) -> Recording:
+    """The recording on its true sample grid, its finding kept (`Recording.time_base`); a clean
+    recording comes back as it is (the same object)."""
+    tb, keep, stamps = examine(rec)
+    if not tb:
+        return rec
+    out = rec.rows(keep) if not keep.all() else rec.rows(slice(None))
+    if stamps is not None:
+        out.t = stamps
+    if tb.held_every > 1 and tb.repaired and "sample_rate_hz" in out.meta:
+        out.meta["sample_rate_hz"] = f"{tb.rate_hz:.12g}"
+    return replace(out, time_base=tb)
 
 
 def _fail(path, line, problem) -> NoReturn:
@@ -466,7 +494,7 @@ def _check_meta(path, meta, n, t):
     if "sample_rate_hz" in meta:
         rate = float(meta["sample_rate_hz"])
         step = float(np.median(np.diff(t)))
-        if abs(step * rate - 1) > 0.01:
+        if abs(step * rate - 1) > 0.01 and abs(_grid_period(t) * rate - 1) > 0.01:
             hint = next(
                 (
                     f" (is t in {unit}?)"
@@ -476,6 +504,12 @@ def _check_meta(path, meta, n, t):
                 "",
             )
             _fail(path, None, f"t advances by {step:.6g} per sample but sample_rate_hz is {rate:g}{hint}")
+
+
+def _grid_period(t: np.ndarray) -> float:
+    """The period of the uniform grid the stamps scatter around (`manus.plants.timebase.grid`:
+    alternating 10/12 ms steps have a median step of 10 or 12 ms, their grid's period is 11)."""
+    return grid(t)[2] if t.size >= 4 else float(np.median(np.diff(t)))
 
 
 def smallest_step(q: np.ndarray) -> float:

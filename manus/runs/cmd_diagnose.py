@@ -27,6 +27,8 @@ def run(args) -> dict:
     note(f"diagnosing {args.model}: fitting it with each missing effect in turn ...")
     d = diagnose(rec, args.model, cutoff_hz=args.cutoff, method=args.method)
     out = d.report()
+    if rec.time_base:  # repeated rows, jittered stamps or a resampled rate found and repaired as it was read
+        out["time_base"] = rec.time_base.report()
     if not args.no_figures:
         stem = f"diagnose_{Path(rec.path).stem}"
         out["figures"] = diagnosis_figures(d, args.out, stem)

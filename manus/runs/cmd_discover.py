@@ -41,6 +41,8 @@ def run(args) -> dict:
         method=args.method,
     )
     r = report.section_result(sec)
+    if rec.time_base:  # repeated rows, jittered stamps or a resampled rate found and repaired as it was read
+        r["time_base"] = rec.time_base.report()
     if not args.no_figures:
         r["report"] = report.write(
             [sec], Path(args.out) / f"discover_{stem}.md", f"manus discover: {Path(rec.path).name}"

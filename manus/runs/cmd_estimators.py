@@ -69,6 +69,8 @@ def run(args) -> dict:
     report, estimates = compare(
         rec, names, args.tune, args.cutoff, model_knobs, progress=lambda name: note(f"  {name} ...")
     )
+    if rec.time_base:  # repeated rows, jittered stamps or a resampled rate found and repaired as it was read
+        report["time_base"] = rec.time_base.report()
     if not args.no_figures:
         report["figures"] = estimator_figures(rec, report, estimates, args.out)
     return report

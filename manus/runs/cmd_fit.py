@@ -37,6 +37,8 @@ def run(args) -> dict:
     f = fit(rec, args.model, cutoff_hz=args.cutoff, method=args.method)
     out = f.report()
     out["fit_percent"] = {"torque": nrmse_fit(f.data.tau(f.delay), f.predicted()).tolist()}
+    if rec.time_base:  # repeated rows, jittered stamps or a resampled rate found and repaired as it was read
+        out["time_base"] = rec.time_base.report()
     if "urdf_values" in out:  # a serial chain: the physically consistent stage, reported beside the fit
         from manus.adaptive import consistent
         from manus.plants.errors import ModelError

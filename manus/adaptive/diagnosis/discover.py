@@ -112,6 +112,7 @@ class Discovery:
             "steps": [s.report() for s in self.steps],
             "model": self.model,
             "rel_error": self.rel_error,
+            "rel_error_per_joint": self.final_fit.rel_error_per_joint,
             "stopped": self.stopped,
             "samples": int(self.start.data.rows.size),
             "cutoff_hz": self.start.data.cutoff_hz,

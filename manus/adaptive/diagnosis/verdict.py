@@ -63,6 +63,7 @@ class Diagnosis:
             "model": self.base.model.effect_names,
             "spec": self.base.model.spec,
             "rel_error": self.base.rel_error,
+            "rel_error_per_joint": self.base.rel_error_per_joint,
             "cutoff_hz": self.base.data.cutoff_hz,
             "cutoff_note": self.base.data.cutoff_note,
             "hold": self.base.data.hold,

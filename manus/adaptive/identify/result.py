@@ -53,6 +53,14 @@ class Fit:
         """Parameter name -> standard deviation (nan where redundant or held)."""
         return dict(zip(self.names, self.std.tolist(), strict=True))
 
+    @property
+    def rel_error_per_joint(self) -> list[float | None]:
+        """`rel_error` per joint, in joint order: ‖τ_j − τ̂_j‖ / ‖τ_j‖ over the same rows (None for a
+        joint without torque on them: a passive joint)."""
+        denom = np.linalg.norm(self.data.tau(self.delay), axis=0)
+        num = np.linalg.norm(self.residual, axis=0)
+        return [float(r / d) if d > 0 else None for r, d in zip(num, denom, strict=True)]
+
     def predicted(self) -> np.ndarray:
         """The model's torque on the used rows (filtered like the recorded one)."""
         return self.data.tau(self.delay) - self.residual
@@ -79,6 +87,7 @@ class Fit:
             "spec": self.model.spec,
             "params": params,
             "rel_error": self.rel_error,
+            "rel_error_per_joint": self.rel_error_per_joint,
             "samples": int(self.data.rows.size),
             "cutoff_hz": self.data.cutoff_hz,
             "cutoff_note": self.data.cutoff_note,
