@@ -23,10 +23,11 @@ artefact:
   per period. Whatever the scatter, stamps whose median step misreads the grid's period by more
   than `JITTER` (steps alternating between two values: 10 and 12 ms, or a uniform clock's
   period rounded to a coarser resolution) are put on the grid too, where the rate is read from
-  them. Repair: each stamp goes to its grid point t₀ + i T, i = round((t −
-  t₀)/T); a row whose index collides with its neighbour's moves to a free neighbouring slot (its
-  stamp was more than half a period off), else it is a doubled sample and dropped; a skipped
-  index is a lost sample, left as a gap;
+  them. Repair: each stamp goes to its grid point t₀ + i T, the indices i the strictly
+  increasing integers nearest to (t − t₀)/T (`_settle`: late rows bunched onto one slot spread
+  to the free slots beside it); a row is dropped only as a doubled sample (its slot and every
+  value the row before's), never for its stamp alone; a skipped index is a lost sample, left
+  as a gap;
 - **held positions**: a log resampled to k times its rate by holding each sample (positions
   update every k-th row, the torque may change in between). In moving stretches every joint's
   position then stays equal over runs of k rows: held when most of the rows of the moving
@@ -45,6 +46,7 @@ from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
+from scipy.optimize import isotonic_regression
 
 
 class Logged(Protocol):
@@ -338,27 +340,20 @@ def grid(t: np.ndarray) -> tuple[np.ndarray, float, float]:
     return i - i[0], float(origin + a + i[0] * T), float(T)
 
 
-def _settle(i: np.ndarray, resid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Grid indices made strictly increasing: a row sharing its slot with its neighbour moves to
-    the free slot beside them (its stamp was more than half a period off); where none is free the
-    farther of the two is a doubled sample. Returns the indices and which rows are kept."""
-    i = i.copy()
-    keep = np.ones(i.size, bool)
-    for k in np.flatnonzero(np.diff(i) <= 0) + 1:
-        prev = k - 1
-        while prev > 0 and not keep[prev]:
-            prev -= 1
-        if not keep[prev] or i[k] > i[prev]:
-            continue
-        before = i[prev - 1] if prev > 0 else -(2**62)
-        after = i[k + 1] if k + 1 < i.size else 2**62
-        if i[prev] - 1 > before and i[k] + 1 >= after:
-            i[prev] -= 1
-        elif i[k] + 1 < after:
-            i[k] = i[prev] + 1
-        else:
-            keep[k if abs(resid[k]) >= abs(resid[prev]) else prev] = False
-    return i, keep
+def _settle(x: np.ndarray, same: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Grid slots for stamps read as x (in periods from the grid's origin): the strictly
+    increasing integers nearest to them in least squares (an isotonic regression of x_k − k,
+    rounded, plus k). Late rows bunched onto one slot spread over the slots beside them, the
+    stamps of a bunch keeping their order; no row is dropped for its stamp alone. A row sharing
+    its rounded slot with the row before it and equal to it in every value (`same`) is that
+    sample doubled, and dropped. Returns the slots of the rows kept and which rows are kept."""
+    keep = np.ones(x.size, bool)
+    slot = np.rint(x)
+    keep[1:] = ~(same & (slot[1:] <= slot[:-1]))
+    y = x[keep]
+    k = np.arange(y.size)
+    iso = isotonic_regression(y - k).x
+    return (np.rint(iso) + k).astype(np.int64), keep
 
 
 # -- examine and repair ---------------------------------------------------------------------------
@@ -395,10 +390,13 @@ def examine(rec: Logged) -> tuple[TimeBase, np.ndarray, np.ndarray | None]:
     out = None
     doubled = lost = 0
     if jittered:
-        i, settled = _settle(i, resid)
+        kept = np.flatnonzero(keep)
+        same = np.all(rec.q[kept[1:]] == rec.q[kept[:-1]], axis=1) & np.all(
+            rec.tau[kept[1:]] == rec.tau[kept[:-1]], axis=1
+        )
+        i, settled = _settle((t - t0) / T, same)
         doubled = int((~settled).sum())
-        keep[np.flatnonzero(keep)[~settled]] = False
-        i = i[settled]
+        keep[kept[~settled]] = False
         lost = int(i[-1] - i[0] + 1 - i.size)
         out = t0 + i * T
     elif found.get("repeated_rows"):
