@@ -111,6 +111,9 @@ class Effect(eqx.Module):
     requires: ClassVar[tuple[str, ...]] = ()  # offered only on top of these effects
     brings: ClassVar[tuple[str, ...]] = ()  # added with it when the model lacks them
     evidence: ClassVar[str] = "velocity"  # what a residual is plotted against to show it
+    # Its torque is written on the joints' own coordinates even on the motor side (a coupling names
+    # the joints it combines): a transmission does not map it (`Model.torque`).
+    on_joints: ClassVar[bool] = False
     apart: ClassVar[str] = ""  # the motion that tells it from an effect it reads as on a recording
     gain: ClassVar[float] = 5.0  # the Slotine–Li adaptation gain of its parameters (thesis: Γ = 5)
 
@@ -774,6 +777,96 @@ class Model(eqx.Module):
 
     def with_effect(self, effect: Effect) -> Model:
         kept = tuple(e for e in self.effects if e.name != effect.name)
+@in_vocabulary
+class Coupling(Effect):
+    """Friction and rotor inertia on a combination of two joints, v = q̇_i ± q̇_j: a motor that
+    turns with both (a differential wrist, θ = q5 + q6; the elbow motor of an arm in absolute
+    angles, θ2 = q2 − q1). With c = e_i ± e_j its torque on the joints is (virtual work)
+
+        c (bc v + Fcc sgn v + Jc c·q̈),    v = c·q̇
+
+    bc, Fcc, Jc ≥ 0 (friction dissipates, an inertia is positive). Which joints and which sign is
+    its non-linear parameter: `space` lists every pair both ways, and the search picks one.
+    `coupling:2-1` is q2 − q1, `coupling:5+6` is q5 + q6 (joints 1-based). Its torque is written on
+    the joints (`on_joints`): a stated transmission (`manus.plants.transmission`) maps the other
+    motor-side effects, and a coupling is what diagnose proposes where none was stated. The
+    simulator takes its Coulomb term as an ordinary torque (no stiction) and not its inertia
+    (the structure's H(q) holds the simulated inertia). Illustrative defaults."""
+
+    name: ClassVar[str] = "coupling"
+    on_joints: ClassVar[bool] = True
+    apart: ClassVar[str] = "the two joints moving apart and together"
+    rule: ClassVar[str] = "friction dissipates and an inertia is positive: bc, Fcc, Jc ≥ 0"
+    first: Array = eqx.field(default=1, converter=jnp.asarray)  # i (0-based)
+    second: Array = eqx.field(default=0, converter=jnp.asarray)  # j (0-based)
+    sign: Array = eqx.field(default=-1.0, converter=jnp.asarray)  # ±1: v = q̇_i ± q̇_j
+
+    def names(self, s):
+        return ("bc", "Fcc", "Jc")
+
+    def defaults(self, s):
+        return (0.05, 0.05, 0.0)
+
+    def lower_bounds(self, s):
+        return (0.0, 0.0, 0.0)
+
+    def combination(self, n: int) -> Array:
+        """c = e_i ± e_j, (n,)."""
+        k = jnp.arange(n)
+        return (k == self.first).astype(float) + self.sign * (k == self.second)
+
+    def torque(self, s, q, qd, qdd, p, boundary=0.0):
+        c = self.combination(s.n_joints).astype(jnp.result_type(qd, float))
+        v = c @ qd
+        return c * (p["bc"] * v + p["Fcc"] * sign(v, boundary) + p["Jc"] * (c @ qdd))
+
+    def applies(self, s, prismatic=()):
+        if s.n_joints < 2:
+            return "a coupling combines two joints: this structure has one"
+        if max(self.joints) > s.n_joints:
+            return f"{self.spec}: joint {max(self.joints)} of a structure with {s.n_joints} joints"
+        return None
+
+    def space(self, span):
+        """Every pair of joints i < j, as q̇_j − q̇_i and as q̇_i + q̇_j."""
+        n = len(span.travel)
+        return tuple(
+            Coupling(first=a, second=b, sign=sg)
+            for i in range(n)
+            for j in range(i + 1, n)
+            for a, b, sg in ((j, i, -1.0), (i, j, 1.0))
+        )
+
+    def edge(self, span):
+        return None  # (pairs of joints: no range with edges)
+
+    @property
+    def joints(self) -> tuple[int, int]:
+        """(i, j), 1-based."""
+        return int(self.first) + 1, int(self.second) + 1
+
+    @property
+    def spec(self):
+        i, j = self.joints
+        return f"coupling:{i}{'+' if float(self.sign) > 0 else '-'}{j}"
+
+    @classmethod
+    def parse(cls, arg):
+        """`coupling:I-J` (q_I − q_J) or `coupling:I+J` (q_I + q_J), joints 1-based; `coupling`
+        alone is q2 − q1."""
+        if not arg:
+            return cls()
+        m = re.fullmatch(r"\s*(\d+)\s*([+-])\s*(\d+)\s*", arg)
+        if not m or int(m.group(1)) < 1 or int(m.group(3)) < 1 or m.group(1) == m.group(3):
+            raise ModelError(f"coupling: {arg!r} is not two joints such as 2-1 (q2 − q1) or 5+6 (q5 + q6)")
+        return cls(first=int(m.group(1)) - 1, second=int(m.group(3)) - 1, sign=1.0 if m.group(2) == "+" else -1.0)
+
+    def describe(self):
+        i, j = self.joints
+        op = "+" if float(self.sign) > 0 else "−"
+        return {"joints": [i, j], "combination": f"q{i} {op} q{j}"}
+
+
         return Model(self.structure, parse_effects(kept + (effect,)))
 
     def without(self, name: str) -> Model:
@@ -797,15 +890,21 @@ class Model(eqx.Module):
     # -- torques and regressors -----------------------------------------------------------
     def torque(self, q, qd, qdd, params: dict, boundary: float = 0.0, only=None, side=None) -> Array:
         """Σ of the linear effects' torques, shape (n,); only the effects `only(effect)` accepts
-        (e.g. `is_dry`, `is_load`) and acting on `side` ("motor" or "link") when given."""
+        (e.g. `is_dry`, `is_load`) and acting on `side` ("motor" or "link") when given. Where the
+        structure has a transmission θ = N q (`manus.plants.transmission`), the motor-side effects
+        act on the actuators: evaluated at (N q, N q̇, N q̈), their torque reaches the joints as Nᵀ τ."""
         s = self.structure
         total = jnp.zeros(s.n_joints, jnp.result_type(qd, float))
         for e in self.effects:
             if e.linear and (only is None or only(e)) and (side is None or e.side == side):
-                total = total + e.torque(s, q, qd, qdd, params, boundary)
+                if N is not None and e.side == "motor" and not e.on_joints:
+                    total = total + N.acting(e.torque, s, q, qd, qdd, params, boundary)
+                else:
+                    total = total + e.torque(s, q, qd, qdd, params, boundary)
         return total
 
     def regressor(self, q, qd, qdd, boundary: float = 0.0) -> Array:
         """Y(q, q̇, q̈) with torque = Y θ, shape (n, P): ∂torque/∂θ, exact for linear effects."""
         theta0 = jnp.zeros(len(self.names), jnp.result_type(qd, float))
         return jax.jacfwd(lambda th: self.torque(q, qd, qdd, self.unvector(th), boundary))(theta0)
+        N = s.transmission

@@ -116,11 +116,13 @@ class Recording:
 
     @property
     def structure(self) -> Structure:
+        """The structure the metadata names, with the transmission its `transmission` states
+        (`manus.plants.transmission`: it replaces a URDF's)."""
         if self.structure_name != "urdf":
-            return structure_named(self.structure_name, self.n_joints)
+            return _transmitted(self, structure_named(self.structure_name, self.n_joints))
         if self.serial is None:
             self.serial = _serial_of(self)
-        return self.serial
+        return _transmitted(self, self.serial)
 
     @property
     def has_truth(self) -> bool:
@@ -151,6 +153,18 @@ class Recording:
             self.serial,
             self.time_base,
         )
+
+
+def _transmitted(rec: Recording, structure: Structure) -> Structure:
+    """`structure` with the transmission the metadata states (a `RecordingError` naming the file
+    for a malformed one)."""
+    from manus.plants.errors import ModelError
+    from manus.plants.transmission import stated
+
+    try:
+        return stated(structure, rec.meta.get("transmission"), f"{rec.path}: transmission")
+    except ModelError as e:
+        raise RecordingError(str(e)) from None
 
 
 def _serial_of(rec: Recording) -> Structure:
@@ -207,6 +221,8 @@ def read(path: str | os.PathLike, robot: str | os.PathLike | None = None) -> Rec
     if rec.structure_name == "urdf":
         rec.structure  # noqa: B018 (read and checked now: a bad robot is the recording's error)
         _unwrap(rec, lambda r: f" sample {r}")
+    elif "transmission" in rec.meta:
+        rec.structure  # noqa: B018 (read and checked now: a malformed transmission is the recording's error)
     return _on_its_time_base(rec)
 
 

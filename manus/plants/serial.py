@@ -66,6 +66,7 @@ from manus.plants.errors import ModelError
 from manus.plants.pseudo_inertia import ENTRIES, OFF_DIAGONAL, entries_of, standard_of
 from manus.plants.serial_friction import Dense
 from manus.plants.structures import Admissible, Structure
+from manus.plants.transmission import of_urdf as urdf_transmission
 
 LINK_PARAMETERS = ("m", "mx", "my", "mz", "Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz")
 GRAVITY = (0.0, 0.0, -9.81)  # m/s², the world's z axis up
@@ -194,6 +195,8 @@ class Serial(_Configuration):
         fingers) the chain ends, and the branches are locked at their zero position and merged,
         unless `tip` names the link the chain must reach. `armature` (one per joint
         [kg m² or kg]) overrides the `armature` attribute of the joints' `<dynamics>` (default 0).
+        The URDF's `<transmission>` elements give the chain's transmission
+        (`manus.plants.transmission.of_urdf`).
         `gravity` [m/s²] is given in the root link's frame. A file that is not such a URDF is
         refused with a `ModelError` that names the file and the problem.
         """
@@ -289,6 +292,7 @@ class Serial(_Configuration):
             source=str(path),
             damping=tuple(j.damping for j in chain),
             friction=tuple(j.friction for j in chain),
+            transmission=urdf_transmission(path, tuple(j.name for j in chain)),
         )
 
     # -- parameters -------------------------------------------------------------------------
@@ -619,6 +623,7 @@ def _base_of(serial: Serial) -> SerialBase:
         base_names=names,
         written=b.names,
         K=b.K,
+        transmission=serial.transmission,
     )
 
 
@@ -773,6 +778,7 @@ class SerialPseudo(Reparametrized):
         self.scale = tuple(x if x > 0 else 1.0 for x in scale)
 
     @property
+        self.transmission = serial.transmission
     def rigid_names(self):
         links = tuple(f"J{i + 1}{e}" for i in range(self.n_joints) for e in ENTRIES)
         return links + tuple(f"Ia{i + 1}" for i in range(self.n_joints))

@@ -36,6 +36,9 @@ from jax import Array
 
 from manus.plants import fastmath
 
+if TYPE_CHECKING:
+    from manus.plants.transmission import Transmission
+
 Joints = tuple  # one scalar (or batch vector) per joint
 
 
@@ -167,6 +170,9 @@ class Structure(eqx.Module):
             ...
     else:  # (this module's annotations are not strings: equinox needs its AbstractVar evaluated)
         prismatic: eqx.AbstractVar[tuple[bool, ...]]
+    # How the actuators turn with the joints, θ = N q (`manus.plants.transmission`); None: one
+    # actuator per joint, turning with it.
+    transmission: "Transmission | None" = eqx.field(default=None, static=True, kw_only=True)
     # Why the per-joint `gravity` effect does not apply, when the rigid effect holds gravity
     # itself (a serial chain's links' masses in the world's gravity); "" when it does not.
     rigid_gravity: ClassVar[str] = ""

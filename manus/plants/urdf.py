@@ -126,3 +126,37 @@ def read(path) -> tuple[dict, dict]:
             ),
         )
     return links, joints
+
+
+class TransmissionElement(NamedTuple):
+    """A `<transmission>` element: its type, its joints and its actuators, each with its
+    `mechanicalReduction` (1 when not given)."""
+
+    name: str
+    kind: str
+    joints: list[tuple[str, float]]
+    actuators: list[tuple[str, float]]
+
+
+def _reduction(element) -> float:
+    r = element.find("mechanicalReduction")
+    return 1.0 if r is None or r.text is None else float(r.text)
+
+
+def transmissions(path) -> list[TransmissionElement]:
+    """The URDF's `<transmission>` elements (ROS's format; the older one with the type as an attribute
+    and the reduction beside the actuator is read too)."""
+    root = ET.parse(pathlib.Path(path)).getroot()
+    out = []
+    for t in root.findall("transmission"):
+        kind = t.findtext("type") or t.get("type") or ""
+        outer = _reduction(t)  # the older format's, one for the transmission
+        out.append(
+            TransmissionElement(
+                t.get("name", ""),
+                kind.strip(),
+                [(cast(str, j.get("name")), _reduction(j)) for j in t.findall("joint")],
+                [(cast(str, a.get("name")), _reduction(a) * outer) for a in t.findall("actuator")],
+            )
+        )
+    return out

@@ -34,7 +34,8 @@ def add_robot_option(parser) -> None:
 
 
 def add_model_options(p, required: bool = True) -> None:
-    """REC, --robot, --model, --cutoff, --method and --hold: shared by fit, diagnose and discover."""
+    """REC, --robot, --model, --cutoff, --method, --transmission and --hold: shared by fit, diagnose and
+    discover."""
     p.add_argument("recording", metavar="REC", help="a recording (.csv, .npz, or an EMPS .mat file)")
     add_robot_option(p)
     p.add_argument(
@@ -56,6 +57,13 @@ def add_model_options(p, required: bool = True) -> None:
         default="auto",
         help="least squares (IDIM-LS), instrumental variables (IDIM-IV, instruments from a simulation "
         "of the model driven by the recorded command), or auto (IV where LS is biased; default)",
+    )
+    p.add_argument(
+        "--transmission",
+        metavar="STATEMENT",
+        help="how the actuators turn with the joints, θ = N q, e.g. 'q1; q2 - q1', 'm5 = q5 + q6; m6 = q5 - q6' or "
+        "[[1,0],[-1,1]]: friction and the other motor-side effects act on the actuators (replaces the "
+        "recording's '# transmission:' and the URDF's <transmission>)",
     )
     p.add_argument(
         "--hold",
@@ -88,6 +96,11 @@ def load_recording(args, proposing: bool = False):
     rec = read_recording(args)
     if args.hold:
         rec.meta["command_hold"] = args.hold
+    if getattr(args, "transmission", None) is not None:
+        from manus.plants.transmission import stated
+
+        stated(rec.structure, args.transmission, "--transmission")  # a malformed statement: a one-line error
+        rec.meta["transmission"] = args.transmission
     note(
         f"{rec.path}: {len(rec)} samples of {rec.n_joints} joint(s) at {rec.sample_rate_hz:g} Hz ({rec.structure_name})"
     )

@@ -136,6 +136,7 @@ def test_the_vocabulary_is_a_registry_and_each_effect_parses_its_own_argument():
         "cogging",
         "delay",
         "compliance",
+        "coupling",
     )
     assert all(VOCABULARY[name].name == name for name in ORDER)
     assert Cogging.parse("39+6") == parse_effect("cogging:39+6") and Stribeck.parse("") == Stribeck()
