@@ -108,12 +108,12 @@ class Effect(eqx.Module):
     # Which side of a compliant shaft it acts on: the motor (friction, cogging, offset) or
     # the link (inertia, gravity).
     side: ClassVar[str] = "motor"
-    requires: ClassVar[tuple[str, ...]] = ()  # offered only on top of these effects
-    brings: ClassVar[tuple[str, ...]] = ()  # added with it when the model lacks them
-    evidence: ClassVar[str] = "velocity"  # what a residual is plotted against to show it
     # Its torque is written on the joints' own coordinates even on the motor side (a coupling names
     # the joints it combines): a transmission does not map it (`Model.torque`).
     on_joints: ClassVar[bool] = False
+    requires: ClassVar[tuple[str, ...]] = ()  # offered only on top of these effects
+    brings: ClassVar[tuple[str, ...]] = ()  # added with it when the model lacks them
+    evidence: ClassVar[str] = "velocity"  # what a residual is plotted against to show it
     apart: ClassVar[str] = ""  # the motion that tells it from an effect it reads as on a recording
     gain: ClassVar[float] = 5.0  # the Slotine–Li adaptation gain of its parameters (thesis: Γ = 5)
 
@@ -700,83 +700,6 @@ class Compliance(Effect):
         return {"f_hz": float(self.f_hz), "zeta": float(self.zeta), "motor_fraction": self.motor_fraction}
 
 
-def is_dry(e: Effect) -> bool:
-    """Dry friction: a torque set-valued at rest."""
-    return e.dry
-
-
-def is_load(e: Effect) -> bool:
-    """A smooth load: a linear torque that is neither the inertia nor dry friction."""
-    return e.linear and not (e.inertial or e.dry)
-
-
-ORDER = tuple(
-    VOCABULARY
-)  # rigid, viscous, coulomb, stribeck, asymmetry, offset, gravity, spring, cogging, delay, compliance
-
-
-def parse_effect(text: str) -> Effect:
-    """One effect from its spec: `name` or `name:value` (cogging:39, stribeck:0.02,
-    delay:2ms or delay:0.002, one delay per joint delay:1ms/3ms, compliance:218.7); each effect
-    parses its own value (`Effect.parse`)."""
-    name, _, arg = text.strip().partition(":")
-    name = name.strip().lower()
-    if name not in VOCABULARY:
-        raise ModelError(f"unknown effect {name!r}: the vocabulary is {', '.join(ORDER)}")
-    return VOCABULARY[name].parse(arg)
-
-
-def parse_effects(text: str | list[str] | tuple) -> tuple[Effect, ...]:
-    """`"rigid,viscous,coulomb"` -> effects in the vocabulary's order, each at most once."""
-    items = text.split(",") if isinstance(text, str) else list(text)
-    effects = [
-        e if isinstance(e, Effect) else parse_effect(e) for e in items if not (isinstance(e, str) and not e.strip())
-    ]
-    if not effects:
-        raise ModelError("empty effect list: name at least one of " + ", ".join(ORDER))
-    seen = [e.name for e in effects]
-    dup = sorted({n for n in seen if seen.count(n) > 1})
-    if dup:
-        raise ModelError(f"effect {dup[0]!r} given twice")
-    return tuple(sorted(effects, key=lambda e: ORDER.index(e.name)))
-
-
-class Model(eqx.Module):
-    """A structure plus a tuple of effects. Its linear parameters are the effects' in order;
-    its regressor is the stack of their columns."""
-
-    structure: Structure
-    effects: tuple[Effect, ...]
-
-    def __init__(self, structure: Structure, effects):
-        self.structure = structure
-        self.effects = parse_effects(effects) if isinstance(effects, str) else tuple(effects)
-
-    # -- bookkeeping ---------------------------------------------------------------------
-    @property
-    def n_joints(self) -> int:
-        return self.structure.n_joints
-
-    @property
-    def names(self) -> tuple[str, ...]:
-        return tuple(k for e in self.effects for k in e.names(self.structure))
-
-    def defaults(self) -> dict[str, float]:
-        s = self.structure
-        return {k: v for e in self.effects for k, v in zip(e.names(s), e.defaults(s), strict=True)}
-
-    def get(self, name: str) -> Effect | None:
-        return next((e for e in self.effects if e.name == name), None)
-
-    def violations(self, params: dict, std: dict | None = None) -> list[str]:
-        """The physical rules `params` break, each effect's own (beyond two `std` where given)."""
-        return [v for e in self.effects for v in e.violations(self.structure, params, std)]
-
-    def has(self, name: str) -> bool:
-        return self.get(name) is not None
-
-    def with_effect(self, effect: Effect) -> Model:
-        kept = tuple(e for e in self.effects if e.name != effect.name)
 @in_vocabulary
 class Coupling(Effect):
     """Friction and rotor inertia on a combination of two joints, v = q̇_i ± q̇_j: a motor that
@@ -867,6 +790,83 @@ class Coupling(Effect):
         return {"joints": [i, j], "combination": f"q{i} {op} q{j}"}
 
 
+def is_dry(e: Effect) -> bool:
+    """Dry friction: a torque set-valued at rest."""
+    return e.dry
+
+
+def is_load(e: Effect) -> bool:
+    """A smooth load: a linear torque that is neither the inertia nor dry friction."""
+    return e.linear and not (e.inertial or e.dry)
+
+
+ORDER = tuple(
+    VOCABULARY
+)  # rigid, viscous, coulomb, stribeck, asymmetry, offset, gravity, spring, cogging, delay, compliance
+
+
+def parse_effect(text: str) -> Effect:
+    """One effect from its spec: `name` or `name:value` (cogging:39, stribeck:0.02,
+    delay:2ms or delay:0.002, one delay per joint delay:1ms/3ms, compliance:218.7); each effect
+    parses its own value (`Effect.parse`)."""
+    name, _, arg = text.strip().partition(":")
+    name = name.strip().lower()
+    if name not in VOCABULARY:
+        raise ModelError(f"unknown effect {name!r}: the vocabulary is {', '.join(ORDER)}")
+    return VOCABULARY[name].parse(arg)
+
+
+def parse_effects(text: str | list[str] | tuple) -> tuple[Effect, ...]:
+    """`"rigid,viscous,coulomb"` -> effects in the vocabulary's order, each at most once."""
+    items = text.split(",") if isinstance(text, str) else list(text)
+    effects = [
+        e if isinstance(e, Effect) else parse_effect(e) for e in items if not (isinstance(e, str) and not e.strip())
+    ]
+    if not effects:
+        raise ModelError("empty effect list: name at least one of " + ", ".join(ORDER))
+    seen = [e.name for e in effects]
+    dup = sorted({n for n in seen if seen.count(n) > 1})
+    if dup:
+        raise ModelError(f"effect {dup[0]!r} given twice")
+    return tuple(sorted(effects, key=lambda e: ORDER.index(e.name)))
+
+
+class Model(eqx.Module):
+    """A structure plus a tuple of effects. Its linear parameters are the effects' in order;
+    its regressor is the stack of their columns."""
+
+    structure: Structure
+    effects: tuple[Effect, ...]
+
+    def __init__(self, structure: Structure, effects):
+        self.structure = structure
+        self.effects = parse_effects(effects) if isinstance(effects, str) else tuple(effects)
+
+    # -- bookkeeping ---------------------------------------------------------------------
+    @property
+    def n_joints(self) -> int:
+        return self.structure.n_joints
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(k for e in self.effects for k in e.names(self.structure))
+
+    def defaults(self) -> dict[str, float]:
+        s = self.structure
+        return {k: v for e in self.effects for k, v in zip(e.names(s), e.defaults(s), strict=True)}
+
+    def get(self, name: str) -> Effect | None:
+        return next((e for e in self.effects if e.name == name), None)
+
+    def violations(self, params: dict, std: dict | None = None) -> list[str]:
+        """The physical rules `params` break, each effect's own (beyond two `std` where given)."""
+        return [v for e in self.effects for v in e.violations(self.structure, params, std)]
+
+    def has(self, name: str) -> bool:
+        return self.get(name) is not None
+
+    def with_effect(self, effect: Effect) -> Model:
+        kept = tuple(e for e in self.effects if e.name != effect.name)
         return Model(self.structure, parse_effects(kept + (effect,)))
 
     def without(self, name: str) -> Model:
@@ -894,6 +894,7 @@ class Coupling(Effect):
         structure has a transmission θ = N q (`manus.plants.transmission`), the motor-side effects
         act on the actuators: evaluated at (N q, N q̇, N q̈), their torque reaches the joints as Nᵀ τ."""
         s = self.structure
+        N = s.transmission
         total = jnp.zeros(s.n_joints, jnp.result_type(qd, float))
         for e in self.effects:
             if e.linear and (only is None or only(e)) and (side is None or e.side == side):
@@ -907,4 +908,3 @@ class Coupling(Effect):
         """Y(q, q̇, q̈) with torque = Y θ, shape (n, P): ∂torque/∂θ, exact for linear effects."""
         theta0 = jnp.zeros(len(self.names), jnp.result_type(qd, float))
         return jax.jacfwd(lambda th: self.torque(q, qd, qdd, self.unvector(th), boundary))(theta0)
-        N = s.transmission
