@@ -88,7 +88,10 @@ def _controller(rec, n: int, limit: float | None):
 
 
 def free_run(f, open_loop: bool = False) -> FreeRun:
-    """Simulate the fitted model `f` (a `manus.adaptive.Fit`) over its whole recording."""
+    """Simulate the fitted model `f` (a `manus.adaptive.Fit`) over its whole recording: a serial
+    chain's with physically consistent parameters (`manus.adaptive.identify.consistency.physical`:
+    the fit's own where it has been through that stage, as `fit` returns it)."""
+    from manus.adaptive.identify.consistency import physical
     from manus.plants.closed_loop import simulate
     from manus.plants.errors import ModelError
     from manus.plants.references import Hold
@@ -99,6 +102,8 @@ def free_run(f, open_loop: bool = False) -> FreeRun:
     if not model.has("rigid"):
         raise ModelError("a free run needs the 'rigid' effect (the model's inertia); fit with rigid to simulate")
     n = rec.n_joints
+    if f.consistency is None:  # not through the consistent stage yet (a chain's estimate breaking physics moves)
+        f = physical(f)
     params = {k: float(v) for k, v in f.params.items()}
     encoder = Encoder(step=f.data.step) if f.data.step > 0 else None
     actuator = Actuator() if rec.structure_name == "manus2" else None
@@ -121,6 +126,8 @@ def free_run(f, open_loop: bool = False) -> FreeRun:
     traj = simulate(plant, controller, reference, seconds)
     q_sim = np.asarray(traj.q)[: len(rec)]
     q = rec.q[: len(q_sim)]
+    if f.unconstrained is not None:
+        how += "; the physically consistent parameters (the estimate breaks physics)"
     out = FreeRun(rec.t[: len(q_sim)], q, q_sim, mode, how, nrmse_fit(q, q_sim))
     if mode == "closed loop":
         assert ref is not None  # the closed loop follows the recorded reference

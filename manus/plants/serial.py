@@ -740,12 +740,20 @@ class SerialBase(Reparametrized):
         theta_b = jnp.stack([jnp.asarray(p[k]) for k in self.base_names])
         return self.regressor(q, qd, qdd) @ theta_b
 
-    def violations(self, p):
+    @property
+    def armatures(self) -> tuple[str, ...]:
+        """The base parameters that are one joint's armature alone (`Ia3`; not a regrouped `Ia1R`,
+        a combination that may be negative): each is non-negative on a physical robot."""
+        return tuple(k for k, w in zip(self.base_names, self.written, strict=True) if k.startswith("Ia") and k == w)
+
+    def violations(self, p, q=None):
         """Base parameters are combinations, so the pseudo-inertia of a link cannot be checked;
-        what can: H(q) positive definite (on `CHECK_STATES` random configurations)."""
-        rng = np.random.default_rng(0)
-        span = np.where(self.serial.prismatic, 0.5, np.pi)
-        q = rng.uniform(-span, span, (self.CHECK_STATES, self.n_joints))
+        what can: H(q) positive definite, at the configurations `q` (m, n) (default: `CHECK_STATES`
+        random ones)."""
+        where = "random configurations" if q is None else "recorded states"
+        if q is None:
+            span = np.where(self.serial.prismatic, 0.5, np.pi)
+            q = np.random.default_rng(0).uniform(-span, span, (self.CHECK_STATES, self.n_joints))
         with jax.enable_x64(True):
             theta = self.standard({k: float(p[k]) for k in self.base_names})
             H = np.asarray(_mass_matrices(self.serial, jnp.asarray(q), theta))
@@ -755,7 +763,7 @@ class SerialBase(Reparametrized):
             return []
         return [
             f"the base parameters give an inertia matrix H(q) that is not positive definite (in {bad} of "
-            f"{len(q)} random configurations, smallest eigenvalue {low.min():.3g}): no physical robot has them"
+            f"{len(q)} {where}, smallest eigenvalue {low.min():.3g}): no physical robot has them"
         ]
 
 
@@ -770,7 +778,6 @@ class SerialPseudo(Reparametrized):
     def __init__(self, serial: Serial):
         self.serial = serial
         self.n_joints = serial.n_joints
-        self.transmission = serial.transmission
         d = np.asarray(serial.defaults, float)
         scale = []
         for i in range(serial.n_joints):
@@ -779,6 +786,7 @@ class SerialPseudo(Reparametrized):
         self.scale = tuple(x if x > 0 else 1.0 for x in scale)
 
     @property
+        self.transmission = serial.transmission
     def rigid_names(self):
         links = tuple(f"J{i + 1}{e}" for i in range(self.n_joints) for e in ENTRIES)
         return links + tuple(f"Ia{i + 1}" for i in range(self.n_joints))

@@ -39,14 +39,8 @@ def run(args) -> dict:
     out["fit_percent"] = {"torque": nrmse_fit(f.data.tau(f.delay), f.predicted()).tolist()}
     if rec.time_base:  # repeated rows, jittered stamps or a resampled rate found and repaired as it was read
         out["time_base"] = rec.time_base.report()
-    if "urdf_values" in out:  # a serial chain: the physically consistent stage, reported beside the fit
-        from manus.adaptive import consistent
-        from manus.plants.errors import ModelError
-
-        try:
-            out["consistent"] = consistent(f).report()
-        except ModelError as e:  # the fit stands: the stage says why it has nothing
-            out["consistent"] = {"error": str(e)}
+    if "urdf_values" in out:  # a serial chain: the physically consistent stage of the fit, in full
+        out["consistent"] = f.consistency or {"error": "physically consistent parameters are a rigid model's"}
     if not args.no_figures:
         if args.no_sim:
             run_ = "skipped (--no-sim)"
@@ -94,12 +88,16 @@ def render(r: dict) -> str:
         lines.append(
             "  physically consistent (each link's pseudo-inertia positive semidefinite, armatures and friction "
             "within their bounds): "
-            + ("the estimate is consistent already" if c["already"] else "the estimate is not consistent")
-            + f"; the closest consistent set leaves rel_error {100 * c['rel_error']:.2f} %"
             + (
-                ", moving " + ", ".join(f"{k} by {v:+.1f} std" for k, v in far.items())
-                if far
-                else ", every parameter within one standard deviation"
+                "the estimate is consistent already"
+                if c["already"]
+                else f"the estimate breaks physics (rel_error {100 * c['ls_rel_error']:.2f} %): the parameters "
+                f"above are the closest consistent set, rel_error {100 * c['rel_error']:.2f} %"
+                + (
+                    ", moving " + ", ".join(f"{k} by {v:+.1f} std" for k, v in far.items())
+                    if far
+                    else ", every parameter within one standard deviation"
+                )
             )
         )
         lines.append(
@@ -109,7 +107,7 @@ def render(r: dict) -> str:
         shown = ", ".join(f"{x:.6g}" for x in v) if isinstance(v, (list, tuple)) else f"{v:.6g}"
         lines.append(f"  {k} = {shown} (searched or fixed)")
     for v in r.get("violations", []):
-        lines.append(f"  breaks physics: {v}")
+        lines.append(f"  {'the estimate ' if (c or {}).get('moved') else ''}breaks physics: {v}")
     if r.get("redundant"):
         lines.append(f"  redundant (explained by the others, set to 0): {', '.join(r['redundant'])}")
     fits = r["fit_percent"]

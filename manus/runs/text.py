@@ -118,11 +118,25 @@ def candidate_rows(candidates: list[dict], verdict: str | None) -> list[list]:
     return rows
 
 
+def consistency_lines(r: dict) -> list[str]:
+    """The physically consistent stage's line where it moved the estimate (a serial chain's `consistency`)."""
+    c = r.get("consistency") or {}
+    if "error" in c:
+        return [f"  {c['error']}"]
+    if not c.get("moved"):
+        return []
+    return [
+        f"  the estimate breaks physics (rel_error {100 * c['ls_rel_error']:.2f} %): the model is the closest "
+        f"physically consistent one, rel_error {100 * c['rel_error']:.2f} %"
+    ]
+
+
 def diagnosis_text(r: dict) -> str:
     """A diagnosis's JSON (`manus diagnose`) as text: the candidates, the notes, the verdict, what is left."""
     lines = [
         f"model {r['spec']}: rel_error {100 * r['rel_error']:.2f} % (torque low-passed at {r['cutoff_hz']:.1f} Hz; "
         f"{r['method']}; command hold {r['hold']})",
+        *consistency_lines(r),
         table(
             left([row[:8] + row[9:] + row[8:9] for row in candidate_rows(r["candidates"], r["verdict"])], (8, 9)),
             [
@@ -169,6 +183,7 @@ def discovery_text(r: dict) -> str:
     lines = [
         table(left(rows, (1, 2)), ["step", "effect added", "parameters (value±std)", "rel_error %"]),
         f"stopped: {r['stopped']}; final model {r['model']}, rel_error {100 * r['rel_error']:.2f} %",
+        *consistency_lines(r),
     ]
     lines += [f"  step {s['step']}: {s['note']}" for s in r["steps"] if s.get("note")]
     lines += [f"  {n}" for n in r["notes"]]

@@ -9,10 +9,10 @@ import pathlib
 import numpy as np
 import pinocchio as pin
 import pytest
-from scipy import optimize
+from scipy import linalg, optimize
 
 from manus.adaptive import Columns, fit
-from manus.adaptive.identify.consistency import LINK, TIE, consistent, pseudo_inertia
+from manus.adaptive.identify.consistency import LINK, TIE, WEAK, consistent, pseudo_inertia
 from manus.plants import Serial
 from manus.plants.recording import Recording
 
@@ -79,16 +79,19 @@ def test_a_consistent_estimate_stays(swing):
 def _objective(f):
     """The stage's objective, written out independently: the rise of the squared torque error in
     units of the residual variance per row, plus TIE times the squared relative distance of the
-    standard parameters from the URDF's."""
+    standard parameters from the URDF's on the combinations no base parameter holds (scipy's
+    null space of K in relative units), WEAK times it on every standard parameter."""
     Y = Columns(f.data).model(f.model)
     Y = Y.reshape(-1, Y.shape[2])
     var = float(np.sum(f.residual**2)) / (Y.shape[0] - Y.shape[1])
     prior = np.asarray(f.model.structure.serial.defaults)
     G = Y.T @ Y / var
+    D = np.maximum(np.abs(prior), 1e-3)
+    null = linalg.null_space(f.model.structure.K * D)
 
     def value(x, phi):
-        d = x - f.theta
-        return d @ G @ d + TIE * np.sum(((phi - prior) / np.maximum(np.abs(prior), 1e-3)) ** 2)
+        d, u = x - f.theta, (phi - prior) / D
+        return d @ G @ d + TIE * (np.sum((null.T @ u) ** 2) + WEAK * np.sum(u**2))
 
     return value
 

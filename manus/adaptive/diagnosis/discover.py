@@ -113,6 +113,7 @@ class Discovery:
             "model": self.model,
             "rel_error": self.rel_error,
             "rel_error_per_joint": self.final_fit.rel_error_per_joint,
+            **({"consistency": self.final_fit.consistency_report()} if self.final_fit.consistency else {}),
             "stopped": self.stopped,
             "samples": int(self.start.data.rows.size),
             "cutoff_hz": self.start.data.cutoff_hz,

@@ -75,6 +75,7 @@ class Diagnosis:
             "unexplained": self.unexplained,
             "detection_limits": self.detection_limits,
             "violations": self.base.violations(),
+            **({"consistency": self.base.consistency_report()} if self.base.consistency else {}),
             "notes": self.notes,
         }
 

@@ -13,6 +13,11 @@ simulated by the current model from the recorded command, `manus.adaptive.identi
 iterated). `method="auto"` fits both and keeps IV where the two disagree beyond their standard
 deviations (noise in the differentiated regressor has biased least squares), LS otherwise; the
 report says which and why.
+
+On a serial chain the fit returned is physically consistent (`manus.adaptive.identify.consistency`):
+where the estimate breaks physics (a link's pseudo-inertia not PSD, a negative armature or
+friction), the closest consistent parameters in the data's metric, the estimate kept beside them
+(`Fit.unconstrained`); IV's instruments are simulated from that consistent model.
 """
 
 from __future__ import annotations
@@ -22,6 +27,7 @@ from dataclasses import replace
 import numpy as np
 
 from manus.adaptive.identify.columns import Columns, identified
+from manus.adaptive.identify.consistency import physical
 from manus.adaptive.identify.instruments import iv_fit
 from manus.adaptive.identify.prepare import Data, prepare
 from manus.adaptive.identify.result import Fit, check_motion, check_rows, fit_rows
@@ -82,6 +88,10 @@ def fit(
     check_motion(data, model)
     model, search = search_all(data, cols, model, fixed)
     ls = fit_rows(data, cols, model, search)
+    start = physical(ls, cols)  # IV's simulations start from a consistent model
     if method == "ls":
-        return replace(ls, why="least squares (asked for)")
-    return iv_fit(data, cols, ls, method)
+        return replace(start, why="least squares (asked for)")
+    chosen = iv_fit(data, cols, ls, method, start)
+    if chosen.method == "ls":  # least squares kept: its stage is done
+        return replace(start, why=chosen.why)
+    return physical(chosen, cols)

@@ -97,10 +97,12 @@ def instruments(data: Data, f: Fit) -> Columns | None:
     return None if kin is None else Columns(data, kinematics=kin)
 
 
-def iv_fit(data: Data, cols: Columns, ls: Fit, method: str) -> Fit:
-    """IDIM-IV from the LS fit `ls` (ITERATIONS rounds); `method="auto"` keeps the one the
-    evidence favours (`choose`) and says why."""
-    current, iv, icols = ls, None, None
+def iv_fit(data: Data, cols: Columns, ls: Fit, method: str, start: Fit | None = None) -> Fit:
+    """IDIM-IV from the LS fit `ls` (ITERATIONS rounds), the first instruments simulated from
+    `start` (default `ls`; a serial chain's consistent parameters where `ls` breaks physics,
+    `consistency.physical`); `method="auto"` keeps the one the evidence favours (`choose`) and
+    says why."""
+    current, iv, icols = start or ls, None, None
     for _ in range(ITERATIONS):
         icols = instruments(data, current)
         if icols is None:

@@ -23,6 +23,7 @@ from manus.estimators.offline import edge
 from manus.plants.effects import Model
 from manus.plants.errors import ModelError
 from manus.plants.recording import Recording
+from manus.plants.serial import SerialBase
 
 
 @dataclass
@@ -42,6 +43,11 @@ class Fit:
     method: str = "ls"  # "ls" or "iv"
     why: str = ""  # why that method
     instruments: Columns | None = None  # the IV instruments' columns (method "iv")
+    # a serial chain's physically consistent stage (`manus.adaptive.identify.consistency.physical`):
+    # the estimate these parameters were moved from where it broke physics (None: they are the estimate),
+    # and the stage's report (or why it has none)
+    unconstrained: Fit | None = None
+    consistency: dict | None = None
 
     @property
     def params(self) -> dict[str, float]:
@@ -66,14 +72,53 @@ class Fit:
         return self.data.tau(self.delay) - self.residual
 
     def violations(self) -> list[str]:
-        """The physical rules the fitted parameters break (each effect's own rules)."""
-        out = self.model.violations(self.params, self.stds)
+        """The physical rules the estimate breaks: each effect's own (beyond two standard deviations);
+        on a serial chain in base parameters, H(q) positive definite on the recording's states (sampled;
+        random configurations besides) and each armature that is a base parameter of its own
+        non-negative (beyond two standard deviations). Where the consistent stage moved the estimate
+        (`unconstrained`), the rules that estimate breaks, those within two standard deviations of
+        their bound and the pseudo-inertias' included (`consistency["breaks"]`): these parameters
+        keep them all."""
+        if self.unconstrained is not None:  # and the rules the consistent stage found it breaking, strictly
+            out = self.unconstrained.violations()
+            breaks = (self.consistency or {}).get("breaks", [])
+            return out + [b for b in breaks if not any(v.startswith(b.split(" = ")[0] + " = ") for v in out)]
+        s, params, stds = self.model.structure, self.params, self.stds
+        out = []
+        for e in self.model.effects:
+            if not (e.inertial and isinstance(s, SerialBase)):
+                out += e.violations(s, params, stds)
+                continue
+            out += s.violations(params, self._states(s.CHECK_STATES)) or s.violations(params)
+            for k in s.armatures:
+                sd = stds[k] if np.isfinite(stds[k]) else 0.0
+                if params[k] + 2 * sd < 0:
+                    out.append(f"{k} = {params[k]:.4g} ± {sd:.2g} < 0: an armature (a rotor's inertia) is non-negative")
         if len(out) > 1 and not self.model.violations({k: -v for k, v in self.params.items()}, self.stds):
             out.append(
                 "every rule holds with the torque's sign reversed: the recorded torque is probably "
                 "positive against the positions' direction (record it positive where it drives q up)"
             )
         return out
+
+    def _states(self, count: int) -> np.ndarray:
+        """`count` of the recording's configurations, evenly over its used rows (some twice when fewer)."""
+        at = self.data.rows if self.data.rows.size else np.arange(len(self.data.q))
+        return self.data.q[at[np.linspace(0, at.size - 1, count).round().astype(int)]]
+
+    def consistency_report(self) -> dict:
+        """The `consistency` block of the JSON (serial chains): whether the parameters reported were
+        `moved` from the estimate to the closest physically consistent ones, the estimate's torque
+        error (`ls_rel_error`: least squares', or IV's where the method is iv) beside theirs
+        (`rel_error`), and each parameter's move in the estimate's standard deviations; or, where
+        there is no stage, why (`error`). Empty where the stage does not apply."""
+        c = self.consistency
+        if c is None:
+            return {}
+        if "error" in c:
+            return {"error": c["error"]}
+        keys = ("moved", "already", "ls_rel_error", "rel_error", "moved_std", "status")
+        return {k: c[k] for k in keys}
 
     def report(self) -> dict:
         """The JSON contract of `manus fit` (docs/cli.md)."""
@@ -110,6 +155,8 @@ class Fit:
         bad = self.violations()
         if bad:
             out["violations"] = bad
+        if self.consistency is not None:
+            out["consistency"] = self.consistency_report()
         return out
 
     def evaluate(self, rec: Recording | Data) -> Fit:
