@@ -53,10 +53,11 @@ def add_model_options(p, required: bool = True) -> None:
     )
     p.add_argument(
         "--method",
-        choices=("auto", "ls", "iv"),
+        choices=("auto", "ls", "iv", "oe"),
         default="auto",
         help="least squares (IDIM-LS), instrumental variables (IDIM-IV, instruments from a simulation "
-        "of the model driven by the recorded command), or auto (IV where LS is biased; default)",
+        "of the model driven by the recorded command), output error (OE: the simulated positions fitted "
+        "to the recorded ones, in short windows), or auto (IV or OE where LS is biased; default)",
     )
     p.add_argument(
         "--transmission",

@@ -72,6 +72,7 @@ def render(r: dict) -> str:
         f"(torque low-passed at {r['cutoff_hz']:.1f} Hz, {100 * r['standstill_excluded']:.1f} % left out at "
         "standstill)",
         f"  method {r['method']}: {r['method_why']}",
+        *([output_error_line(r["output_error"])] if "output_error" in r else []),
         f"  cut-off: {r['cutoff_note']}; command hold: {r['hold']}",
         *([f"  gaps: {r['gaps']}"] if r.get("gaps") else []),
         table(rows, ["parameter", "value", "std", "std %"] + (["in the URDF"] if urdf else [])),
@@ -124,3 +125,19 @@ def render(r: dict) -> str:
     for k, v in r.get("figures", {}).items():
         lines.append(f"  figure ({k}): {v}")
     return "\n".join(lines)
+
+
+def output_error_line(oe: dict) -> str:
+    """The output-error fit's positions, beside those of the estimate LS and IV gave."""
+    rms = ", ".join(f"{x:.3g}" for x in oe["position_rms"])
+    before = oe["compared"]
+    was = (
+        f"; {before['method'].upper()}'s parameters {100 * before['position_rel_error']:.2f} %"
+        if before["position_rel_error"] is not None
+        else ""
+    )
+    return (
+        f"  output error: simulated positions off by {100 * oe['position_rel_error']:.2f} % of the windows' motion "
+        f"(RMS {rms} per joint, encoder step {oe['encoder_step']:.3g}){was}; {oe['windows']} windows of "
+        f"{oe['window_s']:.3g} s from the measured state, started from {oe['start']}"
+    )

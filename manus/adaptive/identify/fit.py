@@ -12,7 +12,11 @@ variables (IDIM-IV, Janot, Gautier et al.: instruments are the regressor evaluat
 simulated by the current model from the recorded command, `manus.adaptive.identify.instruments`,
 iterated). `method="auto"` fits both and keeps IV where the two disagree beyond their standard
 deviations (noise in the differentiated regressor has biased least squares), LS otherwise; the
-report says which and why.
+report says which and why. A third, output error (OE, `manus.adaptive.identify.output_error`), fits
+the positions simulated from the recorded command instead of the torque: `auto` chooses it where
+the encoder's quantization noise in q̈ makes up a large share of what identifies the inertia
+(coarse encoders, low rates, chatter), or where LS breaks physics, IV does not rescue it and that
+noise is notable.
 
 On a serial chain the fit returned is physically consistent (`manus.adaptive.identify.consistency`):
 where the estimate breaks physics (a link's pseudo-inertia not PSD, a negative armature or
@@ -29,6 +33,7 @@ import numpy as np
 from manus.adaptive.identify.columns import Columns, identified
 from manus.adaptive.identify.consistency import physical
 from manus.adaptive.identify.instruments import iv_fit
+from manus.adaptive.identify.output_error import oe_reason, output_error, quantization, rescue
 from manus.adaptive.identify.prepare import Data, prepare
 from manus.adaptive.identify.result import Fit, check_motion, check_rows, fit_rows
 from manus.adaptive.identify.search import search_all
@@ -36,7 +41,7 @@ from manus.plants.effects import Model
 from manus.plants.errors import ModelError
 from manus.plants.recording import Recording
 
-METHODS = ("auto", "ls", "iv")
+METHODS = ("auto", "ls", "iv", "oe")
 
 
 def model_from(model: Model | str, structure) -> tuple[Model, set[str]]:
@@ -60,8 +65,9 @@ def fit(
 ) -> Fit:
     """Identify `model`'s parameters from `rec`. Non-linear parameters of effects not in
     `fixed` are searched (a model given as text fixes those written with an argument).
-    `method`: "ls" (IDIM-LS), "iv" (IDIM-IV) or "auto" (IV where LS is biased, see the module
-    docstring). `columns`: the columns of this data computed already (a loop over one recording)."""
+    `method`: "ls" (IDIM-LS), "iv" (IDIM-IV), "oe" (output error) or "auto" (IV or OE where LS
+    is biased, see the module docstring). `columns`: the columns of this data computed already (a
+    loop over one recording)."""
     if method not in METHODS:
         raise ModelError(f"unknown method {method!r}: expected one of {', '.join(METHODS)}")
     data = rec if isinstance(rec, Data) else prepare(rec, cutoff_hz)
@@ -91,7 +97,11 @@ def fit(
     start = physical(ls, cols)  # IV's simulations start from a consistent model
     if method == "ls":
         return replace(start, why="least squares (asked for)")
+    noise = quantization(data, cols, ls) if method in ("auto", "oe") else None  # errors in variables
+    oe_why = "output error (asked for)" if method == "oe" else oe_reason(data, ls, noise) if noise else ""
+    if oe_why:
+        return output_error(data, cols, ls, oe_why, start, noise)
     chosen = iv_fit(data, cols, ls, method, start)
     if chosen.method == "ls":  # least squares kept: its stage is done
-        return replace(start, why=chosen.why)
+        return rescue(data, cols, ls, replace(start, why=chosen.why), noise)
     return physical(chosen, cols)
