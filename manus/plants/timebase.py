@@ -25,9 +25,8 @@ artefact:
   period rounded to a coarser resolution) are put on the grid too, where the rate is read from
   them. Repair: each stamp goes to its grid point t₀ + i T, the indices i the strictly
   increasing integers nearest to (t − t₀)/T (`_settle`: late rows bunched onto one slot spread
-  to the free slots beside it); a row is dropped only as a doubled sample (its slot and every
-  value the row before's), never for its stamp alone; a skipped index is a lost sample, left
-  as a gap;
+  to the free slots beside it); no row is dropped for its stamp; a skipped index is a lost
+  sample, left as a gap;
 - **held positions**: a log resampled to k times its rate by holding each sample (positions
   update every k-th row, the torque may change in between). In moving stretches every joint's
   position then stays equal over runs of k rows: held when most of the rows of the moving
@@ -89,7 +88,6 @@ class TimeBase:
     jittered: bool = False  # the stamps scatter more than a uniform clock's, or misread its period (put on the grid)
     held_rows: int = 0  # rows that hold the positions of a resampled log (dropped: one kept per run)
     held_every: int = 1  # k: the positions update every k-th row
-    doubled: int = 0  # rows whose grid slot another row holds (dropped)
     lost: int = 0  # grid slots no row holds after the repair (lost samples, left as gaps)
     period_steps: tuple[float, float] = (0.0, 0.0)  # the stamps' step, 1st and 99th percentile [s]
     repaired: bool = False
@@ -117,8 +115,6 @@ class TimeBase:
                 f"stamps scatter by {100 * self.jitter:.3g} % of the period (RMS; steps {1e3 * lo:.4g} to "
                 f"{1e3 * hi:.4g} ms) around a uniform {1e3 / self.rate_hz:.6g} ms grid: put on it"
             )
-        if self.doubled:
-            said.append(f"{self.doubled} doubled sample{'s' if self.doubled != 1 else ''} dropped")
         if self.lost:
             said.append(f"{self.lost} lost sample{'s' if self.lost != 1 else ''} left as gaps")
         return f"time base: {'; '.join(said)}; read at {self.rate_hz:.6g} Hz"
@@ -340,20 +336,14 @@ def grid(t: np.ndarray) -> tuple[np.ndarray, float, float]:
     return i - i[0], float(origin + a + i[0] * T), float(T)
 
 
-def _settle(x: np.ndarray, same: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _settle(x: np.ndarray) -> np.ndarray:
     """Grid slots for stamps read as x (in periods from the grid's origin): the strictly
     increasing integers nearest to them in least squares (an isotonic regression of x_k − k,
-    rounded, plus k). Late rows bunched onto one slot spread over the slots beside them, the
-    stamps of a bunch keeping their order; no row is dropped for its stamp alone. A row sharing
-    its rounded slot with the row before it and equal to it in every value (`same`) is that
-    sample doubled, and dropped. Returns the slots of the rows kept and which rows are kept."""
-    keep = np.ones(x.size, bool)
-    slot = np.rint(x)
-    keep[1:] = ~(same & (slot[1:] <= slot[:-1]))
-    y = x[keep]
-    k = np.arange(y.size)
-    iso = isotonic_regression(y - k).x
-    return (np.rint(iso) + k).astype(np.int64), keep
+    rounded, plus k). Late rows bunched onto one slot spread over the slots beside them, in
+    their order; no row is dropped for its stamp (a copy of the row before while the joints
+    move is `_repeated`'s to find)."""
+    k = np.arange(x.size)
+    return (np.rint(isotonic_regression(x - k).x) + k).astype(np.int64)
 
 
 # -- examine and repair ---------------------------------------------------------------------------
@@ -388,15 +378,9 @@ def examine(rec: Logged) -> tuple[TimeBase, np.ndarray, np.ndarray | None]:
     misread = d.size > 0 and abs(float(np.median(d)) / T - 1) > JITTER
     jittered = jitter > max(JITTER, clock) or misread
     out = None
-    doubled = lost = 0
+    lost = 0
     if jittered:
-        kept = np.flatnonzero(keep)
-        same = np.all(rec.q[kept[1:]] == rec.q[kept[:-1]], axis=1) & np.all(
-            rec.tau[kept[1:]] == rec.tau[kept[:-1]], axis=1
-        )
-        i, settled = _settle((t - t0) / T, same)
-        doubled = int((~settled).sum())
-        keep[kept[~settled]] = False
+        i = _settle((t - t0) / T)
         lost = int(i[-1] - i[0] + 1 - i.size)
         out = t0 + i * T
     elif found.get("repeated_rows"):
@@ -409,7 +393,6 @@ def examine(rec: Logged) -> tuple[TimeBase, np.ndarray, np.ndarray | None]:
         rate,
         jitter=jitter,
         jittered=jittered,
-        doubled=doubled,
         lost=lost,
         period_steps=(float(np.percentile(d, 1)), float(np.percentile(d, 99))) if d.size else (0.0, 0.0),
         repaired=repaired,
