@@ -4,7 +4,13 @@ Panda simulated (1 kHz, 2 sub-steps, viscous and Coulomb friction per joint and 
 4, tracking a Fourier excitation under a feed-forward controller: the acceptance test's set-up)
 for `--fit-seconds` as one trial, `manus fit` of `rigid,viscous,coulomb,offset` on that recording
 (first call and best of `--repeats`), and a vmapped batch of `--trials` trials of
-`--batch-seconds` (trial-steps per second beside the single trial's steps per second).
+`--batch-seconds` (trial-steps per second beside the single trial's steps per second). Then, on
+the Panda simulated `--arm-seconds` at 1 kHz and the UR5 `--ur5-seconds` at 5 kHz (viscous and
+Coulomb friction per joint, an offset on one joint), each of `manus fit`, `diagnose` and
+`discover` (`--commands`) run as a user runs it, in a new process (compilation included, JAX's
+persistent cache as the user's environment has it), beside the textbook baseline run in this
+process: pinocchio's `computeJointTorqueRegressor` at every sample with viscous, Coulomb and
+offset columns, solved by `numpy.linalg.lstsq`.
 
 A row is one joint's torque equation at one state (q, q̇, q̈): a state gives 7 rows (77 columns:
 the ten standard parameters of each link and the armatures). JAX: the regressor `vmap`ped over an
@@ -17,6 +23,7 @@ regressors are compared with JAX's (`agreement`, the largest difference). Needs 
 from __future__ import annotations
 
 import importlib.metadata
+import json
 import os
 import time
 
@@ -40,6 +47,23 @@ def add_arguments(p) -> None:
     )
     p.add_argument("--trials", type=int, default=8, help="trials in the simulator's vmapped batch")
     p.add_argument("--batch-seconds", type=float, default=1.0, help="length of each batched trial [s]")
+    p.add_argument(
+        "--arm-seconds",
+        type=float,
+        default=20.0,
+        help="length of the simulated Panda recording (1 kHz) that the commands are timed on [s] (0: skip)",
+    )
+    p.add_argument(
+        "--ur5-seconds",
+        type=float,
+        default=9.0,
+        help="length of the simulated UR5 recording (5 kHz) that the commands are timed on [s] (0: skip)",
+    )
+    p.add_argument(
+        "--commands",
+        default=",".join(COMMANDS),
+        help="the commands timed in new processes on each arm's recording (comma-separated)",
+    )
 
 
 def run(args) -> dict:
@@ -51,6 +75,10 @@ def run(args) -> dict:
 
     if args.states < 1 or args.pinocchio_states < 1 or args.repeats < 1 or args.trials < 1 or args.batch_seconds <= 0:
         raise ManusError("--states, --pinocchio-states, --repeats, --trials and --batch-seconds must be positive")
+    commands = [c.strip() for c in args.commands.split(",") if c.strip()]
+    unknown = sorted(set(commands) - set(COMMANDS))
+    if unknown:
+        raise ManusError(f"--commands: unknown {', '.join(unknown)} (expected some of {', '.join(COMMANDS)})")
     try:
         import pinocchio as pin
 
@@ -107,9 +135,16 @@ def run(args) -> dict:
     if args.fit_seconds > 0:
         out["figures"].update(_loop(path, args, note))
         out.update(fit_seconds=args.fit_seconds, trials=args.trials, batch_seconds=args.batch_seconds)
+    arms = [(a, sec) for a, sec in (("panda", args.arm_seconds), ("ur5", args.ur5_seconds)) if sec > 0]
+    if arms and commands:
+        out["arms"] = [_arm(a, sec, commands, note) for a, sec in arms]
     return out
 
 
+UR5 = "example-robot-data/robots/ur_description/urdf/ur5_robot.urdf"
+COMMANDS = ("fit", "diagnose", "discover")
+# the model each command starts from on an arm's recording (the truth: rigid,viscous,coulomb,offset)
+COMMAND_MODEL = {"fit": "rigid,viscous,coulomb,offset", "diagnose": "rigid,viscous,coulomb", "discover": "rigid"}
 FC = (0.5, 0.5, 0.4, 0.4, 0.3, 0.3, 0.2)  # Coulomb [N·m] per joint
 B = (0.3, 0.3, 0.25, 0.25, 0.15, 0.15, 0.1)  # viscous [N·m·s/rad]
 HIDDEN = {"off4": 0.5}  # one hidden effect on one joint of seven: a constant 0.5 N·m on joint 4
@@ -135,6 +170,98 @@ def panda_case(path: str):
     centre = np.array(CENTRE)
     sim = Simulator(Model(serial, MODEL), truth, substeps=2, actuator=None, q0=centre)
     return serial, sim, Fourier(centre, amplitude=1.0, f0=0.2, harmonics=6, decay=1.5, seed=1), truth
+
+
+def ur5_case(path: str):
+    """The UR5 (its URDF at `path`, armatures 0.1..0.3 kg m²) with viscous and Coulomb friction
+    per joint and an offset on joint 2, 5 kHz, 2 sub-steps, and the Fourier excitation it tracks:
+    (serial, simulator, reference, truth)."""
+    from manus.plants import Model, Simulator
+    from manus.plants.serial import Serial
+    from manus.plants.serial_sim import Fourier
+
+    serial = Serial.from_urdf(path, armature=np.linspace(0.1, 0.3, 6))
+    truth = {
+        **{f"b{i + 1}": v for i, v in enumerate((2.0, 2.0, 1.5, 0.5, 0.5, 0.4))},
+        **{f"Fc{i + 1}": v for i, v in enumerate((3.0, 3.0, 2.0, 0.8, 0.8, 0.6))},
+        **{f"off{i + 1}": 0.0 for i in range(6)},
+        "off2": 1.5,
+    }
+    centre = np.array((0.0, -1.2, 1.2, -1.5, -1.5, 0.0))
+    sim = Simulator(Model(serial, MODEL), truth, rate_hz=5000.0, substeps=2, actuator=None, q0=centre)
+    return serial, sim, Fourier(centre, amplitude=0.8, f0=0.2, harmonics=6, decay=1.5, seed=1), truth
+
+
+def _arm(arm: str, seconds: float, commands: list[str], note) -> dict:
+    """One arm simulated for `seconds` and written as a recording; each of `commands` run on it
+    in a new process (wall time, compilation included), beside the pinocchio baseline in this one."""
+    import subprocess
+    import sys
+    import tempfile
+
+    import jax
+
+    from manus.plants.errors import ManusError
+    from manus.plants.recording import write
+    from manus.plants.serial_sim import record
+
+    path = _urdf(UR5 if arm == "ur5" else PANDA)
+    with jax.enable_x64(True):
+        serial, sim, reference, _ = (ur5_case if arm == "ur5" else panda_case)(path)
+        note(f"simulating {seconds:g} s of the {arm} at {sim.rate_hz:g} Hz ...")
+        rec = record(sim, reference, seconds)
+    out: dict = {"robot": arm, "joints": serial.n_joints, "seconds": seconds, "rate_hz": sim.rate_hz}
+    out["baseline"] = baseline(path, serial, rec)
+    with tempfile.TemporaryDirectory(prefix="manus-bench-") as tmp:
+        csv = str(write(rec, os.path.join(tmp, f"{arm}.csv")))
+        for c in commands:
+            note(f"manus {c} --model {COMMAND_MODEL[c]} on the {arm}'s recording, a new process ...")
+            argv = [sys.executable, "-m", "manus.runs.cli", c, csv, "--model", COMMAND_MODEL[c], "--json"]
+            t0 = time.perf_counter()
+            done = subprocess.run([*argv, "--out", tmp], capture_output=True, text=True, check=False)
+            wall = time.perf_counter() - t0
+            if done.returncode:
+                raise ManusError(f"manus {c} on the simulated {arm} failed: {done.stderr.strip()[-300:]}")
+            r = json.loads(done.stdout)
+            out[c] = {"s": wall, "rel_error": r["rel_error"], "model": r.get("spec", r.get("model"))}
+            if c == "diagnose":
+                out[c]["verdict"] = r.get("verdict_spec")
+    return out
+
+
+def _urdf(relative: str) -> str:
+    return str(importlib.metadata.distribution("example-robot-data").locate_file(f"cmeel.prefix/share/{relative}"))
+
+
+def baseline(path: str, serial, rec) -> dict:
+    """Least squares the textbook way on the recording's samples: pinocchio's
+    `computeJointTorqueRegressor` at every sample (the true velocities, q̈ their central
+    difference), viscous, Coulomb and offset columns per joint, `numpy.linalg.lstsq`; its wall
+    time (the regressor's Python loop and the solve) and torque rel_error (unfiltered)."""
+    import pinocchio as pin
+
+    model = pin.buildModelFromUrdf(path)  # pyright: ignore[reportAttributeAccessIssue] (pinocchio's compiled module has no stubs)
+    model = pin.buildReducedModel(  # pyright: ignore[reportAttributeAccessIssue] (pinocchio's compiled module has no stubs)
+        model, [model.getJointId(k) for k in model.names[1:] if k not in serial.joint_names], np.zeros(model.nq)
+    )
+    data = model.createData()
+    q, qd = rec.q, rec.qd
+    qdd = np.gradient(qd, rec.dt, axis=0)
+    T, n = q.shape
+    t0 = time.perf_counter()
+    rigid = np.stack(
+        [
+            pin.computeJointTorqueRegressor(model, data, q[k], qd[k], qdd[k]).copy()  # pyright: ignore[reportAttributeAccessIssue] (pinocchio's compiled module has no stubs)
+            for k in range(T)
+        ]
+    )  # (T, n, 10 n)
+    eye = np.eye(n)
+    per_joint = [qdd, qd, np.sign(qd), np.ones_like(qd)]  # armature, viscous, Coulomb, offset
+    Y = np.concatenate([rigid, *(x[:, :, None] * eye for x in per_joint)], axis=2).reshape(T * n, -1)
+    tau = rec.tau.reshape(-1)
+    theta = np.linalg.lstsq(Y, tau, rcond=None)[0]
+    wall = time.perf_counter() - t0
+    return {"s": wall, "rows": T, "rel_error": float(np.linalg.norm(tau - Y @ theta) / np.linalg.norm(tau))}
 
 
 def accuracy(f, truth: dict, columns=None) -> dict:
@@ -264,4 +391,26 @@ def render(r: dict) -> str:
             if "fit_s" in f
             else []
         )
+        + [line for a in r.get("arms", []) for line in _arm_lines(a)]
     )
+
+
+def _arm_lines(a: dict) -> list[str]:
+    b = a["baseline"]
+    lines = [
+        f"the {a['robot']} ({a['joints']} joints) simulated {a['seconds']:g} s at {a['rate_hz']:g} Hz; each command "
+        "in a new process (compilation included):"
+    ]
+    for c in COMMANDS:
+        if c in a:
+            x = a[c]
+            extra = f", verdict {x['verdict']}" if c == "diagnose" else ""
+            lines.append(
+                f"  manus {c} --model {COMMAND_MODEL[c]}: {x['s']:.1f} s (ends at {x['model']}, rel_error "
+                f"{100 * x['rel_error']:.3g} %{extra})"
+            )
+    lines.append(
+        f"  baseline in this process, pinocchio's regressor at the {b['rows']} samples + numpy lstsq: {b['s']:.2f} s "
+        f"(rel_error {100 * b['rel_error']:.3g} %)"
+    )
+    return lines
