@@ -206,3 +206,22 @@ def test_without_the_solver_the_estimate_stands_said_in_one_line(dfki, monkeypat
     line = f.report()["consistency"]["error"]
     assert "\n" not in line and "manus[consistency]" in line and "estimate kept" in line
     assert any(v.startswith("b2 = ") for v in f.violations())
+
+
+def test_other_structures_keep_their_estimate_and_list_what_it_breaks():
+    """MANUS-2 (not a chain): no consistent stage, the estimate is the fit; `violations` names an
+    H(q) that is not positive definite and each friction coefficient below its bound."""
+    from tests.adaptive import hidden
+
+    f = fit(hidden.recording(()), MODEL, method="ls")
+    assert f.consistency is None and "consistency" not in f.report() and not f.violations()
+    theta = f.theta.copy()
+    theta[f.names.index("a1")] = -abs(theta[f.names.index("a1")])  # H(q) indefinite
+    theta[f.names.index("b2")] = -1.0
+    theta[f.names.index("Fc1")] = -1.0
+    bad = dataclasses.replace(f, theta=theta)
+    assert physical(bad) is bad
+    out = bad.violations()
+    print("\n".join(out))
+    assert any("not positive definite" in v for v in out)
+    assert any(v.startswith("b2 = ") for v in out) and any(v.startswith("Fc1 = ") for v in out)
