@@ -22,6 +22,7 @@ and the diagnosis (what a missing effect leaves in a residual).
 | delay | the commanded torque arrives d seconds late (one d, or one per joint) | | d [s] |
 | compliance | a shaft spring between motor and link | | f [Hz], ζ, motor fraction |
 | spring | k_i q_i (its preload is `offset`'s constant) | k_i | |
+| coupling | c (bc v + Fcc sgn v + Jc c·q̈), v = c·q̇, c = e_I ± e_J (two joints together) | bc, Fcc, Jc | I, J, ± |
 
 No effect's columns lie in the span of another's. `asymmetry` is the viscous coefficient that
 differs by direction (b⁺ = b + db, b⁻ = b − db); a Coulomb level that differs by direction is
@@ -802,7 +803,7 @@ def is_load(e: Effect) -> bool:
 
 ORDER = tuple(
     VOCABULARY
-)  # rigid, viscous, coulomb, stribeck, asymmetry, offset, gravity, spring, cogging, delay, compliance
+)  # rigid, viscous, coulomb, stribeck, asymmetry, offset, gravity, spring, cogging, delay, compliance, coupling
 
 
 def parse_effect(text: str) -> Effect:
