@@ -894,16 +894,19 @@ class Model(eqx.Module):
         (e.g. `is_dry`, `is_load`) and acting on `side` ("motor" or "link") when given. Where the
         structure has a transmission θ = N q (`manus.plants.transmission`), the motor-side effects
         act on the actuators: evaluated at (N q, N q̇, N q̈), their torque reaches the joints as Nᵀ τ."""
-        s = self.structure
-        N = s.transmission
-        total = jnp.zeros(s.n_joints, jnp.result_type(qd, float))
+        total = jnp.zeros(self.structure.n_joints, jnp.result_type(qd, float))
         for e in self.effects:
             if e.linear and (only is None or only(e)) and (side is None or e.side == side):
-                if N is not None and e.side == "motor" and not e.on_joints:
-                    total = total + N.acting(e.torque, s, q, qd, qdd, params, boundary)
-                else:
-                    total = total + e.torque(s, q, qd, qdd, params, boundary)
+                total = total + self.effect_torque(e, q, qd, qdd, params, boundary)
         return total
+
+    def effect_torque(self, e: Effect, q, qd, qdd, params: dict, boundary: float = 0.0) -> Array:
+        """The torque of the effect `e` on the joints, (n,): a motor-side effect's on the actuators
+        θ = N q where the structure has a transmission (`manus.plants.transmission`), mapped by Nᵀ."""
+        s, N = self.structure, self.structure.transmission
+        if N is not None and e.side == "motor" and not e.on_joints:
+            return N.acting(e.torque, s, q, qd, qdd, params, boundary)
+        return e.torque(s, q, qd, qdd, params, boundary)
 
     def regressor(self, q, qd, qdd, boundary: float = 0.0) -> Array:
         """Y(q, q̇, q̈) with torque = Y θ, shape (n, P): ∂torque/∂θ, exact for linear effects."""

@@ -7,7 +7,8 @@ A candidate is *significant* when its combined p (the score test of its columns 
 errors, `manus.adaptive.diagnosis.significance`) is under the step's level, it predicts the
 held-out blocks better than the model without it, and it is relevant: it explains at least
 `min_share` of the recorded torque (RMS: √(e_before² − e_after²) in rel_error units), or removes
-at least `MOST` of the current error. It is *proposable* when it is also physical: its fitted
+at least `MOST` of the current error (or, judged after every candidate by `verdict`, it is relevant
+on a joint relative to what is left there). It is *proposable* when it is also physical: its fitted
 parameters obey its effect's rules, its searched value does not sit on the edge of its search
 range, and the recording can identify it (columns not already explained by the model's own).
 Otherwise it is reported with the reason (`problems`), not proposed.
