@@ -3,7 +3,9 @@ simulator's) diagnosed and its verdict set against what was hidden — `quiet` o
 with nothing hidden; `named`, a `reading` (a verdict that names the hidden effect among the
 effects the recording hardly tells apart), `missed` or `wrong` with something hidden; an `error`
 (a one-line refusal) or a `crash` — and the rates over a set, with Wilson intervals, overall,
-per effect and per condition (`summarize`)."""
+per effect and per condition (`summarize`). With `baseline`, each recording is diagnosed a
+second time with relevance over all the torque only (`diagnose(..., per_joint=False)`), and its
+outcome kept beside (`before`): the two rules compared on the same recordings."""
 
 from __future__ import annotations
 
@@ -46,6 +48,7 @@ def judge(
     amplitude: float | None = None,
     lost: float = 0.0,
     simulator: str = "manus",
+    baseline: bool = False,
 ) -> dict:
     """Simulate one calibration recording and diagnose it; never raises (a ManusError is an
     `error`, anything else a `crash`, both reported). `lost`: the fraction of its samples lost
@@ -62,6 +65,10 @@ def judge(
             from manus.experiments import independent
 
             c = independent.case(seed, hidden, rates or independent.RATES, amplitude or calibration.AMPLITUDE)
+        elif simulator == "chain":
+            from manus.experiments import chains
+
+            c = chains.case(seed, hidden, rates or chains.RATES, amplitude or chains.AMPLITUDE)
         else:
             c = calibration.case(seed, hidden, rates or calibration.RATES, amplitude or calibration.AMPLITUDE)
     except Exception as e:  # the simulator: a bug of the bench, reported as a crash
@@ -106,19 +113,27 @@ def judge(
     own = next((x for x in d.candidates if x.effect == hidden), None) if hidden else None
     if own is not None and own.detail.get("detectable") is not None:
         out["detectable"] = own.detail["detectable"]
-    if hidden is None:
-        out["outcome"] = "quiet" if v is None else "false alarm"
-    else:
-        named = v is not None and v.effect == hidden
-        out["named"] = bool(named)
-        # the verdict says the recording hardly tells it from the hidden effect (a tilted plane,
-        # a spring with its preload and an offset on a small swing) and names that reading too
-        out["reading"] = bool(not named and v is not None and any(hidden in _effects(x) for x in v.readings))
-        out["right_joint"] = bool(
-            v is not None and (named or out["reading"]) and (c.joint is None or v.joint == c.joint)
-        )
-        out["outcome"] = "named" if named else ("reading" if out["reading"] else "missed" if v is None else "wrong")
+    out.update(_outcome(v, hidden, c.joint))
+    if baseline:
+        try:
+            b = diagnose(rec, c.start, per_joint=False, **options).verdict
+            out["before"] = {"verdict_spec": None if b is None else b.spec, **_outcome(b, hidden, c.joint)}
+        except ManusError as e:
+            out["before"] = {"outcome": "error", "error": str(e)}
     return out
+
+
+def _outcome(v, hidden: str | None, joint: int | None) -> dict:
+    """How a verdict `v` (a Candidate or None) stands against what was hidden."""
+    if hidden is None:
+        return {"outcome": "quiet" if v is None else "false alarm"}
+    named = v is not None and v.effect == hidden
+    # the verdict says the recording hardly tells it from the hidden effect (a tilted plane,
+    # a spring with its preload and an offset on a small swing) and names that reading too
+    reading = bool(not named and v is not None and any(hidden in _effects(x) for x in v.readings))
+    right = bool(v is not None and (named or reading) and (joint is None or v.joint == joint))
+    outcome = "named" if named else ("reading" if reading else "missed" if v is None else "wrong")
+    return {"named": bool(named), "reading": reading, "right_joint": right, "outcome": outcome}
 
 
 def _effects(spec: str) -> set[str]:
@@ -164,7 +179,19 @@ def summarize(results: list[dict]) -> dict:
     times = [r["diagnose_s"] for r in results if "diagnose_s" in r]
     sims = [r["simulate_s"] for r in results if "simulate_s" in r]
     missed = [r for r in hidden if r["outcome"] == "missed"]
+    compared = [r for r in results if "before" in r]
+    before = [{**r, **r["before"]} for r in compared]
     return {
+        "before": {  # the same recordings judged with relevance over all the torque only
+            "false_alarm": alarms([r for r in before if r["hidden"] is None]),
+            "detection": detections([r for r in before if r["hidden"] is not None]),
+            "per_effect": {
+                name: detections([r for r in before if r["hidden"] == name])
+                for name in dict.fromkeys(r["hidden"] for r in before if r["hidden"] is not None)
+            },
+        }
+        if compared
+        else None,
         "false_alarm": alarms(nulls),
         "false_alarm_verdicts": _counts(r.get("verdict") for r in nulls if r["outcome"] == "false alarm"),
         # "something is left that no effect explains": said on a recording with nothing missing

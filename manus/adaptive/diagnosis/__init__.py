@@ -37,7 +37,11 @@ contiguous blocks of the recording, honestly:
 - relevance: a candidate must explain at least `min_share` of the recorded torque (RMS: the
   torque it accounts for, √(e_before² − e_after²) in rel_error units), or remove at least half of
   the current error. A share of the torque, not only of the current error: on a noisy recording
-  the error is mostly noise, and a real effect removes a small part of it.
+  the error is mostly noise, and a real effect removes a small part of it. Or, per joint, relative
+  to what is left there (`significance.on_joints`): significant on that joint's held-out errors
+  alone, and `min_share` of that joint's torque, or a quarter of its remaining error (at least a
+  tenth of a percent of its torque): on a seven-joint chain the shoulder's torque hides a wrist's
+  effect, and on a model right to half a percent a real hump is a small share of the torque.
 
 A candidate is proposed only when it is also physical: its fitted parameters obey its effect's
 rules (friction b, Fc ≥ 0, Fs ≥ Fc, a spring k ≥ 0), its searched value does not sit on the edge

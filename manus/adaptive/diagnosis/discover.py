@@ -4,11 +4,15 @@ Starting from a model, each step diagnoses the current fit (`manus.adaptive.diag
 verdict's effect with its non-linear parameter as found (its spec, e.g. `cogging:39` or
 `delay:1ms`) and refits, the searched parameters the loop found searched again with the new
 effect in the model (`_refine`: a cogging order chosen while a smooth load was missing can be
-off by a few; the values a user gave stay as written). The loop stops
-when the verdict is null (nothing significant is missing), after `max_steps` additions, or when
-the verdict is `compliance`: a structural mode lives above the identification band and has no
-inverse-dynamics columns, so it is recorded as a step (with the frequency response's f and ζ) but
-cannot be refitted, and the loop ends there.
+off by a few; the values a user gave stay as written). A step must change the error: on the
+diagnosis's own held-out blocks, the refitted model must remove a relevant share of the error, as
+a candidate must (`kept`: `min_share` of the torque, half of the error, or on a joint a relevant
+share of what is left there). A step that does not is undone, said in the notes, and the next
+significant candidate of the same diagnosis is tried (by held-out error). The loop stops when no
+significant candidate is left (the verdict is null), when none of them changes the error, after
+`max_steps` additions, or when only a structural mode is left: it lives above the identification
+band and has no inverse-dynamics columns, so it is recorded as a step (with the frequency
+response's f and ζ) but cannot be refitted, and the loop ends there.
 
 The recording is prepared once (`manus.adaptive.identify.prepare`): every step sees the same
 rows, so the errors of successive steps are comparable.
@@ -19,7 +23,10 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from manus.adaptive.diagnosis.candidates import Candidate
+import numpy as np
+
+from manus.adaptive.diagnosis.candidates import MOST, Candidate
+from manus.adaptive.diagnosis.significance import held_out_per_joint, on_joints
 from manus.adaptive.diagnosis.verdict import Diagnosis, diagnose
 from manus.adaptive.identify.columns import Columns
 from manus.adaptive.identify.fit import fit, model_from
@@ -34,7 +41,8 @@ MAX_STEPS = 6
 @dataclass
 class Step:
     """One addition: the effect, its fitted parameters, the error after, and the diagnosis that
-    proposed it (whose `base` is the fit before the addition)."""
+    proposed it (whose `base` is the fit before the addition; its verdict, or the next significant
+    candidate where the verdict changed nothing and was undone)."""
 
     index: int  # 1-based
     effect: str
@@ -46,12 +54,13 @@ class Step:
     diagnosis: Diagnosis
     fit: Fit | None  # the refit (None for compliance)
     note: str = ""
+    added: Candidate | None = None  # the candidate added, where it is not the diagnosis's verdict (that one was undone)
 
     @property
     def verdict(self) -> Candidate:
         """The candidate the step added."""
-        v = self.diagnosis.verdict
-        assert v is not None, "a step adds its diagnosis's verdict"
+        v = self.added or self.diagnosis.verdict
+        assert v is not None, "a step adds a candidate of its diagnosis"
         return v
 
     def report(self) -> dict:
@@ -80,7 +89,9 @@ class Discovery:
     start: Fit  # the starting model, fitted
     steps: list[Step]
     final: Diagnosis | None  # the last diagnosis (its verdict null unless the loop was capped)
-    stopped: str  # "nothing significant missing" | "step cap" | "compliance (not refitted)"
+    # "nothing significant missing" | "nothing significant changes the error" | "step cap"
+    # | "compliance (not refitted)" | "every effect in the model"
+    stopped: str
     notes: list[str] = field(default_factory=list)
 
     @property
@@ -162,6 +173,39 @@ def _refine(data: Data, cols: Columns, current: Fit, given: set[str], method: st
     return again, ", ".join(f"{a.spec} -> {b.spec}" for a, b in changed)
 
 
+def to_try(d: Diagnosis) -> list[Candidate]:
+    """The candidates a step may add, in the order it tries them: the verdict, then the other
+    proposable candidates by held-out error, a structural mode (which removes nothing from the
+    torque error) last."""
+    if d.verdict is None:
+        return []
+    rest = [c for c in d.candidates if c.proposable and c is not d.verdict and c.effect not in d.verdict.aliases]
+    rest.sort(key=lambda c: (c.mode is not None, float(np.sum(c.cv_sse))))
+    return [d.verdict, *rest]
+
+
+def kept(d: Diagnosis, before: Fit, after: Fit) -> tuple[bool, str]:
+    """Whether the step from `before` to `after` changes the error, on the held-out blocks of the
+    diagnosis `d` that proposed it, as a candidate must to count: it removes `min_share` of the
+    torque (RMS), `MOST` of the error, or on a joint a relevant share of what is left there
+    (`OnJoint.relevant` at the diagnosis's level); and what it changed (a phrase)."""
+    ctx = d.context
+    assert ctx is not None, "a diagnosis keeps the context it judged in"
+    b = held_out_per_joint(ctx.stats(before.model, before.delay), ctx.folds)
+    a = held_out_per_joint(ctx.stats(after.model, after.delay), ctx.folds)
+    torque = np.sum(ctx.data.tau(before.delay) ** 2, axis=0)
+    sb, sa, yy = float(b.sum()), float(a.sum()), float(torque.sum()) or 1.0
+    share = float(np.sqrt(max(sb - sa, 0.0) / yy))
+    removed = 1 - float(np.sqrt(sa / sb)) if sb > 0 else 0.0
+    said = f"held-out error {100 * np.sqrt(sb / yy):.3g} % -> {100 * np.sqrt(sa / yy):.3g} %"
+    if sa < sb and (share >= ctx.min_share or removed >= MOST):
+        return True, said
+    there = [j for j in on_joints(b, a, torque) if j.relevant(d.alpha, ctx.min_share)]
+    if sa < sb and there:
+        return True, f"{said}; {max(there, key=lambda j: j.left).says()}"
+    return False, said
+
+
 def discover(
     rec: Recording | Data,
     model: str,
@@ -200,9 +244,25 @@ def discover(
             say(f"step cap ({max_steps}) reached; the next verdict would be {d.verdict.spec}")
             notes.append(f"stopped at the step cap ({max_steps}); the next verdict was {d.verdict.spec}")
             return Discovery(start, steps, d, "step cap", notes)
-        v = d.verdict
         before = current.rel_error
-        if v.mode is not None:  # a structural mode: measured in its own band, no columns
+        tried = None
+        for v in to_try(d):
+            if v.mode is not None:
+                break
+            trial = fit(data, v.fitted().model.spec, columns=cols, method=method)  # its effect as found
+            trial, moved = _refine(data, cols, trial, given, method)
+            keep, said = kept(d, current, trial)
+            if keep:
+                tried = (v, trial, moved)
+                break
+            notes.append(
+                f"step {len(steps) + 1}: {v.spec} undone, it does not change the error ({said}); "
+                "the next significant candidate is tried"
+            )
+            say(f"step {len(steps) + 1}: + {v.spec} changes nothing ({said}): undone")
+        else:
+            return Discovery(start, steps, d, "nothing significant changes the error", notes)
+        if tried is None:  # a structural mode: measured in its own band, no columns
             params = dict(v.detail)
             steps.append(
                 Step(
@@ -217,13 +277,12 @@ def discover(
                     None,
                     "a structural mode found in the frequency response above the identification band; "
                     "it has no inverse-dynamics columns, so the torque error is unchanged",
+                    v,
                 )
             )
             say(f"step {len(steps)}: + {v.spec} (frequency response; not refitted)")
             return Discovery(start, steps, None, "compliance (not refitted)", notes)
-        spec = v.fitted().model.spec  # the model with the verdict's effect as found (its search fixed)
-        current = fit(data, spec, columns=cols, method=method)
-        current, moved = _refine(data, cols, current, given, method)
+        v, current, moved = tried
         spec = current.model.spec
         steps.append(
             Step(
@@ -237,6 +296,7 @@ def discover(
                 d,
                 current,
                 f"searched again with {v.effect} in the model: {moved}" if moved else "",
+                v,
             )
         )
         say(f"step {len(steps)}: + {v.spec}, rel_error {100 * before:.2f} % -> {100 * current.rel_error:.2f} %")

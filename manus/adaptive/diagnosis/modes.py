@@ -17,7 +17,9 @@ Only physical modes count: damped at most as friction on a light motor damps the
 `Mode.edge`), and a resonance the measured response really shows — a
 peak of |θ̈/τ| at f at least `PEAK` times its level on the falling flank (1.3–1.6 f, inside
 the band, at least one bin of it; so at 1 kHz modes up to ~300 Hz are resolved, at 200 Hz up
-to ~60 Hz). Closed-loop data can otherwise dress the controller's response to encoder noise
+to ~60 Hz), and only where the sample rate can show it (`Mode.unresolved`: at most 0.6 of the
+Nyquist frequency, above the identification band's cut-off, at least 8 bins of the frequency
+response below it). Closed-loop data can otherwise dress the controller's response to encoder noise
 (|θ̈/τ| rising steadily with frequency) up as a "mode" near the top of the band. The misfit is
 the coherence-weighted relative error of Z over the band, and the error reduction the fraction
 of the rigid model's misfit the mode removes. Both models carry a white floor S_nn ≥ 0 on the
@@ -80,6 +82,13 @@ SHARE = (0.02, 0.9)  # a plausible motor share of the inertia; outside it the "m
 # response rises gently at the top of its coherent band land at r = 0.895-0.899; the modes hidden in
 # the calibration set fit at 0.04-0.18).
 EDGE = 0.02
+# Where the sample rate can show a mode (`Mode.unresolved`): well below Nyquist (the sampling
+# correction divides by a response that falls to nothing there, and the calibration's modes lie at
+# 15–30 % of the rate), above the identification band (inside it the rigid model and friction own
+# the response), and with this many bins of the frequency response below it (its peak and flank
+# tests need a few bins each: at 100 Hz a 30 s log's 1.6 Hz bins see a 22.9 Hz mode in 14).
+NYQUIST_SHARE = 0.6  # of fs/2, at most
+MIN_BINS = 8
 
 
 @dataclass
@@ -111,6 +120,28 @@ class Mode:
             f"its motor share {self.motor_fraction:.3g} lies on the edge of its search range ({lo:g} to "
             f"{hi:g}): the response asks for a share of the inertia no motor and link have"
         )
+
+    def unresolved(self, fs: float, cutoff_hz: float) -> str:
+        """Why the sample rate cannot show this mode (a sentence), else '': too near Nyquist,
+        inside the identification band (cut-off `cutoff_hz`) or on too coarse a frequency grid."""
+        f = self.f_hz
+        df = float(self.freq[1] - self.freq[0]) if self.freq.size > 1 else np.inf
+        if f > NYQUIST_SHARE * fs / 2:
+            return (
+                f"at {f:.3g} Hz it lies too near the Nyquist frequency ({fs / 2:.3g} Hz) for {fs:.3g} Hz samples "
+                f"to show it (at most {NYQUIST_SHARE * fs / 2:.3g} Hz)"
+            )
+        if f <= cutoff_hz:
+            return (
+                f"at {f:.3g} Hz it lies inside the identification band (cut-off {cutoff_hz:.3g} Hz), where the "
+                "rigid model and friction own the response"
+            )
+        if f < MIN_BINS * df:
+            return (
+                f"the frequency response's {df:.3g} Hz bins resolve it too coarsely (at least {MIN_BINS} bins "
+                "below it are needed: record longer)"
+            )
+        return ""
 
     def effect(self) -> Compliance:
         return Compliance(f_hz=self.f_hz, zeta=self.zeta)

@@ -1,9 +1,13 @@
 """How a candidate's significance is judged over contiguous blocks of the recording: its
 held-out errors (`held_out`, the per-block log ratio t-tested: `one_sided_p`), the score test's
-clusters (`score_blocks`), and one p from both tests (`combined`, Simes' rule).
+clusters (`score_blocks`), and one p from both tests (`combined`, Simes' rule); per joint, what a
+candidate removes from the error left there (`held_out_per_joint`, `on_joints`: relevance
+relative to what is left).
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import stats
@@ -65,3 +69,63 @@ def score_blocks(folds, data: Data, resid: np.ndarray) -> np.ndarray:
     if g == G:
         return blocks
     return np.array([blocks[i].any(0) for i in np.array_split(np.arange(G), g)])
+
+
+def held_out_per_joint(st: Stats, folds) -> np.ndarray:
+    """Per block and joint, the squared error of the fit on the other blocks (blocks, n): `held_out`
+    split by joint (`st` built by `Stats.of`, which keeps its rows)."""
+    assert st.X is not None and st.tau is not None, "per-joint errors need the statistics' rows"
+    train, test = (np.array(m) for m in zip(*folds, strict=True))
+    C = st.coefs(train)
+    seg = np.searchsorted(st.starts, np.arange(st.tau.shape[0]), side="right") - 1
+    out = np.zeros((len(folds), st.tau.shape[1]))
+    for k in range(len(folds)):
+        rows = test[k][seg]
+        r = st.tau[rows] - st.X[rows] @ C[k]
+        out[k] = np.sum(r * r, axis=0)
+    return out
+
+
+# Relevance on one joint, relative to what is left there (`on_joints`): a model that is right to a
+# few tenths of a percent leaves a quantizer's or a filter's pattern that a tenth of can be fitted
+# significantly, so the share must be large; a share of the joint's own torque as small as this
+# is no physical effect on any recording the calibration holds.
+LEFT = 0.25  # of the joint's remaining error, held out
+FLOOR = 0.001  # of the joint's recorded torque (RMS), at least
+
+
+@dataclass(frozen=True)
+class OnJoint:
+    """What a candidate (or a step) removes from one joint's error, held out."""
+
+    joint: int  # 0-based
+    left: float  # the share of the joint's remaining error it removes
+    share: float  # the share of the joint's recorded torque (RMS) it accounts for
+    p_value: float  # its per-block log ratio t-tested on this joint alone (`one_sided_p`)
+
+    def relevant(self, level: float, min_share: float) -> bool:
+        """Significant on this joint at `level`, and either `min_share` of its torque or, where the
+        model already explains nearly all of it, `LEFT` of what is left (at least `FLOOR` of it)."""
+        big = self.share >= min_share or (self.left >= LEFT and self.share >= FLOOR)
+        return bool(self.p_value < level and big)
+
+    def says(self) -> str:
+        """One phrase: what it removes on this joint."""
+        return (
+            f"on joint {self.joint + 1} it removes {100 * self.left:.0f} % of what is left held out "
+            f"({100 * self.share:.2g} % of that joint's torque, p {self.p_value:.2g})"
+        )
+
+
+def on_joints(before: np.ndarray, after: np.ndarray, torque: np.ndarray) -> list[OnJoint]:
+    """Per joint, from the held-out errors before and after (blocks, n) and the joints' recorded
+    torque Σ τ² (n,): what the change removes there (joints without error or torque left out)."""
+    out = []
+    for j in range(before.shape[1]):
+        b, a = float(before[:, j].sum()), float(after[:, j].sum())
+        if not (b > 0 and torque[j] > 0):
+            continue
+        left = 1 - float(np.sqrt(a / b))
+        share = float(np.sqrt(max(b - a, 0.0) / torque[j]))
+        out.append(OnJoint(j, left, share, one_sided_p(before[:, j], after[:, j])))
+    return out

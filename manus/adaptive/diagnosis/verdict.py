@@ -1,7 +1,17 @@
 """The verdict of a diagnosis step (`diagnose`): which missing effect the recording shows.
 
+A candidate is relevant where it explains `min_share` of the recorded torque, or, on a joint it
+acts on, a share of what is left there (`significance.on_joints`): significant on that joint
+alone, and `min_share` of that joint's torque or `LEFT` of its remaining error held out (an effect
+of a few percent of one wrist joint's torque on a seven-joint chain, or a Stribeck hump on a model
+already right to half a percent).
+
 The verdict is the significant, proposable candidate with the lowest held-out error; a simpler
-one (fewer parameters, searched ones counted) within one standard error of it is preferred.
+one (fewer parameters, searched ones counted) within one standard error of it is preferred. A
+structural mode is ranked as every candidate is, by what it removes from the torque error: it
+has no inverse-dynamics columns and lives above the identification band, so it removes nothing
+there, and it is proposed only once no other significant candidate is left, and only where the
+sample rate can show it (`modes.Mode.unresolved`).
 Where two candidates are readings of the same columns on this recording (motion in one
 direction: a Coulomb level and an offset are one constant), the verdict names both readings and
 proposes the one with fewer physical assumptions once. The verdict must then encompass its
@@ -23,7 +33,15 @@ from manus.adaptive.diagnosis.candidates import Candidate, compliance, judge, of
 from manus.adaptive.diagnosis.context import Context
 from manus.adaptive.diagnosis.leftover import residual_structure
 from manus.adaptive.diagnosis.scores import block_scores, score_p
-from manus.adaptive.diagnosis.significance import SIGNIFICANCE, combined, held_out, one_sided_p, score_blocks
+from manus.adaptive.diagnosis.significance import (
+    SIGNIFICANCE,
+    combined,
+    held_out,
+    held_out_per_joint,
+    on_joints,
+    one_sided_p,
+    score_blocks,
+)
 from manus.adaptive.identify import lsq
 from manus.adaptive.identify.columns import Columns
 from manus.adaptive.identify.fit import fit
@@ -56,6 +74,7 @@ class Diagnosis:
     notes: list[str] = field(default_factory=list)
     unexplained: dict = field(default_factory=dict)
     alpha: float = ALPHA
+    context: Context | None = None  # what the step judged in (its blocks: a loop measures its steps on them)
 
     def report(self) -> dict:
         """The JSON contract of `manus diagnose` (docs/cli.md)."""
@@ -114,12 +133,14 @@ def diagnose(
     columns: Columns | None = None,
     method: str = "auto",
     fitted: Fit | None = None,
+    per_joint: bool = True,
 ) -> Diagnosis:
     """Fit `model` to the recording, then try every effect it lacks (`manus.adaptive.diagnosis`).
     A loop over one prepared recording can pass its `columns` (a `Columns` of the same data) so
     that each effect's columns are computed once for every step, and the model's fit on that
     data when it has it (`fitted`). Each candidate is judged at `alpha` over the number of
-    candidates of the step (Bonferroni)."""
+    candidates of the step (Bonferroni). `per_joint=False` judges relevance over all the torque
+    only (a candidate must explain `min_share` of it, or half of the error), as a comparison."""
     structure = (rec.rec if isinstance(rec, Data) else rec).structure
     parsed = Model(structure, model) if isinstance(model, str) else model  # checked before any work
     if not [n for n in ORDER if not parsed.has(n)]:
@@ -158,19 +179,59 @@ def diagnose(
             if isinstance(c, str):
                 notes.append(f"compliance: the recording cannot show a structural mode: {c}")
             else:
+                assert c.mode is not None, "a mode candidate carries its mode"
+                why = c.mode.unresolved(1 / data.dt, data.cutoff_hz)
+                if why:
+                    c.problems.append(why)
                 cands.append(c)
             continue
         cands.append(judge(ctx, offer))
-    cands.sort(key=lambda c: -c.cv_error_reduction)
+    if per_joint:
+        _relevant_on_joints(ctx, base_st, cands)
+    cands.sort(key=lambda c: -_torque_gain(c))
     _aliases(ctx, cands)
-    verdict = _choose(cands, ctx.alpha, data.cutoff_hz)
+    verdict = _choose(cands, ctx.alpha)
     if verdict is not None:
         verdict = _encompassing(ctx, verdict, cands)
         _mark_overlaps(ctx, verdict, cands)
-        cands.sort(key=lambda c: (c is not verdict, c.overlaps is not None, -c.cv_error_reduction))
+        cands.sort(key=lambda c: (c is not verdict, c.overlaps is not None, -_torque_gain(c)))
     after = verdict.fit if verdict is not None and verdict.fit is not None else base
     unexplained = residual_structure(ctx, after, alpha)
-    return Diagnosis(base, cands, verdict, base_sse, notes, unexplained, alpha)
+    return Diagnosis(base, cands, verdict, base_sse, notes, unexplained, alpha, ctx)
+
+
+def _torque_gain(c: Candidate) -> float:
+    """What a candidate removes from the torque error held out (a mode, without inverse-dynamics
+    columns and above the identification band: nothing)."""
+    return 0.0 if c.mode is not None else c.cv_error_reduction
+
+
+def _relevant_on_joints(ctx: Context, base_st: lsq.Stats, cands: list[Candidate]) -> None:
+    """Candidates significant and predicting the held-out blocks better, but under `min_share`
+    of all the torque: relevant still where, on a joint, they remove a large share of what is
+    left there (`significance.on_joints`, `OnJoint.relevant`, judged at the candidate's level)."""
+    pending = [
+        c
+        for c in cands
+        if c.fit is not None and not c.significant and c.p_value < ctx.alpha and c.cv_error_reduction > 0
+    ]
+    if not pending:
+        return
+    before = held_out_per_joint(base_st, ctx.folds)
+    assert base_st.tau is not None, "the base statistics keep their rows"
+    torque = np.sum(base_st.tau**2, axis=0)
+    for c in pending:
+        f = c.fitted()
+        after = held_out_per_joint(ctx.stats(f.model, f.delay), ctx.folds)
+        there = [j for j in on_joints(before, after, torque) if j.relevant(ctx.alpha, ctx.min_share)]
+        if not there:
+            continue
+        best = max(there, key=lambda j: j.left)
+        c.significant = True
+        c.note = ((c.note + "; ") if c.note else "") + (
+            f"relevant relative to what is left: {best.says()}, while over all the torque it accounts for "
+            f"{100 * c.detail.get('explains', 0.0):.2g} %"
+        )
 
 
 def _bounded(c: Candidate, s) -> int:
@@ -196,34 +257,23 @@ def _aliases(ctx: Context, cands: list[Candidate]) -> None:
                 b.aliases.append(a.effect)
 
 
-def _choose(cands: list[Candidate], alpha: float, cutoff_hz: float = np.inf) -> Candidate | None:
+def _choose(cands: list[Candidate], alpha: float) -> Candidate | None:
     """Best held-out error among the proposable; a simpler one within one standard error wins;
     a candidate that brings another (a spring its offset) must beat that one alone; of readings
     the recording cannot tell apart, the one with fewer physical assumptions, once. A structural
-    mode, measured in its own band, comes first when it is proposable: a resonance peak in the
-    measured frequency response is evidence no other effect leaves (in the calibration, seeds 0
-    and 5, no mode was proposed on any of the 840 recordings without one), while the mode leaves
-    residuals that other candidates fit under their names (its ringing, inside the
-    identification band; the shaft's deflection, which the encoder on the motor sees; a delay
-    mimics its phase lag)."""
+    mode is ranked by what it removes from the torque error, as every candidate is: nothing (no
+    inverse-dynamics columns, above the identification band), so it is proposed only where no
+    other candidate is proposable."""
     ok = [c for c in cands if c.proposable and c.mode is None]
     modes_ = [c for c in cands if c.proposable and c.mode is not None]
-    if modes_:
-        mode = modes_[0]
+    for mode in modes_:
         if ok:
-            f_hz = mode.mode.f_hz if mode.mode is not None else np.inf
-            where = (
-                f"it rings at {f_hz:.3g} Hz, inside the identification band (cut-off {cutoff_hz:.3g} Hz)"
-                if f_hz < cutoff_hz
-                else "its resonance peak is evidence no other effect leaves"
+            mode.note = ((mode.note + "; ") if mode.note else "") + (
+                "it removes nothing from the torque error in the identification band (no inverse-dynamics "
+                f"columns): {', '.join(c.spec for c in ok)} come first"
             )
-            mode.note = (
-                f"{where}: the other significant candidates ({', '.join(c.spec for c in ok)}) may be fitted "
-                "to what the mode leaves in the residual; the mode is proposed first"
-            )
-        return mode
     if not ok:
-        return None
+        return modes_[0] if modes_ else None
     best = min(ok, key=lambda c: c.cv_sse.sum())
     for c in sorted(ok, key=lambda c: (c.n_params, c.cv_sse.sum())):
         diff = c.cv_sse - best.cv_sse

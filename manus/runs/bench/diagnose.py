@@ -92,11 +92,13 @@ def add_arguments(p) -> None:
     )
     p.add_argument(
         "--simulator",
-        choices=("manus", "independent"),
+        choices=("manus", "independent", "chain"),
         default="manus",
         help="with --calibrate: the recordings' simulator: manus's own, or the one written independently "
         "from the equations (regularized friction, RK4, a PD loop, read back from CSV files; "
-        "manus.experiments.independent)",
+        "manus.experiments.independent), or 6-7-joint chains (the Panda and the UR5, an effect hidden on "
+        "one joint; each recording also judged with relevance over all the torque only: "
+        "manus.experiments.chains)",
     )
     p.add_argument(
         "--rates",
@@ -257,7 +259,7 @@ def run_one(
     configure_jax()
     from manus.experiments.judging import judge
 
-    return judge(seed, hidden, alpha, blocks, rates, amplitude, lost, simulator)
+    return judge(seed, hidden, alpha, blocks, rates, amplitude, lost, simulator, baseline=simulator == "chain")
 
 
 def calibrate(args) -> dict:
@@ -273,7 +275,11 @@ def calibrate(args) -> dict:
     simulator = args.simulator
     if simulator == "independent":
         from manus.experiments import independent
-    vocabulary = independent.EFFECTS if simulator == "independent" else calibration.hidden_effects()
+    from manus.experiments import chains
+
+    vocabulary = {"independent": lambda: independent.EFFECTS, "chain": lambda: chains.HIDDEN}.get(
+        simulator, calibration.hidden_effects
+    )()
     effects = vocabulary
     if args.effects.strip().lower() == "none":  # the null recordings only: the false-alarm rate
         effects = ()
@@ -285,7 +291,9 @@ def calibrate(args) -> dict:
                 f"--effects: unknown effect(s) {', '.join(bad)}: the {simulator} simulator hides {', '.join(effects)}"
             )
         effects = tuple(chosen)
-    rates = independent.RATES if simulator == "independent" else calibration.RATES
+    rates = {"independent": lambda: independent.RATES, "chain": lambda: chains.RATES}.get(
+        simulator, lambda: calibration.RATES
+    )()
     if args.rates:
         try:
             rates = calibration.check_rates([float(r) for r in args.rates.split(",") if r.strip()])
@@ -433,6 +441,15 @@ def render_calibration(r: dict) -> str:
                 f"{_pct(s['detection_by_limit']['below']['named'])}"
             ]
             if "detection_by_limit" in s
+            else []
+        ),
+        *(
+            [
+                f"  with relevance over all the torque only (the same recordings): false alarms "
+                f"{_pct(s['before']['false_alarm'])}; detection {_pct(s['before']['detection']['named'])}; "
+                f"on the right joint {_pct(s['before']['detection']['right_joint'])}"
+            ]
+            if s.get("before")
             else []
         ),
         f"  'something left' on nothing missing:      {_pct(s['unexplained_on_null'])}",
