@@ -24,7 +24,9 @@ way by what the late command changes, τ(t) − τ(t − d) (`sizing.delay_chang
 (RMS, all joints), but at least 1 ms (the thesis's amplifier; open-loop steps change more than that
 with it) and at most `sizing.DELAY_MAX`; `compliance` is a lightly damped shaft mode at 15–30 % of the
 sample rate (inside the band the recording resolves), drawn only under the open-loop steps,
-which ring it. Hidden `rigid`, `viscous` or `coulomb` replace the nominal term (start without it).
+which ring it. Hidden `rigid`, `viscous` or `coulomb` replace the nominal term (start without it);
+a hidden effect that is an alternative to a nominal one (`Effect.replaces`: smooth friction, at the
+setup's width, for Coulomb's sign) takes its place in the truth while the start keeps it.
 
 How much of a hidden effect the data can tell from every other reading is measured beside it:
 `sizing.distinct` (in the case's condition, `distinct_fraction`), the part of its torque left once the
@@ -64,7 +66,7 @@ from manus.experiments.sizing import (
 )
 from manus.plants.closed_loop import simulate
 from manus.plants.disturbed import Disturbed
-from manus.plants.effects import ORDER, VOCABULARY, Cogging, Compliance, Delay, Model, Stribeck
+from manus.plants.effects import ORDER, VOCABULARY, Cogging, Compliance, Delay, Model, Smooth, Stribeck
 from manus.plants.recording import Recording, from_trajectory
 from manus.plants.references import Hold, MultiSine, Reaching
 from manus.plants.simulator import Actuator, Encoder, Simulator
@@ -108,6 +110,7 @@ class Setup:
     cogging_period: tuple  # range of the hidden cogging's period [rad or m]
     stribeck_vs: float  # the hidden Stribeck velocity [rad/s or m/s]
     prismatic: bool
+    smooth_width: float = 0.1  # the hidden smooth friction's width [rad/s or m/s]
 
     @property
     def n(self) -> int:
@@ -150,6 +153,7 @@ AXIS = Setup(
     (0.005, 0.015),
     0.02,
     True,
+    smooth_width=0.01,
 )
 SETUPS = {"arm": ARM, "axis": AXIS}
 
@@ -365,7 +369,7 @@ def case(seed: int, hidden: str | None = None, rates: tuple = RATES, amplitude: 
         if not setup.prismatic
         else float(2 * np.pi / rng.uniform(*setup.cogging_period))
     )
-    nonlinear = (Cogging(order=order), Stribeck(vs=setup.stribeck_vs))
+    nonlinear = (Cogging(order=order), Stribeck(vs=setup.stribeck_vs), Smooth(width=setup.smooth_width))
     extra: tuple = ()
     joint: int | None = None
     info: dict = {}
@@ -377,16 +381,15 @@ def case(seed: int, hidden: str | None = None, rates: tuple = RATES, amplitude: 
     params = dict(setup.nominal)
     effect = None
     if hidden is not None and hidden not in ("delay", "compliance"):
-        effect = next(
-            e
-            for e in truth_model(setup).with_effect(nonlinear[0]).with_effect(nonlinear[1]).effects
-            if e.name == hidden
-        )
+        of_truth = {e.name: e for e in truth_model(setup).effects} | {e.name: e for e in nonlinear}
+        effect = of_truth[hidden]
         owner = parameter_joints(setup, effect)
         if all(j is not None for j in owner.values()):
             joint = 1 if setup.n == 1 else [None, 1, 2][int(rng.integers(3))]
         if hidden in NOMINAL and hidden != "rigid":
             params.update({k: 0.0 for k in Model(setup.structure, hidden).defaults()})
+        for r in effect.replaces:  # (smooth friction takes Coulomb's place in the truth; the start keeps it)
+            params.update({k: 0.0 for k in Model(setup.structure, r).defaults()})
     # the disturbances are scaled on a first run without the hidden effect (or with it at its
     # default, for rigid: a plant needs an inertia)
     d_coloured = None
@@ -453,6 +456,8 @@ def case(seed: int, hidden: str | None = None, rates: tuple = RATES, amplitude: 
         info["order"] = order
     if hidden == "stribeck":
         info["vs"] = setup.stribeck_vs
+    if hidden == "smooth":
+        info["width"] = setup.smooth_width
     truth = {k: float(v) for k, v in params.items() if float(v) != 0.0}
     cond = {"seed": seed, **c, **info}
     return Case(rec, start_model(hidden), hidden, joint, cond, truth, time.perf_counter() - t_start)

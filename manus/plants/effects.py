@@ -15,6 +15,7 @@ and the diagnosis (what a missing effect leaves in a residual).
 | viscous | b_i q̇_i | b_i | |
 | coulomb | Fc_i sgn(q̇_i) | Fc_i | |
 | stribeck | dFs_i exp(−(q̇_i/vs)²) sgn(q̇_i), dFs_i = Fs_i − Fc_i | dFs_i | vs |
+| smooth | Fs_i tanh(q̇_i/w) (Coulomb's smooth alternative) | Fs_i | w [rad/s or m/s] |
 | asymmetry | db_i |q̇_i| | db_i | |
 | offset | off_i | off_i | |
 | gravity | gc_i cos(q_i) + gs_i sin(q_i) | gc_i, gs_i | |
@@ -28,7 +29,9 @@ No effect's columns lie in the span of another's. `asymmetry` is the viscous coe
 differs by direction (b⁺ = b + db, b⁻ = b − db); a Coulomb level that differs by direction is
 `coulomb` plus `offset` already (Fc⁺ = Fc + off, Fc⁻ = Fc − off while moving), so asymmetry has
 no Coulomb column of its own. `stribeck` is offered only on top of `coulomb` (`requires`), with
-a velocity scale from the data, so that it cannot be Coulomb under another name. A spring's
+a velocity scale from the data, so that it cannot be Coulomb under another name. `smooth`
+is Coulomb friction with a finite width (its limit w → 0 is the sign): it is offered in
+Coulomb's place (`replaces`). A spring's
 preload is a constant torque: `spring` brings `offset` with it (`brings`) when the model lacks it.
 
 Each effect owns everything about itself (one definition, no tables keyed by effect name
@@ -40,8 +43,8 @@ derived from the recording (`space`, from a `Span`), its physical rules (`lower_
 
 Friction effects (coulomb, stribeck, asymmetry) are set-valued at q̇ = 0: the simulator treats
 them implicitly (stiction: a joint at rest stays at rest while the other torques stay inside the
-static level). Adaptive control can ask for a boundary layer instead of the sign: `boundary=φ`
-replaces sgn(v) by sat(v/φ).
+static level); `smooth` friction is not (an ordinary smooth torque). Adaptive control can ask
+for a boundary layer instead of the sign: `boundary=φ` replaces sgn(v) by sat(v/φ).
 
 Defaults are the thesis's values where it gives them (rigid, viscous, coulomb, the 39/rev
 cogging order, the 1 ms delay, the 200 Hz shaft mode); the other amplitudes are illustrative
@@ -114,6 +117,7 @@ class Effect(eqx.Module):
     on_joints: ClassVar[bool] = False
     requires: ClassVar[tuple[str, ...]] = ()  # offered only on top of these effects
     brings: ClassVar[tuple[str, ...]] = ()  # added with it when the model lacks them
+    replaces: ClassVar[tuple[str, ...]] = ()  # offered in the place of these where the model holds them
     evidence: ClassVar[str] = "velocity"  # what a residual is plotted against to show it
     apart: ClassVar[str] = ""  # the motion that tells it from an effect it reads as on a recording
     gain: ClassVar[float] = 5.0  # the Slotine–Li adaptation gain of its parameters (thesis: Γ = 5)
@@ -359,6 +363,79 @@ class Stribeck(Effect):
 
     def describe(self):
         return {"vs": float(self.vs)}
+
+
+@in_vocabulary
+class Smooth(Effect):
+    """Friction smooth at zero speed: Fs_i tanh(q̇_i / w), one width w [rad/s or m/s] for every
+    joint, found from the data (`space`). Real friction rises over a finite speed (a sigmoid over
+    ±0.1–0.2 rad/s on a 7-joint arm's joints; DFKI's double pendulum: cf atan(100 q̇), w ≈
+    0.01 rad/s); Coulomb's sign is its limit w → 0. It is not set-valued: an ordinary smooth
+    torque for the simulator (no stiction), non-decreasing in q̇ (adaptive control keeps its
+    passivity).
+
+    Smooth friction is an alternative to `coulomb` (`replaces`): with both in a model their
+    columns are nearly one as w → 0. Where the model holds Coulomb friction, diagnose judges
+    smooth on top of it (does the recording show a finite width beyond the sign?) and proposes
+    it in Coulomb's place unless Coulomb's sign still predicts held-out data significantly
+    better together with it (`manus.adaptive.diagnosis.candidates`). A width on the lower edge
+    of the search is Coulomb's sign: the recording does not resolve a width. Illustrative
+    defaults."""
+
+    name: ClassVar[str] = "smooth"
+    apart: ClassVar[str] = "slow reversals (speeds within a few widths of zero)"
+    width: Array = eqx.field(default=0.1, converter=jnp.asarray)  # w [rad/s or m/s]
+    replaces: ClassVar[tuple[str, ...]] = ("coulomb",)
+    rule: ClassVar[str] = "friction opposes motion: Fs ≥ 0"
+    STEP: ClassVar[float] = 1.15  # ratio of neighbouring widths of `space`
+    MAX_GRID: ClassVar[int] = 40
+    TOP: ClassVar[float] = 0.5  # the widest width tried, as a fraction of the motion's high speed
+
+    def names(self, s):
+        return per_joint("Fs", s)
+
+    def defaults(self, s):
+        return _two(s, (0.1, 0.12), 0.5)
+
+    def lower_bounds(self, s):
+        return (0.0,) * s.n_joints
+
+    def torque(self, s, q, qd, qdd, p, boundary=0.0):
+        return stack(p, self.names(s)) * jnp.tanh(qd / self.width)
+
+    def space(self, span):
+        """w from twice the smallest speed the data resolve (an encoder count per filter time:
+        below it tanh is the sign on every sample) up to `TOP` of the motion's high speed (95th
+        percentile of |q̇|; a wider law reaches less than tanh 2 of its level over most of the
+        motion, nearly linear: viscous friction under another name), on a geometric grid `STEP`
+        apart (at most `MAX_GRID` values)."""
+        top = self.TOP * float(np.max(span.speed))
+        low = max(2 * span.resolution, top * 1e-3, 1e-12)
+        if not top > 2 * low:
+            return ()
+        count = int(np.clip(np.ceil(np.log(top / low) / np.log(self.STEP)) + 1, 3, self.MAX_GRID))
+        return tuple(Smooth(width=float(v)) for v in np.geomspace(low, top, count))
+
+    def edge(self, span):
+        grid = self.space(span)
+        if len(grid) >= 3 and self.spec == grid[0].spec:
+            return (
+                f"{self.spec} lies on the lower edge of its search range ({grid[0].spec} to {grid[-1].spec}): "
+                "a width the recording does not resolve, Coulomb's sign"
+            )
+        return super().edge(span)
+
+    @property
+    def spec(self):
+        return f"smooth:{float(self.width):.4g}"
+
+    @classmethod
+    def parse(cls, arg):
+        """`smooth:W`, the width [rad/s or m/s]."""
+        return cls(width=_positive(arg, "smooth friction width")) if arg else cls()
+
+    def describe(self):
+        return {"width": float(self.width)}
 
 
 @in_vocabulary
@@ -803,7 +880,7 @@ def is_load(e: Effect) -> bool:
 
 ORDER = tuple(
     VOCABULARY
-)  # rigid, viscous, coulomb, stribeck, asymmetry, offset, gravity, spring, cogging, delay, compliance, coupling
+)  # rigid, viscous, coulomb, stribeck, smooth, asymmetry, offset, gravity, spring, cogging, delay, compliance, coupling
 
 
 def parse_effect(text: str) -> Effect:

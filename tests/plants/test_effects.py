@@ -129,6 +129,7 @@ def test_the_vocabulary_is_a_registry_and_each_effect_parses_its_own_argument():
         "viscous",
         "coulomb",
         "stribeck",
+        "smooth",
         "asymmetry",
         "offset",
         "gravity",

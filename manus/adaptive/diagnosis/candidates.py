@@ -12,6 +12,11 @@ on a joint relative to what is left there). It is *proposable* when it is also p
 parameters obey its effect's rules, its searched value does not sit on the edge of its search
 range, and the recording can identify it (columns not already explained by the model's own).
 Otherwise it is reported with the reason (`problems`), not proposed.
+
+An effect that is an alternative to one the model holds (`Effect.replaces`: smooth friction,
+whose limit w → 0 is Coulomb's sign) is searched and score-tested on top of it, and judged, fitted
+and proposed in its place unless keeping both predicts the held-out blocks significantly better
+(`judge`); its detail then says what it `replaces`.
 """
 
 from __future__ import annotations
@@ -28,7 +33,7 @@ from manus.adaptive.diagnosis.significance import SIGNIFICANCE, combined, one_si
 from manus.adaptive.identify.columns import Columns
 from manus.adaptive.identify.prepare import align
 from manus.adaptive.identify.result import Fit
-from manus.adaptive.identify.search import delay_of, grid
+from manus.adaptive.identify.search import Grid, delay_of, grid
 from manus.plants.effects import ORDER, VOCABULARY, Effect, Model, Span
 
 MODE_MIN_REDUCTION = 0.05  # a mode must remove this share of the frequency response's misfit
@@ -48,6 +53,7 @@ class Judged:
     p_values: dict[str, float]  # per test of `SIGNIFICANCE` it took
     score_test: str | None = None  # how its score test's blocks were judged; None: no score test (a delay)
     detectable: float = np.inf  # the share of the torque (RMS) it would have to explain to be found (`detectable`)
+    replaces: tuple[str, ...] = ()  # the model's effects it is proposed in place of (smooth friction: coulomb)
 
     @property
     def detection_limit(self) -> float | None:
@@ -63,6 +69,8 @@ class Judged:
         out["per_joint_error_reduction"] = self.per_joint
         if self.brings:
             out["brings"] = list(self.brings)
+        if self.replaces:
+            out["replaces"] = list(self.replaces)
         if self.held:
             out["held_at_bound"] = list(self.held)
         out["explains"] = round(self.explains, 5)
@@ -183,6 +191,7 @@ class Offer(NamedTuple):
     effect: Effect  # the effect (its first value where its parameter is searched)
     values: tuple[Effect, ...]  # the values searched (one: nothing to search)
     brings: tuple[Effect, ...]  # the effects it brings that the model lacks
+    replaces: tuple[str, ...] = ()  # the model's effects it may take the place of (`judge`)
 
 
 def offered(model: Model, span: Span, prismatic) -> tuple[list[Offer], list[str]]:
@@ -191,7 +200,9 @@ def offered(model: Model, span: Span, prismatic) -> tuple[list[Offer], list[str]
     the effect itself allows: one that does not apply to these joints (gravity on a prismatic
     axis), or that is offered only on top of another the model lacks (Stribeck without Coulomb),
     is not tried; one that brings another with it (a spring's preload is an offset) is tried with
-    it."""
+    it; one that is an alternative to an effect the model holds (smooth friction to Coulomb's sign)
+    may take its place (`judge`), unless another effect of the model is offered only on top of
+    that one (Stribeck on Coulomb)."""
     s = model.structure
     out, notes = [], []
     for name in ORDER:
@@ -222,7 +233,8 @@ def offered(model: Model, span: Span, prismatic) -> tuple[list[Offer], list[str]
             )
             continue
         brought = tuple(VOCABULARY[b]() for b in e0.brings if not model.has(b))
-        out.append(Offer(e0, tuple(values), brought))
+        replaced = tuple(r for r in e0.replaces if model.has(r) and not any(r in e.requires for e in model.effects))
+        out.append(Offer(e0, tuple(values), brought, replaced))
     return out, notes
 
 
@@ -236,9 +248,15 @@ def judge(ctx: Context, offer: Offer) -> Candidate:
     the values whose fit within its physical bounds leaves something off them; one-sided in the
     coefficients its physics signs) and its held-out errors (for each block, its non-linear
     parameter searched and the model fitted on the other blocks only); a delay, which moves the
-    torque and has no columns, takes the held-out errors alone."""
+    torque and has no columns, takes the held-out errors alone.
+
+    A candidate that may replace effects of the model (`Offer.replaces`: smooth friction, whose
+    limit w → 0 is Coulomb's sign) is searched and score-tested on top of them (does the recording
+    show a finite width beyond the sign?), then judged in their place: the model without them
+    predicts the held-out blocks with it (its width chosen in each fold as before), and it is
+    proposed there unless keeping them predicts significantly better (`_in_place`)."""
     data, cols, base = ctx.data, ctx.cols, ctx.base
-    e0, values, brought = offer
+    e0, values, brought, replaceable = offer
     s = base.model.structure
     rest = base.model
     for b in brought:
@@ -266,9 +284,7 @@ def judge(ctx: Context, offer: Offer) -> Candidate:
     if len(values) > 1:
         yy = float(np.sum(data.tau(delay_of(rest)) ** 2)) or 1.0
         f = replace(f, search={e0.name: ([v.describe() for v in values], np.sqrt(np.maximum(errs, 0) / yy))})
-    reduction = 1 - f.rel_error / base.rel_error if base.rel_error > 0 else 0.0
-    cv_red = 1 - float(np.sqrt(sse.sum() / ctx.base_sse.sum())) if ctx.base_sse.sum() > 0 else 0.0
-    tests = {"held_out": one_sided_p(ctx.base_sse, sse)}
+    tests: dict[str, float] = {}
     score_test, limit = None, np.inf
     if e0.linear:  # its columns' score, judged over the blocks (the search redone in each draw)
         names = list(under.names) + [k for k in chosen.names(s) if k not in held]
@@ -286,6 +302,14 @@ def judge(ctx: Context, offer: Offer) -> Candidate:
         # the share of the torque it would have to explain to be found (80 %), and to count
         share = detectable(scores, ctx.alpha / len(SIGNIFICANCE)) / max(float(g.exact(0).yy.sum()), 1e-300)
         limit = max(float(np.sqrt(share)), ctx.min_share)
+    replaces, swap = (), ""
+    if replaceable:
+        replaces, swap, swapped = _in_place(ctx, under, replaceable, g, chosen_in, chosen, held, sse)
+        if swapped is not None:
+            f, sse = replace(swapped[0], search=f.search), swapped[1]
+    reduction = 1 - f.rel_error / base.rel_error if base.rel_error > 0 else 0.0
+    cv_red = 1 - float(np.sqrt(sse.sum() / ctx.base_sse.sum())) if ctx.base_sse.sum() > 0 else 0.0
+    tests["held_out"] = one_sided_p(ctx.base_sse, sse)
     p = combined(tests)
     own = [chosen, *brought]
     names = [n for e in own for n in e.names(s) if n not in held]
@@ -306,6 +330,7 @@ def judge(ctx: Context, offer: Offer) -> Candidate:
         tests,
         score_test,
         limit,
+        replaces,
     )
     significant = bool(p < ctx.alpha and (explained >= ctx.min_share or reduction >= MOST) and cv_red > 0)
     problems = [v for e in own for v in e.violations(s, f.params, f.stds)]
@@ -327,6 +352,7 @@ def judge(ctx: Context, offer: Offer) -> Candidate:
         if held
         else ""
     )
+    note = "; ".join(x for x in (note, swap) if x)
     joint = _own_joint(cols, f, own, data.n_joints)
     joint = int(np.argmax(per_joint)) if joint is None else joint
     return Candidate(
@@ -344,6 +370,64 @@ def judge(ctx: Context, offer: Offer) -> Candidate:
         problems=problems,
         note=note,
     )
+
+
+def _in_place(
+    ctx: Context,
+    under: Model,
+    replaceable: tuple[str, ...],
+    g: Grid,
+    chosen_in: np.ndarray,
+    chosen: Effect,
+    held: tuple,
+    sse: np.ndarray,
+) -> tuple[tuple[str, ...], str, tuple[Fit, np.ndarray] | None]:
+    """The candidate in place of the model's effects `replaceable` (see `judge`): the model
+    without them, with the candidate's value chosen in each fold by the search on top of them,
+    fitted within its bounds on the fold's training blocks and judged on its block, against the
+    model keeping them (fitted within their bounds too). Returns (the effects it replaces, a note,
+    (its fit on every row, its held-out errors) or None where keeping them predicts the held-out
+    blocks significantly better, one-sided at the step's level)."""
+    s = under.structure
+    reduced = under
+    for r in replaceable:
+        reduced = reduced.without(r)
+    keep = np.array([k not in held for k in chosen.names(s)])
+    bounds = np.asarray(chosen.lower_bounds(s), float)[keep]
+    base = ctx.stats(reduced)
+    lower = np.r_[np.full(len(reduced.names), -np.inf), bounds]
+    train, test = ctx.train, ctx.test
+    alone = np.zeros(len(ctx.folds))
+    for i in np.unique(chosen_in):
+        v = g.values[i]
+        ez = None if ctx.icols is None else ctx.icols.effect(v)[..., keep]
+        st, on = base.extend(ctx.cols.effect(v)[..., keep], ez), chosen_in == i
+        alone[on] = st.sses(st.coefs(train[on], lower), test[on])
+    # keeping them, each fold's fit within their bounds too (Coulomb's level below zero is no sharp core)
+    assert g.lower is not None, "a linear effect's grid holds its bounds"
+    both = g.lower.copy()
+    for r in replaceable:
+        e = under.get(r)
+        assert e is not None, f"{r} is in the model it may be replaced in"
+        for k, lo in zip(e.names(s), e.lower_bounds(s), strict=True):
+            both[under.names.index(k)] = lo
+    kept = np.zeros(len(ctx.folds))
+    for i in np.unique(chosen_in):
+        st, on = g.exact(int(i)), chosen_in == i
+        kept[on] = st.sses(st.coefs(train[on], both), test[on])
+    names = ", ".join(replaceable)
+    p = one_sided_p(alone, kept)
+    if p < ctx.alpha:
+        note = (
+            f"{names} kept beside it: together they predict the held-out blocks significantly better than "
+            f"{chosen.spec} in {'its' if len(replaceable) == 1 else 'their'} place (p {p:.2g})"
+        )
+        return (), note, None
+    note = (
+        f"in place of {names}: with {chosen.spec} in the model, {names} predicts the held-out blocks no "
+        f"better (p {p:.2g})"
+    )
+    return tuple(replaceable), note, (ctx.fit(reduced.with_effect(chosen), held), alone)
 
 
 def _own_joint(cols: Columns, f: Fit, own: list[Effect], n: int) -> int | None:
