@@ -390,9 +390,10 @@ class Serial(_Configuration):
         s0 = _mv(M.R0, self.axis)
         slide = jnp.asarray(self.prismatic)[:, None]
         S = jnp.concatenate([jnp.where(slide, s0, jnp.cross(M.o0, s0)), jnp.where(slide, 0.0, s0)], -1)  # (n, 6)
-        beyond = np.maximum.outer(np.arange(n), np.arange(n))  # max(i, j)
-        H = jnp.einsum("ia,ijab,jb->ij", S, composite[beyond], S)
-        return H + jnp.diag(theta[10 * n :])
+        F = jnp.einsum("jab,jb->ja", composite, S)  # the force joint j's unit motion asks of the links beyond it
+        upper = jnp.asarray(np.less_equal.outer(np.arange(n), np.arange(n)))  # i ≤ j: H_ij = S_i · F_j
+        H = S @ F.T
+        return jnp.where(upper, H, H.T) + jnp.diag(theta[10 * n :])
 
     def coriolis_times(self, q: Array, qd: Array, v: Array, theta: Array) -> Array:
         """C(q, q̇) v (n,) for the C of the Christoffel symbols of the first kind, C_ij = Σ_k c_ijk q̇_k,
