@@ -19,22 +19,27 @@ band's q) with an initial velocity of its own: a free parameter per window and j
 at the measured q̇ (a q̇ differentiated from a coarse encoder is what OE avoids). The cost is
 Σ ‖q_sim − q‖² over every window's samples, q the positions as recorded.
 
-It is minimised by Levenberg–Marquardt from the LS (or IV) estimate: the Jacobian by forward-mode
-differentiation through the simulation (`jax.jacfwd`, all windows at once under `vmap`), the
-windows' velocities eliminated from each step by their Schur complement (each acts on its own
-window only). Parameters stay within their effects' lower bounds (b, Fc ≥ 0), and a step that
-leaves the inertia not positive definite is refused. Dry friction needs no surrogate: the
-simulator's implicit friction step has the derivative of a sliding joint (its friction at ±Fc)
-and none while a joint sticks (its velocity exactly zero whatever the parameters), and that
-piecewise derivative is the exact one of the simulated positions.
+It is minimised by Levenberg–Marquardt on the linear parameters, the windows' velocities fitted
+again at each trial (variable projection: the cost of θ is the least over the velocities) and
+eliminated from each step by their Schur complement (each acts on its own window only). The
+start is the estimate whose simulation follows the positions best among what LS and IV gave, LS,
+and where the noise is notable the errors-in-variables family (`Quantization.family`): least
+squares collapsed a thousandfold is still a start. Derivatives are forward differences of the
+compiled simulation, all windows at once (`Problem`). Parameters stay within their effects'
+lower bounds (b, Fc ≥ 0), and a step that leaves the inertia not positive definite is refused.
+Dry friction is the simulator's exact stick-slip, no smooth surrogate: a stuck step does not move
+with the parameters, a sliding one with its friction level, and the cost is piecewise smooth
+(where a window sticks or not depends on the parameters, it may hold local minima: the start
+matters).
 
 Standard deviations: the Gauss–Newton Hessian (the windows' velocities profiled out) with the
 scores summed per window (a sandwich: the error is correlated from sample to sample inside a
 window, windows restart from the measured state).
 
-`oe_reason` says when `auto` needs OE: where the quantization noise in q̈ at the cut-off makes
-up `NOISE_SHARE` or more of what identifies an inertial parameter (LS is pulled toward zero by
-about that share), or where least squares breaks physics and IV does not rescue it.
+`oe_reason` says when `auto` needs OE before IV: where the quantization noise in q̈ at the
+cut-off makes up `NOISE_SHARE` or more of what identifies an inertial parameter (LS is pulled
+toward zero by about that share); `rescue`, after IV kept least squares although it breaks
+physics, where that noise is a notable share (`FAMILY_SHARE`).
 """
 
 from __future__ import annotations
