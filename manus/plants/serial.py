@@ -779,6 +779,7 @@ class SerialPseudo(Reparametrized):
     def __init__(self, serial: Serial):
         self.serial = serial
         self.n_joints = serial.n_joints
+        self.transmission = serial.transmission
         d = np.asarray(serial.defaults, float)
         scale = []
         for i in range(serial.n_joints):
@@ -787,7 +788,6 @@ class SerialPseudo(Reparametrized):
         self.scale = tuple(x if x > 0 else 1.0 for x in scale)
 
     @property
-        self.transmission = serial.transmission
     def rigid_names(self):
         links = tuple(f"J{i + 1}{e}" for i in range(self.n_joints) for e in ENTRIES)
         return links + tuple(f"Ia{i + 1}" for i in range(self.n_joints))
