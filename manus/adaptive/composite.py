@@ -164,7 +164,7 @@ class Composite(eqx.Module):
             z2 = z2 + s.rigid_torque(q, zero, zero, p)
         for e in model.effects:
             if not e.inertial:
-                z2 = z2 + e.torque(s, q, qd, jnp.zeros_like(qd), p, regressor.boundary)
+                z2 = z2 + model.effect_torque(e, q, qd, jnp.zeros_like(qd), p, regressor.boundary)
         return z1, z2
 
     @classmethod
@@ -191,7 +191,7 @@ class Composite(eqx.Module):
             def rest(th):
                 p = model.unvector(th)
                 return sum(
-                    e.torque(s, q, qd, jnp.zeros_like(qd), p, regressor.boundary)
+                    model.effect_torque(e, q, qd, jnp.zeros_like(qd), p, regressor.boundary)
                     for e in model.effects
                     if not e.inertial
                 )

@@ -100,7 +100,7 @@ class Regressor(eqx.Module):
                     zero = jnp.zeros_like(qdd_r)
                     total = total + s.rigid_torque(q, zero, zero, p)
             else:
-                total = total + e.torque(s, q, qd_r, qdd_r, p, self.boundary)
+                total = total + self.model.effect_torque(e, q, qd_r, qdd_r, p, self.boundary)
         return total
 
     def __call__(self, q, qd, qd_r, qdd_r) -> Array:
@@ -117,7 +117,11 @@ class Regressor(eqx.Module):
 
             def rest(th):
                 p = self.model.unvector(th)
-                return sum(e.torque(s, q, qd_r, qdd_r, p, self.boundary) for e in self.model.effects if not e.inertial)
+                return sum(
+                    self.model.effect_torque(e, q, qd_r, qdd_r, p, self.boundary)
+                    for e in self.model.effects
+                    if not e.inertial
+                )
 
             Yo = jax.jacfwd(rest)(theta0)
             columns.update({k: (Yo[0, i], Yo[1, i]) for i, k in enumerate(self.names) if k not in columns})

@@ -406,7 +406,7 @@ def regressor_entries(regressor: Regressor, q, qd, qd_r, qdd_r) -> list[list]:
             continue
         for k in e.names(s):
             unit = {name: 1.0 if name == k else 0.0 for name in names}
-            col = e.torque(s, q, qd_r, qdd_r, unit, regressor.boundary)
+            col = model.effect_torque(e, q, qd_r, qdd_r, unit, regressor.boundary)
             columns[k] = tuple(col[a] for a in range(n))
     return [[columns[k][a] for k in names] for a in range(n)]
 

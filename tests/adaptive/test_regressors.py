@@ -90,3 +90,26 @@ def test_models_an_adaptive_controller_cannot_use_are_refused():
         Regressor(Model(Manus2(), "rigid,viscous,delay"))
     with pytest.raises(ModelError, match="unknown regressor form"):
         Regressor(Model(Manus2(), "rigid"), "textbook")
+
+
+@pytest.mark.parametrize("form", ["slotine-li", "thesis"])
+def test_a_stated_transmission_reaches_the_adaptive_regressor(form):
+    """With the elbow's motor on q2 − q1 (θ = N q), the adaptation's friction columns are the
+    model's own: the motor-side effects evaluated at N q̇_r and mapped by Nᵀ (along q̇ = q̇_r,
+    either form's regressor is the inverse-dynamics one)."""
+    from manus.plants.transmission import stated, with_transmission
+
+    s = stated(Manus2(), "q1; q2 - q1")
+    model = Model(s, "rigid,viscous,coulomb,offset")
+    reg = Regressor(model, form=form, boundary=0.01)
+    q, qd, qdd = jnp.array([0.4, 2.3]), jnp.array([0.3, 0.5]), jnp.array([-1.0, 2.0])
+    Y = np.asarray(reg(q, qd, qd, qdd))
+    np.testing.assert_allclose(Y, np.asarray(model.regressor(q, qd, qdd, boundary=0.01)), atol=1e-12)
+    # the viscous columns by hand: Nᵀ diag(N q̇)
+    N = np.array([[1.0, 0.0], [-1.0, 1.0]])
+    b = [model.names.index(k) for k in ("b1", "b2")]
+    np.testing.assert_allclose(Y[:, b], N.T @ np.diag(N @ np.asarray(qd)), atol=1e-12)
+    plain = np.asarray(
+        Regressor(Model(with_transmission(s, None), model.effects), form=form, boundary=0.01)(q, qd, qd, qdd)
+    )
+    assert not np.allclose(plain[:, b], Y[:, b])
