@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from manus.plants.effects import VOCABULARY
 from manus.runs.cli import main
 
 TRUTH = "rigid,viscous,coulomb,cogging:39"
@@ -115,7 +116,7 @@ def test_demo_part_a_discovers_the_hidden_effects_and_says_when_emps_is_missing(
 def test_bad_input_is_one_line_and_a_non_zero_exit(capsys, hidden_cogging, tmp_path):
     _fails(capsys, ["fit", hidden_cogging, "--model", "rigid,frobnicate"], "unknown effect 'frobnicate'")
     _fails(capsys, ["fit", str(tmp_path / "missing.csv"), "--model", NOMINAL], "no such file")
-    every = "rigid,viscous,coulomb,stribeck,asymmetry,offset,gravity,spring,cogging,delay,compliance"
+    every = ",".join(VOCABULARY)
     _fails(capsys, ["diagnose", hidden_cogging, "--model", every], "every effect")
     _fails(capsys, ["discover", hidden_cogging, "--model", every], "every effect")
     # too short: 0.1 s
