@@ -217,16 +217,26 @@ def _arm(arm: str, seconds: float, commands: list[str], note) -> dict:
         for c in commands:
             note(f"manus {c} --model {COMMAND_MODEL[c]} on the {arm}'s recording, a new process ...")
             argv = [sys.executable, "-m", "manus.runs.cli", c, csv, "--model", COMMAND_MODEL[c], "--json"]
-            t0 = time.perf_counter()
+            t0, c0, load = time.perf_counter(), _children_cpu(), os.getloadavg()[0]
             done = subprocess.run([*argv, "--out", tmp], capture_output=True, text=True, check=False)
-            wall = time.perf_counter() - t0
+            wall, cpu = time.perf_counter() - t0, _children_cpu() - c0
             if done.returncode:
                 raise ManusError(f"manus {c} on the simulated {arm} failed: {done.stderr.strip()[-300:]}")
             r = json.loads(done.stdout)
-            out[c] = {"s": wall, "rel_error": r["rel_error"], "model": r.get("spec", r.get("model"))}
+            out[c] = {"s": wall, "cpu_s": cpu, "load_average": load, "rel_error": r["rel_error"]}
+            out[c]["model"] = r.get("spec", r.get("model"))
             if c == "diagnose":
                 out[c]["verdict"] = r.get("verdict_spec")
     return out
+
+
+def _children_cpu() -> float:
+    """CPU seconds (user and system) of the finished child processes so far: on a shared machine
+    a command's CPU time moves far less with the other work than its wall time."""
+    import resource
+
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
 
 
 def _urdf(relative: str) -> str:
@@ -406,7 +416,8 @@ def _arm_lines(a: dict) -> list[str]:
             x = a[c]
             extra = f", verdict {x['verdict']}" if c == "diagnose" else ""
             lines.append(
-                f"  manus {c} --model {COMMAND_MODEL[c]}: {x['s']:.1f} s (ends at {x['model']}, rel_error "
+                f"  manus {c} --model {COMMAND_MODEL[c]}: {x['s']:.1f} s, {x['cpu_s']:.1f} s CPU at load "
+                f"{x['load_average']:.1f} (ends at {x['model']}, rel_error "
                 f"{100 * x['rel_error']:.3g} %{extra})"
             )
     lines.append(
