@@ -30,8 +30,8 @@ differs by direction (b⁺ = b + db, b⁻ = b − db); a Coulomb level that diff
 `coulomb` plus `offset` already (Fc⁺ = Fc + off, Fc⁻ = Fc − off while moving), so asymmetry has
 no Coulomb column of its own. `stribeck` is offered only on top of `coulomb` (`requires`), with
 a velocity scale from the data, so that it cannot be Coulomb under another name. `smooth`
-is Coulomb friction with a finite width (its limit w → 0 is the sign): it is offered in
-Coulomb's place (`replaces`). A spring's
+is Coulomb friction with a finite width (its limit w → 0 is the sign): it is offered on
+`coulomb` (`requires`) and in its place (`replaces`). A spring's
 preload is a constant torque: `spring` brings `offset` with it (`brings`) when the model lacks it.
 
 Each effect owns everything about itself (one definition, no tables keyed by effect name
@@ -375,16 +375,19 @@ class Smooth(Effect):
     passivity).
 
     Smooth friction is an alternative to `coulomb` (`replaces`): with both in a model their
-    columns are nearly one as w → 0. Where the model holds Coulomb friction, diagnose judges
-    smooth on top of it (does the recording show a finite width beyond the sign?) and proposes
-    it in Coulomb's place unless Coulomb's sign still predicts held-out data significantly
-    better together with it (`manus.adaptive.diagnosis.candidates`). A width on the lower edge
-    of the search is Coulomb's sign: the recording does not resolve a width. Illustrative
+    columns are nearly one as w → 0. It refines Coulomb friction the model holds (`requires`:
+    from a model without it Coulomb's sign comes first, as it should where a saturating law
+    would take the viscous term's share too, as on EMPS): diagnose judges smooth on top of it
+    (does the recording show a finite width beyond the sign?) and proposes it in Coulomb's
+    place unless Coulomb's sign still predicts held-out data significantly better together
+    with it (`manus.adaptive.diagnosis.candidates`). A width on the lower edge of the search
+    is Coulomb's sign: the recording does not resolve a width. Illustrative
     defaults."""
 
     name: ClassVar[str] = "smooth"
     apart: ClassVar[str] = "slow reversals (speeds within a few widths of zero)"
     width: Array = eqx.field(default=0.1, converter=jnp.asarray)  # w [rad/s or m/s]
+    requires: ClassVar[tuple[str, ...]] = ("coulomb",)
     replaces: ClassVar[tuple[str, ...]] = ("coulomb",)
     rule: ClassVar[str] = "friction opposes motion: Fs ≥ 0"
     STEP: ClassVar[float] = 1.15  # ratio of neighbouring widths of `space`

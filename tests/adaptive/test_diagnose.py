@@ -106,9 +106,10 @@ def test_diagnose_report_is_the_json_contract():
     assert first["effect"] == "coulomb" and first["significant"] is True and first["joint"] in (1, 2)
     # every effect the model lacks is a candidate, exactly once; Stribeck only on top of Coulomb
     assert sorted(c["effect"] for c in r["candidates"]) == sorted(
-        ["coulomb", "asymmetry", "offset", "gravity", "spring", "cogging", "delay", "compliance"]
+        ["coulomb", "asymmetry", "offset", "gravity", "spring", "cogging", "delay", "compliance", "coupling"]
     )
     assert any(n.startswith("stribeck: offered only on top of coulomb") for n in r["notes"])
+    assert any(n.startswith("smooth: offered only on top of coulomb") for n in r["notes"])
     assert r["hold"] == "zoh" and r["method"] in ("ls", "iv") and r["method_why"]
     assert {"significant", "joint", "against", "fraction", "p_value"} <= set(r["unexplained"])
     # coulomb's fitted levels against the truth (thesis §3.5)
@@ -121,7 +122,7 @@ def test_diagnose_tries_every_candidate_on_a_20_s_two_joint_recording():
     rec = hidden.recording(())
     assert len(rec) == 20000 and rec.n_joints == 2
     d = diagnose(rec, "rigid")
-    assert len(d.candidates) == 9  # stribeck waits for coulomb
+    assert len(d.candidates) == 10  # stribeck and smooth wait for coulomb
 
 
 # -- EMPS ----------------------------------------------------------------------------------------
@@ -321,7 +322,7 @@ def test_a_response_falling_with_frequency_is_no_peak_and_every_physical_mode_is
 
 
 def test_a_model_holding_every_effect_is_refused():
-    full = "rigid,viscous,coulomb,stribeck,asymmetry,offset,gravity,spring,cogging,delay,compliance"
+    full = "rigid,viscous,coulomb,stribeck,smooth,asymmetry,offset,gravity,spring,cogging,delay,compliance,coupling"
     with pytest.raises(ModelError, match="already holds every effect of the vocabulary"):
         diagnose(hidden.recording(()), full)
 

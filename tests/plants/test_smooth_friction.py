@@ -38,7 +38,7 @@ def test_its_limit_is_coulombs_sign_and_it_is_not_dry():
     narrow = float(Smooth(width=1e-9).torque(s, 0 * v, v, 0 * v, p)[0])
     assert narrow == pytest.approx(float(Coulomb().torque(s, 0 * v, v, 0 * v, p)[0]), rel=1e-15)
     assert not Smooth.dry and is_load(Smooth()) and not is_dry(Smooth()) and Smooth.linear
-    assert Smooth.replaces == ("coulomb",) and Smooth.requires == () and Smooth.evidence == "velocity"
+    assert Smooth.replaces == ("coulomb",) and Smooth.requires == ("coulomb",) and Smooth.evidence == "velocity"
 
 
 def test_spec_parse_describe_and_its_place_in_the_vocabulary():
