@@ -21,6 +21,7 @@ SLOW = {
     "test_bench_robot.py",
     "test_bench_sim.py",
     "test_calibration.py",
+    "test_chain_calibration.py",
     "test_converge.py",
     "test_convergence.py",
     "test_dfki_serial.py",
