@@ -8,7 +8,7 @@ import importlib
 import pkgutil
 
 NAME = "bench"
-HELP = "benchmarks (sim, estimators, diagnose, converge, stability, hardware, robot, timebase), each beside its baseline"
+HELP = "benchmarks (sim, estimators, diagnose, converge, stability, hardware, robot, timebase), each beside a baseline"
 
 
 def benchmarks() -> dict:
