@@ -39,8 +39,16 @@ def test_a_small_hump_on_a_nearly_right_model_is_named():
     """The calibration's axis at 1 kHz, exact torque: a Stribeck hump hidden at 0.4 % of the torque
     (under `min_share`), on a model otherwise right to a few tenths of a percent. Over all the torque
     it is too small to count; relative to what is left it removes most of it, and is named."""
-    where = dict(structure="axis", rate=1000, excitation="reaching", torque="exact", hold="stated")
-    c = calibration.case(9, "stribeck", amplitude=0.004, **where)
+    c = calibration.case(
+        9,
+        "stribeck",
+        amplitude=0.004,
+        structure="axis",
+        rate=1000,
+        excitation="reaching",
+        torque="exact",
+        hold="stated",
+    )
     d = diagnose(c.rec, c.start)
     strib = next(x for x in d.candidates if x.effect == "stribeck")
     assert strib.detail["explains"] < 0.005
