@@ -152,11 +152,13 @@ class Simulator(Plant):
         if not model.has("rigid"):
             raise ModelError("a simulated plant needs the 'rigid' effect (its inertia)")
         self.model = model
-        defaults = model.defaults()
-        unknown = sorted(set(params or {}) - set(defaults))
+        given = params or {}
+        unknown = sorted(set(given) - set(model.names))
         if unknown:
             raise ModelError(f"unknown parameter(s) {', '.join(unknown)} for effects {model.spec}")
-        self.params = {k: jnp.asarray((params or {}).get(k, v), float) for k, v in defaults.items()}
+        # the defaults only where a parameter is not given (a model traced under jit has no numbers)
+        defaults = model.defaults() if any(k not in given for k in model.names) else {}
+        self.params = {k: jnp.asarray(given[k] if k in given else defaults[k], float) for k in model.names}
         self.rate_hz = float(rate_hz)
         self.substeps = int(substeps)
         self.actuator = actuator

@@ -12,7 +12,7 @@ import scipy.optimize
 
 from manus.plants.serial import Serial
 from manus.plants.serial_friction import ROUNDS, SWEEPS, Dense, box_friction, pgs
-from tests.plants.test_serial import load
+from tests.plants.test_serial import ROBOTS, load
 
 
 def _direct(H: np.ndarray, v: np.ndarray, lo: np.ndarray, hi: np.ndarray, dt: float) -> np.ndarray:
@@ -186,3 +186,25 @@ def test_a_simulated_panda_recording_says_structure_urdf(tmp_path):
     back = recording.read(path)
     assert back.structure_name == "urdf" and cast(Path, back.robot).resolve() == Path(serial.source).resolve()
     assert cast(Serial, back.structure).joint_names == serial.joint_names and back.n_joints == 7
+
+
+def test_a_chain_in_its_base_form_is_simulated_with_every_parameter_traced():
+    """Output error builds the simulator inside a compiled function, the identified model (a
+    chain's base parameters) traced with it: every parameter given, no default is read."""
+    import equinox as eqx
+
+    from manus.adaptive.identify.columns import identified
+    from manus.plants import Model, Simulator
+
+    serial = load(sorted(ROBOTS)[0])[1]
+    model = Model(identified(serial), "rigid,viscous")
+    params = {k: jnp.asarray(v) for k, v in model.defaults().items()}
+
+    @eqx.filter_jit
+    def first_step(model, params):
+        sim = Simulator(model, params, actuator=None, encoder=None)
+        state, _ = sim.reset(None, jnp.zeros(model.n_joints), jnp.zeros(model.n_joints))
+        return sim.step(state, jnp.zeros(model.n_joints))[0].q
+
+    q = first_step(model, params)
+    assert q.shape == (model.n_joints,) and bool(jnp.all(jnp.isfinite(q)))
