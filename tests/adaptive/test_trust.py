@@ -254,9 +254,9 @@ def test_a_torque_ripple_is_said_to_be_left_as_what_it_is():
 def test_dfki_double_pendulum_from_rigid():
     """The real DFKI arm (NOTES.md there), the three recordings with moderate swings: gravity
     first in each, no invented cogging or Stribeck, gravity loads near DFKI's model_2.0 in manus2
-    terms (3.42, 1.09 N·m), and on at least two of them the report says a structured residual is
-    left (the elbow's friction acts on the relative velocity, outside the manus2 structure, and
-    shows on both joints: τ1 = τ_motor1 − τ_motor2)."""
+    terms (3.42, 1.09 N·m), and in each the coupling of the elbow's friction named with its joints:
+    the elbow motor turns with q2 − q1 and its friction shows on both joints (τ1 = τ_motor1 −
+    τ_motor2), `coupling:2-1`; after it a structured residual is left on at most one of them."""
     paths = [DFKI / f"A0_trajectory_0{i}.csv" for i in (1, 2, 3)]
     if not all(p.exists() for p in paths):
         pytest.skip("../shared/data/real is not beside the clone")
@@ -268,8 +268,10 @@ def test_dfki_double_pendulum_from_rigid():
         assert not {"cogging", "stribeck"} & set(found), path.name
         p = d.final_fit.params
         assert p["gs1"] == pytest.approx(3.42, rel=0.35) and p["gs2"] == pytest.approx(1.09, rel=0.35), path.name
+        coupling = d.final_fit.model.get("coupling")
+        assert coupling is not None and coupling.spec == "coupling:2-1", (path.name, found)
         left += bool(d.unexplained["significant"])
-    assert left >= 2
+    assert left <= 1
 
 
 # -- a delay per joint -------------------------------------------------------------------------------
