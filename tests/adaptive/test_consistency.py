@@ -39,15 +39,14 @@ def test_pseudo_inertia_is_pinocchios():
         assert np.linalg.eigvalsh(pseudo_inertia(ours))[0] > 0
 
 
-@pytest.fixture(scope="module")
-def swing():
-    """The DFKI chain driven along a smooth two-joint motion, its torque from our RNEA plus viscous
-    friction and noise (1 % of the RMS): a consistent truth, the URDF's."""
-    serial = Serial.from_urdf(URDF)
+def swung(path, seconds: float) -> Recording:
+    """The chain of the URDF at `path` (two joints) driven along a smooth motion for `seconds`, its
+    torque from our RNEA plus viscous friction and noise (1 % of the RMS): a consistent truth, the
+    URDF's."""
     import jax
 
-    dt = 2e-3
-    t = np.arange(0, 10, dt)
+    serial = Serial.from_urdf(path)
+    t = np.arange(0, seconds, 2e-3)
     w = 2 * np.pi * np.array([[0.31, 0.73, 1.3], [0.43, 0.97, 1.7]])
     a = np.array([[0.9, 0.3, 0.1], [0.8, 0.4, 0.15]])
     arg = w[None] * t[:, None, None] + 0.3
@@ -57,10 +56,14 @@ def swing():
     rnea = jax.jit(jax.vmap(lambda q1, qd1, qdd1: serial.rnea(q1, qd1, qdd1, serial.defaults)))
     tau = np.asarray(rnea(q, qd, qdd)) + 0.02 * qd
     tau += 0.01 * np.std(tau, 0) * np.random.default_rng(0).normal(size=tau.shape)
-    rec = Recording(
-        t, q, tau, qd, {"sample_rate_hz": "500", "command_hold": "none", "structure": "urdf", "robot": str(URDF)}
-    )
-    return fit(rec, "rigid,viscous", method="ls")
+    meta = {"sample_rate_hz": "500", "command_hold": "none", "structure": "urdf", "robot": str(path)}
+    return Recording(t, q, tau, qd, meta)
+
+
+@pytest.fixture(scope="module")
+def swing():
+    """The DFKI chain swung for 10 s (`swung`), fitted by least squares."""
+    return fit(swung(URDF, 10.0), "rigid,viscous", method="ls")
 
 
 def test_a_consistent_estimate_stays(swing):

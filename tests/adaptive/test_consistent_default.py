@@ -25,6 +25,7 @@ from manus.adaptive.identify.result import fit_rows
 from manus.plants import Serial
 from manus.plants.errors import ManusError
 from manus.plants.recording import Recording
+from tests.adaptive.test_consistency import swung
 from tests.plants.test_serial import load
 
 MODEL = "rigid,viscous,coulomb"
@@ -160,21 +161,9 @@ def test_a_well_excited_arm_keeps_least_squares_bit_for_bit():
 
 @pytest.fixture(scope="module")
 def dfki():
-    """The DFKI double pendulum (two joints) swung along a smooth motion, its torque from our RNEA
-    plus viscous friction and 1 % noise: least squares is consistent here."""
-    serial = Serial.from_urdf(DFKI)
-    t = np.arange(0, 8, 2e-3)
-    w = 2 * np.pi * np.array([[0.31, 0.73, 1.3], [0.43, 0.97, 1.7]])
-    a = np.array([[0.9, 0.3, 0.1], [0.8, 0.4, 0.15]])
-    arg = w[None] * t[:, None, None] + 0.3
-    q = np.einsum("jk,tjk->tj", a, np.sin(arg))
-    qd = np.einsum("jk,tjk->tj", a * w, np.cos(arg))
-    qdd = np.einsum("jk,tjk->tj", -a * w**2, np.sin(arg))
-    rnea = jax.jit(jax.vmap(lambda q1, qd1, qdd1: serial.rnea(q1, qd1, qdd1, serial.defaults)))
-    tau = np.asarray(rnea(q, qd, qdd)) + 0.02 * qd
-    tau += 0.01 * np.std(tau, 0) * np.random.default_rng(0).normal(size=tau.shape)
-    meta = {"sample_rate_hz": "500", "command_hold": "none", "structure": "urdf", "robot": str(DFKI)}
-    return fit(Recording(t, q, tau, qd, meta), "rigid,viscous", method="ls")
+    """The DFKI double pendulum swung for 8 s (`tests.adaptive.test_consistency.swung`): least
+    squares is consistent here."""
+    return fit(swung(DFKI, 8.0), "rigid,viscous", method="ls")
 
 
 def test_iv_simulates_from_the_consistent_model(dfki):

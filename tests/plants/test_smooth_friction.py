@@ -141,7 +141,7 @@ def test_the_simulated_panda_with_smooth_friction_follows_pinocchios_forward_dyn
     under a constant torque, against RK4 on pinocchio's ABA with the tanh law in its torque."""
     pin = pytest.importorskip("pinocchio")
     from tests.plants.test_serial import load
-    from tests.plants.test_serial_sim import _simulate
+    from tests.plants.test_serial_sim import _simulate, rk4
 
     _, serial, model, data = load("panda")
     n = serial.n_joints
@@ -155,16 +155,7 @@ def test_the_simulated_panda_with_smooth_friction_follows_pinocchios_forward_dyn
     def f(x):
         return np.r_[x[n:], pin.aba(model, data, x[:n], x[n:], tau - b * x[n:] - Fs * np.tanh(x[n:] / w))]
 
-    x, h, ref = np.r_[q0, np.zeros(n)], 1e-4, []
-    for k in range(2000):
-        k1 = f(x)
-        k2 = f(x + h / 2 * k1)
-        k3 = f(x + h / 2 * k2)
-        k4 = f(x + h * k3)
-        x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-        if k % 10 == 9:
-            ref.append(x.copy())
-    ref = np.array(ref)
+    ref = rk4(f, np.r_[q0, np.zeros(n)])
     moved = np.abs(ref[-1, :n] - q0).max()
     err_q, err_v = np.abs(q - ref[:, :n]).max(), np.abs(qd - ref[:, n:]).max()
     print(f"Panda with smooth friction: moved {moved:.3g} rad, |q − q_ABA| ≤ {err_q:.2g}, |q̇ − q̇_ABA| ≤ {err_v:.2g}")

@@ -18,3 +18,14 @@ def calibrate_args():
         return argparse.Namespace(**{**vars(p.parse_args(["--calibrate"])), **values})
 
     return make
+
+
+@pytest.fixture(scope="module")
+def files():
+    """The DFKI double pendulum's recordings (../shared/data/real/dfki_double_pendulum), or a skip."""
+    from tests.conftest import SHARED
+
+    found = sorted((SHARED / "data" / "real" / "dfki_double_pendulum").glob("A0_trajectory_0*.csv"))
+    if not found:
+        pytest.skip("../shared/data/real/dfki_double_pendulum is not beside the clone")
+    return found

@@ -83,14 +83,6 @@ def test_a_recording_without_a_coupling_does_not_get_one(seed):
 # -- the DFKI double pendulum in absolute angles ---------------------------------------------------
 
 
-@pytest.fixture(scope="module")
-def files():
-    found = sorted(DFKI.glob("A0_trajectory_0*.csv"))
-    if not found:
-        pytest.skip("../shared/data/real/dfki_double_pendulum is not beside the clone")
-    return found
-
-
 @pytest.mark.slow
 def test_discover_from_rigid_names_the_elbow_coupling_on_the_dfki_pendulum(files):
     """Trajectory 01: gravity, viscous, the coupling on q2 − q1, Coulomb, then nothing significant."""

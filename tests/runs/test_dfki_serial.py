@@ -29,14 +29,6 @@ def _module(name):
 
 
 @pytest.fixture(scope="module")
-def files():
-    found = sorted(DFKI.glob("A0_trajectory_0*.csv"))
-    if not found:
-        pytest.skip("../shared/data/real/dfki_double_pendulum is not beside the clone")
-    return found
-
-
-@pytest.fixture(scope="module")
 def comparison(files):
     return _module("compare").compare(files)
 
