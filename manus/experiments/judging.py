@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-CONDITION_KEYS = ("structure", "rate", "excitation", "torque", "hold")
+CONDITION_KEYS = ("structure", "rate", "excitation", "torque", "hold", "friction", "transmission", "log", "engine")
 Z95 = 1.959963984540054
 
 
@@ -113,24 +113,32 @@ def judge(
     own = next((x for x in d.candidates if x.effect == hidden), None) if hidden else None
     if own is not None and own.detail.get("detectable") is not None:
         out["detectable"] = own.detail["detectable"]
-    out.update(_outcome(v, hidden, c.joint))
+    spec = c.condition.get("hidden_spec")
+    out.update(_outcome(v, hidden, c.joint, spec))
     if baseline:
         try:
             b = diagnose(rec, c.start, per_joint=False, **options).verdict
-            out["before"] = {"verdict_spec": None if b is None else b.spec, **_outcome(b, hidden, c.joint)}
+            out["before"] = {"verdict_spec": None if b is None else b.spec, **_outcome(b, hidden, c.joint, spec)}
         except ManusError as e:
             out["before"] = {"outcome": "error", "error": str(e)}
     return out
 
 
-def _outcome(v, hidden: str | None, joint: int | None) -> dict:
-    """How a verdict `v` (a Candidate or None) stands against what was hidden."""
+def _outcome(v, hidden: str | None, joint: int | None, spec: str | None = None) -> dict:
+    """How a verdict `v` (a Candidate or None) stands against what was hidden (`spec`: a hidden
+    coupling's, named or a reading only with its joints and sign)."""
     if hidden is None:
         return {"outcome": "quiet" if v is None else "false alarm"}
-    named = v is not None and v.effect == hidden
+    from manus.experiments.chains import same_coupling
+
+    named = v is not None and v.effect == hidden and (spec is None or same_coupling(v.spec, spec))
     # the verdict says the recording hardly tells it from the hidden effect (a tilted plane,
     # a spring with its preload and an offset on a small swing) and names that reading too
-    reading = bool(not named and v is not None and any(hidden in _effects(x) for x in v.readings))
+    reading = bool(
+        not named
+        and v is not None
+        and any(hidden in _effects(x) and (spec is None or same_coupling(x, spec)) for x in v.readings)
+    )
     right = bool(v is not None and (named or reading) and (joint is None or v.joint == joint))
     outcome = "named" if named else ("reading" if reading else "missed" if v is None else "wrong")
     return {"named": bool(named), "reading": reading, "right_joint": right, "outcome": outcome}
@@ -162,7 +170,7 @@ def summarize(results: list[dict]) -> dict:
         per_effect[name] = {**detections(rs), "verdicts": _counts(r.get("verdict") or r["outcome"] for r in rs)}
     per_condition = {}
     for key in CONDITION_KEYS:
-        values = sorted({str(r["condition"][key]) for r in results if "condition" in r})
+        values = sorted({str(r["condition"][key]) for r in results if key in r.get("condition", {})})
         per_condition[key] = {
             v: {
                 "false_alarm": alarms([r for r in nulls if str(r.get("condition", {}).get(key)) == v]),

@@ -96,15 +96,23 @@ def add_arguments(p) -> None:
         default="manus",
         help="with --calibrate: the recordings' simulator: manus's own, or the one written independently "
         "from the equations (regularized friction, RK4, a PD loop, read back from CSV files; "
-        "manus.experiments.independent), or 6-7-joint chains (the Panda and the UR5, an effect hidden on "
-        "one joint; each recording also judged with relevance over all the torque only: "
-        "manus.experiments.chains)",
+        "manus.experiments.independent), or 6-7-joint chains (the Panda and the UR5, Coulomb or smooth "
+        "friction, the UR5's wrist plain or differential, clean logs or a PC's with repeated rows and jittered "
+        "stamps, each written and read back; an effect hidden on one joint, a coupling of two, or smooth "
+        "friction; each recording also judged with relevance over all the torque only: manus.experiments.chains)",
     )
     p.add_argument(
         "--rates",
         default="",
         help="with --calibrate: comma-separated sample rates [Hz] the recordings are drawn at (default: "
         "the set's own, 1000,200), e.g. your rig's",
+    )
+    p.add_argument(
+        "--no-pooled",
+        dest="pooled",
+        action="store_false",
+        help="with --simulator chain: judge each recording with relevance per joint only, not a second time "
+        "with relevance over all the torque (half the time)",
     )
 
 
@@ -251,15 +259,18 @@ def run_one(
     amplitude: float | None = None,
     lost: float = 0.0,
     simulator: str = "manus",
+    pooled: bool = True,
 ) -> dict:
     """`manus.experiments.judging.judge` in a worker: float64 and the environment, as `manus`
-    runs (a spawned worker was not started by it)."""
+    runs (a spawned worker was not started by it). A chain recording is judged a second time
+    with relevance over all the torque only where `pooled`."""
     from manus.runs.cli import configure_jax
 
     configure_jax()
     from manus.experiments.judging import judge
 
-    return judge(seed, hidden, alpha, blocks, rates, amplitude, lost, simulator, baseline=simulator == "chain")
+    baseline = pooled and simulator == "chain"
+    return judge(seed, hidden, alpha, blocks, rates, amplitude, lost, simulator, baseline=baseline)
 
 
 def calibrate(args) -> dict:
@@ -326,7 +337,8 @@ def calibrate(args) -> dict:
     lost = args.lost
     if not 0 <= lost < 0.5:
         raise ManusError(f"--lost must lie in [0, 0.5) (got {lost})")
-    for k, r in enumerate(_each(plan, args.alpha, blocks, jobs, rates, amplitude, lost, simulator), 1):
+    pooled = getattr(args, "pooled", True)
+    for k, r in enumerate(_each(plan, args.alpha, blocks, jobs, rates, amplitude, lost, simulator, pooled), 1):
         seed, hidden = r["seed"], r["hidden"]
         results.append(r)
         if r["outcome"] in ("crash", "error", "false alarm", "missed", "wrong", "reading"):
@@ -334,7 +346,10 @@ def calibrate(args) -> dict:
             note(
                 f"  [{k}/{len(plan)}] hidden {hidden or 'nothing'} (seed {seed}, {c.get('structure')} "
                 f"{c.get('rate')} Hz "
-                f"{c.get('excitation')} {c.get('torque')} hold {c.get('hold')}): {r['outcome']}"
+                f"{c.get('excitation')} {c.get('torque')} hold {c.get('hold')}"
+                + "".join(f" {k} {c[k]}" for k in ("friction", "transmission", "log", "engine") if k in c)
+                + (f" {c['hidden_spec']}" if "hidden_spec" in c else "")
+                + f"): {r['outcome']}"
                 + (f" {r.get('verdict_spec')}" if r.get("verdict_spec") else "")
                 + (f" (reads as {' or '.join(r['verdict_reads_as'])})" if r.get("verdict_reads_as") else "")
                 + (f": {r['error']}" if "error" in r else "")
@@ -370,6 +385,7 @@ def calibrate(args) -> dict:
         "rates": list(rates),
         "lost": lost,
         "simulator": simulator,
+        "pooled": pooled and simulator == "chain",
         "results": [{k: v for k, v in r.items() if k != "trace"} for r in results],
         "load_average": os.getloadavg()[0],
         "cpu_count": os.cpu_count(),
@@ -385,12 +401,13 @@ def _each(
     amplitude: float | None = None,
     lost: float = 0.0,
     simulator: str = "manus",
+    pooled: bool = True,
 ):
     """`run_one` over the plan, in order: in this process (one job) or in `jobs` fresh worker
     processes (spawned, not forked: JAX is not fork-safe), each compiling its own simulations."""
     if jobs == 1 or len(plan) < 2:
         for seed, hidden in plan:
-            yield run_one(seed, hidden, alpha, blocks, rates, amplitude, lost, simulator)
+            yield run_one(seed, hidden, alpha, blocks, rates, amplitude, lost, simulator, pooled)
         return
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
@@ -405,6 +422,7 @@ def _each(
             [amplitude] * len(plan),
             [lost] * len(plan),
             [simulator] * len(plan),
+            [pooled] * len(plan),
         )
 
 
@@ -419,7 +437,10 @@ def render_calibration(r: dict) -> str:
     at = (
         f", at {'/'.join(str(x) for x in r['rates'])} Hz" if r.get("rates") and tuple(r["rates"]) != (1000, 200) else ""
     )
-    by = " (the independent simulator: manus.experiments.independent)" if r.get("simulator") == "independent" else ""
+    by = {
+        "independent": " (the independent simulator: manus.experiments.independent)",
+        "chain": " (6-7-joint chains: manus.experiments.chains)",
+    }.get(r.get("simulator", ""), "")
     lines = [
         f"calibration{by}: {r['recordings']} recordings per row, seed {r['seed']}{at}, hidden at "
         f"{100 * r['amplitude']:g} % of the torque RMS"
