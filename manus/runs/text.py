@@ -137,6 +137,7 @@ def diagnosis_text(r: dict) -> str:
         f"model {r['spec']}: rel_error {100 * r['rel_error']:.2f} % (torque low-passed at {r['cutoff_hz']:.1f} Hz; "
         f"{r['method']}; command hold {r['hold']})",
         *consistency_lines(r),
+        *([f"  candidates judged by {r['judged_by']}: {r['judged_why']}"] if r.get("judged_why") else []),
         table(
             left([row[:8] + row[9:] + row[8:9] for row in candidate_rows(r["candidates"], r["verdict"])], (8, 9)),
             [
@@ -186,6 +187,10 @@ def discovery_text(r: dict) -> str:
         *consistency_lines(r),
     ]
     lines += [f"  step {s['step']}: {s['note']}" for s in r["steps"] if s.get("note")]
+    judged = [f"step {s['step']}" for s in r["steps"] if s.get("judged_by", "torque") != "torque"]
+    judged += ["the last diagnosis"] if r.get("judged_by", "torque") != "torque" else []
+    if judged:
+        lines.append(f"  candidates judged by position (output error): {', '.join(judged)}")
     lines += [f"  {n}" for n in r["notes"]]
     lines.append(f"  fitted by {r['method']}: {r['method_why']}")
     if r["stopped"] == "nothing significant missing" and r.get("detection_limits"):

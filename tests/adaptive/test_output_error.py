@@ -51,18 +51,18 @@ class Pump(Controller):
         return (q, v), self.u * jnp.sign(v) * jnp.sign(target - energy)
 
 
-def swing(rate: float, step: float, u: float, amp: float, seconds: float = 20.0):
-    """The pendulum swung by `Pump` from 0.3 rad, recorded at `rate` with an encoder of `step`."""
+def swing(rate: float, step: float, u: float, amp: float, seconds: float = 20.0, q0: float = 0.3):
+    """The pendulum swung by `Pump` from `q0` [rad], recorded at `rate` with an encoder of `step`."""
     plant = Simulator(
         Model(Axis(n_joints=1), MODEL),
         TRUTH,
         rate_hz=rate,
         actuator=None,
         encoder=Encoder(step=step),
-        q0=jnp.array([0.3]),
+        q0=jnp.array([q0]),
     )
     ctrl = Pump(u, amp, 40.0, 1 / rate)
-    traj = simulate(plant, ctrl, Hold(np.array([0.3])), seconds, key=jax.random.PRNGKey(0))
+    traj = simulate(plant, ctrl, Hold(np.array([q0])), seconds, key=jax.random.PRNGKey(0))
     rec = from_trajectory(traj, rate, "axis", 2 * math.pi / step, {"joints": "revolute"})
     rec.qd, rec.extra, rec.path = None, {}, f"<pendulum {rate:g} Hz, step {step:.2g}>"
     return rec

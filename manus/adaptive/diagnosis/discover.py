@@ -76,6 +76,7 @@ class Step:
             "error_reduction": self.verdict.error_reduction,
             "p_value": self.verdict.p_value,
             "candidates": [c.report() for c in self.diagnosis.candidates],
+            "judged_by": self.diagnosis.judged_by,
         }
         if self.note:
             out["note"] = self.note
@@ -134,6 +135,7 @@ class Discovery:
             "params": self.final_fit.report()["params"],
             "unexplained": self.unexplained,
             "detection_limits": self.final.detection_limits if self.final is not None else {},
+            **({"judged_by": self.final.judged_by} if self.final is not None else {}),
             "notes": self.notes,
         }
 
@@ -191,6 +193,8 @@ def kept(d: Diagnosis, before: Fit, after: Fit) -> tuple[bool, str]:
     (`OnJoint.relevant` at the diagnosis's level); and what it changed (a phrase)."""
     ctx = d.context
     assert ctx is not None, "a diagnosis keeps the context it judged in"
+    if d.judged is not None:  # judged by output error: its held-out position errors
+        return d.judged.kept(after, ctx.min_share)
     b = held_out_per_joint(ctx.stats(before.model, before.delay), ctx.folds)
     a = held_out_per_joint(ctx.stats(after.model, after.delay), ctx.folds)
     torque = np.sum(ctx.data.tau(before.delay) ** 2, axis=0)
@@ -249,7 +253,9 @@ def discover(
         for v in to_try(d):
             if v.mode is not None:
                 break
-            trial = fit(data, v.fitted().model.spec, columns=cols, method=method)  # its effect as found
+            trial = (  # its effect as found (judged by positions: the OE fit it was judged by)
+                v.fitted() if d.judged is not None else fit(data, v.fitted().model.spec, columns=cols, method=method)
+            )
             trial, moved = _refine(data, cols, trial, given, method)
             keep, said = kept(d, current, trial)
             if keep:

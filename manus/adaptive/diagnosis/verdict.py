@@ -32,6 +32,7 @@ import numpy as np
 from manus.adaptive.diagnosis.candidates import Candidate, compliance, judge, offered
 from manus.adaptive.diagnosis.context import Context
 from manus.adaptive.diagnosis.leftover import residual_structure
+from manus.adaptive.diagnosis.oe_judging import POSITION, TORQUE, PositionJudging, judging, rejudge
 from manus.adaptive.diagnosis.scores import block_scores, score_p
 from manus.adaptive.diagnosis.significance import (
     SIGNIFICANCE,
@@ -75,6 +76,7 @@ class Diagnosis:
     unexplained: dict = field(default_factory=dict)
     alpha: float = ALPHA
     context: Context | None = None  # what the step judged in (its blocks: a loop measures its steps on them)
+    judged: PositionJudging | None = None  # where the candidates were judged by output error's positions
 
     def report(self) -> dict:
         """The JSON contract of `manus diagnose` (docs/cli.md)."""
@@ -88,6 +90,8 @@ class Diagnosis:
             "hold": self.base.data.hold,
             "method": self.base.method,
             "method_why": self.base.why,
+            "judged_by": self.judged_by,
+            **({"judged_why": self.judged.why} if self.judged is not None else {}),
             "candidates": [c.report() for c in self.candidates],
             "verdict": self.verdict.effect if self.verdict else None,
             "verdict_spec": self.verdict.spec if self.verdict else None,
@@ -97,6 +101,11 @@ class Diagnosis:
             **({"consistency": self.base.consistency_report()} if self.base.consistency else {}),
             "notes": self.notes,
         }
+
+    @property
+    def judged_by(self) -> str:
+        """The error the candidates were judged by: the torque's, or OE's positions (`oe_judging`)."""
+        return TORQUE if self.judged is None else POSITION
 
     @property
     def detection_limits(self) -> dict[str, float]:
@@ -186,18 +195,23 @@ def diagnose(
                 cands.append(c)
             continue
         cands.append(judge(ctx, offer))
-    if per_joint:
+    judged, why_torque = judging(ctx, cands, method)  # (None: judged by the torque, as above)
+    notes += [why_torque] if why_torque else []
+    if judged is not None:
+        rejudge(ctx, judged, cands)
+    elif per_joint:
         _relevant_on_joints(ctx, base_st, cands)
     cands.sort(key=lambda c: -_torque_gain(c))
     _aliases(ctx, cands)
     verdict = _choose(cands, ctx.alpha)
     if verdict is not None:
-        verdict = _encompassing(ctx, verdict, cands)
-        _mark_overlaps(ctx, verdict, cands)
+        if judged is None:  # (rivals on top of the verdict: judged by the torque)
+            verdict = _encompassing(ctx, verdict, cands)
+            _mark_overlaps(ctx, verdict, cands)
         cands.sort(key=lambda c: (c is not verdict, c.overlaps is not None, -_torque_gain(c)))
     after = verdict.fit if verdict is not None and verdict.fit is not None else base
     unexplained = residual_structure(ctx, after, alpha)
-    return Diagnosis(base, cands, verdict, base_sse, notes, unexplained, alpha, ctx)
+    return Diagnosis(base, cands, verdict, base_sse, notes, unexplained, alpha, ctx, judged)
 
 
 def _torque_gain(c: Candidate) -> float:
