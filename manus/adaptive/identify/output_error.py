@@ -159,7 +159,8 @@ def quantization(data: Data, cols: Columns, f: Fit) -> Quantization | None:
     sub = Model(model.structure, tuple(rigid))
     names = [k for k in model.names if k not in f.redundant]
     inertial = [k for k in sub.names if k in names]
-    idx = [list(model.names).index(k) for k in names]
+    every = list(model.names)  # (a chain's names are worked out on each call)
+    idx = [every.index(k) for k in names]
     X = cols.model(model)[:, :, idx].reshape(-1, len(idx))
     scale = np.sqrt(np.mean(X**2, axis=0)) + 1e-300
     X = X / scale
