@@ -67,3 +67,15 @@ def test_a_clean_recording_is_judged_by_the_torque():
     r = d.report()
     assert r["judged_by"] == "torque" and "judged_why" not in r
     assert d.verdict is not None and d.verdict.effect == "coulomb"
+
+
+def test_two_friction_laws_the_positions_cannot_tell_apart_are_named_as_readings():
+    """From `rigid,gravity` on the seeded 200 Hz pendulum (truth: viscous and Coulomb, 0.016 and
+    0.02 N·m at the swing's speed), viscous and Coulomb each remove a significant share of the
+    held-out position error and neither adds to the other: the verdict names the other reading
+    (its J and m g l ride on which law it is)."""
+    d = diagnose(seeded(200.0, 1), "rigid,gravity")
+    assert d.judged_by == POSITION and d.verdict is not None
+    other = {"viscous": "coulomb", "coulomb": "viscous"}[d.verdict.effect]
+    assert d.verdict.readings == [other] and "hardly tell" in d.verdict.note
+    assert d.report()["candidates"][0]["reads_as"] == [other]

@@ -75,6 +75,7 @@ otherwise and state none.)
 
 Modules, each importing only those before it: `scores` (the score test), `significance`
 (held-out errors, Simes' rule), `modes` (a structural mode from the frequency response),
-`context` (what a step judges in), `candidates` (each candidate judged), `leftover` (what no
-effect explains), `verdict` (`diagnose`: the step's verdict), `discover` (the loop).
+`context` (what a step judges in), `candidates` (each candidate judged), `oe_judging` (the
+candidates judged by output error's positions where the fit is OE), `leftover` (what no effect
+explains), `verdict` (`diagnose`: the step's verdict), `discover` (the loop).
 """

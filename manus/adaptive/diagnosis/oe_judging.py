@@ -125,7 +125,8 @@ class PositionJudging:
     """What the candidates of one step are judged on where they are judged by OE's error: the
     base model's OE fit linearised, the blocks of windows, and why."""
 
-    why: str
+    why: str  # why the candidates are judged by positions (`judged_why`)
+    reason: str  # why output error fits this recording: each candidate's OE fit's `method_why`
     cols: Columns
     base: Linear
     test: np.ndarray  # (blocks, windows)
@@ -142,7 +143,7 @@ class PositionJudging:
                 raise ModelError(f"its minimisation failed ({e})") from e
             if not isinstance(f, OutputErrorFit):
                 raise ModelError(f"output error did not fit {spec} ({f.why})")
-            self.fits[spec] = linear(replace(f, why=f"output error, whose position errors judged it: {self.why}"))
+            self.fits[spec] = linear(replace(f, why=self.reason))
         return self.fits[spec]
 
     def rel(self, sse: np.ndarray | float) -> float:
@@ -183,16 +184,16 @@ def judging(ctx: Context, cands: list[Candidate], method: str) -> tuple[Position
     fit is OE, or where `method` is "auto" and `auto` would fit OE to the model with a candidate
     (`output_error.oe_reason` on the candidate's least-squares fit)."""
     data, cols, base = ctx.data, ctx.cols, ctx.base
-    why = ""
+    why = reason = ""
     if base.method == "oe":
-        why = f"the model's fit is output error ({base.why})"
+        why, reason = f"the model's fit is output error ({base.why})", base.why
     elif method == "auto" and base.method == "ls":
         for c in cands:
             if c.fit is None or c.fit.method != "ls":
                 continue
             reason = oe_reason(data, c.fit, quantization(data, cols, c.fit))
             if reason:
-                why = f"with {c.spec}, {reason}"
+                why = reason = f"with {c.spec}, {reason}"
                 break
     if not why:
         return None, ""
@@ -208,7 +209,7 @@ def judging(ctx: Context, cands: list[Candidate], method: str) -> tuple[Position
     test = np.zeros((G, K), bool)
     for g, idx in enumerate(np.array_split(np.arange(K), G)):
         test[g, idx] = True
-    judged = PositionJudging(why, cols, lin, test, lin.held_out(test), dynamic_motion(data))
+    judged = PositionJudging(why, reason, cols, lin, test, lin.held_out(test), dynamic_motion(data))
     judged.fits[f.model.spec] = lin
     return judged, ""
 
@@ -290,3 +291,61 @@ def _score(ctx: Context, pj: PositionJudging, c: Candidate, f: OutputErrorFit) -
     scores = block_scores(st, tested, pj.test)
     signed = np.isfinite(problem.lower)[tested]
     return score_p([scores], ctx.alpha / len(SIGNIFICANCE), signed=signed)[0]
+
+
+def overlaps(ctx: Context, pj: PositionJudging, verdict: Candidate, cands: list[Candidate]) -> None:
+    """Other significant candidates the verdict already accounts for, in positions (the torque's
+    overlap test, `verdict._mark_overlaps`, on OE's held-out position errors): the OE fit of the
+    verdict's model with the candidate added removes no relevant share of the held-out position
+    error that is significantly there (`_adds`). Where neither adds to the other, the two are
+    readings the recording cannot tell apart (the verdict's `reads_as`)."""
+    if verdict.fit is None or verdict.mode is not None:
+        return
+    with_v = pj.of(verdict.fitted().model.spec)
+    same = []
+    for c in cands:
+        if c is verdict or not c.significant or c.fit is None or c.mode is not None or c.effect in verdict.aliases:
+            continue
+        if with_v.fit.model.has(c.effect):
+            continue
+        try:
+            both = pj.of(with_v.fit.model.with_effect(c.found()).spec)
+        except ModelError:
+            continue
+        extra, adds = _adds(ctx, pj, with_v, both)
+        if adds:
+            continue
+        if not _adds(ctx, pj, pj.of(c.fitted().model.spec), both)[1]:
+            same.append(c.spec)
+        c.overlaps = verdict.effect
+        c.note = "; ".join(
+            x
+            for x in (
+                c.note,
+                f"explains the same as {verdict.effect} in positions: with {verdict.effect} in the model it removes "
+                f"{100 * extra:.2g} % of what the dynamics must explain held out, which is not significantly there",
+            )
+            if x
+        )
+    if same:
+        verdict.readings = same
+        verdict.note = "; ".join(
+            x
+            for x in (
+                verdict.note,
+                f"the positions hardly tell {verdict.spec} from {' or '.join(same)}: neither adds to the other a "
+                f"relevant share of the held-out position error that is significantly there (the model's other "
+                f"parameters, fitted with either, may differ)",
+            )
+            if x
+        )
+
+
+def _adds(ctx: Context, pj: PositionJudging, fitted: Linear, both: Linear) -> tuple[float, bool]:
+    """The share of what the dynamics must explain that `both` removes held out beyond `fitted`,
+    and whether it is relevant and significant (the held-out errors' t-test at the step's level)."""
+    a, b = fitted.held_out(pj.test), both.held_out(pj.test)
+    share = float(np.sqrt(max(a.sum() - b.sum(), 0.0) / pj.motion)) if pj.motion > 0 else 0.0
+    removed = 1 - float(np.sqrt(b.sum() / a.sum())) if a.sum() > 0 else 0.0
+    relevant = share >= ctx.min_share or removed >= MOST
+    return share, bool(relevant and one_sided_p(a, b) < ctx.alpha)

@@ -32,7 +32,7 @@ import numpy as np
 from manus.adaptive.diagnosis.candidates import Candidate, compliance, judge, offered
 from manus.adaptive.diagnosis.context import Context
 from manus.adaptive.diagnosis.leftover import residual_structure
-from manus.adaptive.diagnosis.oe_judging import POSITION, TORQUE, PositionJudging, judging, rejudge
+from manus.adaptive.diagnosis.oe_judging import POSITION, TORQUE, PositionJudging, judging, overlaps, rejudge
 from manus.adaptive.diagnosis.scores import block_scores, score_p
 from manus.adaptive.diagnosis.significance import (
     SIGNIFICANCE,
@@ -208,6 +208,8 @@ def diagnose(
         if judged is None:  # (rivals on top of the verdict: judged by the torque)
             verdict = _encompassing(ctx, verdict, cands)
             _mark_overlaps(ctx, verdict, cands)
+        else:
+            overlaps(ctx, judged, verdict, cands)
         cands.sort(key=lambda c: (c is not verdict, c.overlaps is not None, -_torque_gain(c)))
     after = verdict.fit if verdict is not None and verdict.fit is not None else base
     unexplained = residual_structure(ctx, after, alpha)
