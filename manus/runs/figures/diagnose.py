@@ -12,11 +12,13 @@ from pathlib import Path
 import numpy as np
 
 from manus.adaptive.diagnosis.leftover import RIPPLE, what_removes
-from manus.runs.figures.common import pyplot, save
+from manus.runs.figures.common import envelope, panels, pyplot, save, tidy
 
 Z99 = 2.576  # two-sided 99 % normal quantile
 MAX_LAG_ROWS = 60
 BINS = 41
+WRAP = 4  # panels per row of an evidence figure
+BAR_PT = 260.0  # points of axis width a correlogram's bars share (a bar is 0.8 of its lag's width)
 
 
 def _xcorr(a: np.ndarray, b: np.ndarray, lags: int) -> np.ndarray:
@@ -56,7 +58,6 @@ def resid_figure(d, out: Path, name: str = "resid.png", title: str = "") -> str:
     and its spectrum beside the torque's."""
     from scipy import signal
 
-    plt = pyplot()
     f = d.base
     data = f.data
     n = data.n_joints
@@ -65,30 +66,34 @@ def resid_figure(d, out: Path, name: str = "resid.png", title: str = "") -> str:
     t = data.rec.t[rows]
     h = _row_dt(data)
     L = min(MAX_LAG_ROWS, rows.size // 4)
-    lag_s = np.arange(-L, L + 1) * h
-    fig, axes = plt.subplots(2 * n, 3, figsize=(14, 5.2 * n), squeeze=False)
+    lag_ms = np.arange(-L, L + 1) * h * 1e3
+    fig, axes = panels(
+        2 * n,
+        3,
+        (4.75, 2.6),
+        f"{title or Path(data.rec.path).name}: residual of {f.model.spec} (rel_error {100 * f.rel_error:.2f} %), "
+        f"{rows.size} rows, one per {h * 1e3:.3g} ms",
+    )
     for i in range(n):
         e = r[:, i]
         acf = _xcorr(e, e, L)
         ccf = _xcorr(e, qd[:, i], L)
         N = e.size
         ax = axes[2 * i, 0]
-        ax.bar(lag_s[L:] * 1e3, acf[L:], width=h * 1e3 * 0.8, color="C0")
+        ax.vlines(lag_ms[L:], 0, acf[L:], color="C0", lw=_bar_pt(L + 1))
         ax.axhspan(-Z99 / np.sqrt(N), Z99 / np.sqrt(N), color="C3", alpha=0.15, lw=0, label="99 % band (white)")
         ax.set_title(f"joint {i + 1}: residual autocorrelation", fontsize=9, loc="left")
         ax.set_xlabel("lag [ms]")
-        ax.legend(fontsize=7, loc="upper right")
         ax = axes[2 * i, 1]
         # the band under 'e independent of the input', for autocorrelated e and u (Bartlett)
         band = Z99 * np.sqrt(max(np.sum(acf * _xcorr(qd[:, i], qd[:, i], L)), 1.0) / N)
-        ax.bar(lag_s * 1e3, ccf, width=h * 1e3 * 0.8, color="C2")
+        ax.vlines(lag_ms, 0, ccf, color="C2", lw=_bar_pt(2 * L + 1))
         ax.axhspan(-band, band, color="C3", alpha=0.15, lw=0, label="99 % band (independent)")
         ax.set_title(f"cross-correlation residual × velocity q̇{i + 1} (input leads →)", fontsize=9, loc="left")
         ax.set_xlabel("lag [ms]")
-        ax.legend(fontsize=7, loc="upper right")
         ax = axes[2 * i, 2]
-        ax.plot(t, e, color="C3", lw=0.6, label="residual")
-        ax.fill_between(t, -2 * np.std(e), 2 * np.std(e), color="0.85", lw=0, label="± 2 RMS")
+        ax.plot(*envelope(t, e), color="C3", lw=0.6, label="residual")
+        ax.axhspan(-2 * np.std(e), 2 * np.std(e), color="0.85", lw=0, label="± 2 RMS", zorder=0)
         ax.set_title(
             f"residual against time (RMS {np.sqrt(np.mean(e**2)):.3g}, "
             f"{100 * np.linalg.norm(e) / np.linalg.norm(tau[:, i]):.1f} % of the torque)",
@@ -96,7 +101,6 @@ def resid_figure(d, out: Path, name: str = "resid.png", title: str = "") -> str:
             loc="left",
         )
         ax.set_xlabel("t [s]")
-        ax.legend(fontsize=7, loc="upper right")
         for ax, x, label in ((axes[2 * i + 1, 0], qd[:, i], f"q̇{i + 1}"), (axes[2 * i + 1, 1], q[:, i], f"q{i + 1}")):
             ax.plot(x, e, ".", ms=1.5, color="0.6", alpha=0.5, rasterized=True)
             c, m, se = _binned(x, e)
@@ -104,7 +108,6 @@ def resid_figure(d, out: Path, name: str = "resid.png", title: str = "") -> str:
             ax.axhline(0, color="k", lw=0.6)
             ax.set_xlabel(label)
             ax.set_title(f"residual against {label}", fontsize=9, loc="left")
-            ax.legend(fontsize=7, loc="upper right")
         ax = axes[2 * i + 1, 2]
         nper = min(256, e.size)
         fr, pe = signal.welch(e, fs=1 / h, nperseg=nper)
@@ -112,18 +115,19 @@ def resid_figure(d, out: Path, name: str = "resid.png", title: str = "") -> str:
         ax.semilogy(fr, pt, color="0.6", lw=0.8, label="torque")
         ax.semilogy(fr, pe, color="C3", lw=0.9, label="residual")
         k = int(np.argmax(pe[1:])) + 1
-        ax.plot(fr[k], pe[k], "v", color="k", ms=5, label=f"peak {fr[k]:.2f} Hz")
+        ax.plot(fr[k], pe[k], "v", color="k", ms=5, label="residual's peak")
         ax.axvline(data.cutoff_hz, color="0.4", ls=":", lw=0.8)
         ax.set_xlabel("frequency [Hz] (dotted: identification cut-off)")
-        ax.set_title("spectrum", fontsize=9, loc="left")
+        ax.set_title(f"spectrum: residual's peak at {fr[k]:.2f} Hz", fontsize=9, loc="left")
+    for ax in axes[:2].flat:  # every joint's panels say the same: the legend once, on the first joint's
         ax.legend(fontsize=7, loc="upper right")
-    fig.suptitle(
-        f"{title or Path(data.rec.path).name}: residual of {f.model.spec} (rel_error {100 * f.rel_error:.2f} %), "
-        f"{rows.size} rows, one per {h * 1e3:.3g} ms",
-        fontsize=10,
-    )
-    fig.tight_layout()
-    return save(fig, out, name)
+    tidy(axes)
+    return save(fig, out, name, tight=False)
+
+
+def _bar_pt(bars: int) -> float:
+    """The line width (points) of one of `bars` correlogram bars across a panel."""
+    return max(0.6, 0.8 * BAR_PT / bars)
 
 
 # -- evidence per candidate -----------------------------------------------------------------
@@ -143,7 +147,7 @@ def _term(c, data) -> np.ndarray:
     p = {k: jnp.asarray(v) for k, v in c.fit.params.items() if k in model.names}
     rows = data.rows
     args = (jnp.asarray(data.q[rows]), jnp.asarray(data.qd[rows]), jnp.asarray(data.qdd[rows]))
-    return np.asarray(jax.vmap(lambda q, qd, qdd: model.torque(q, qd, qdd, p))(*args))
+    return np.asarray(jax.jit(jax.vmap(lambda q, qd, qdd: model.torque(q, qd, qdd, p)))(*args))
 
 
 def _headline(c, verdict) -> str:
@@ -173,7 +177,10 @@ def _search_panel(ax, c):
         ax.legend(fontsize=7)
     else:
         x = np.array([v[key] if not isinstance(v[key], list) else v[key][-1] for v in values], float)
-        (ax.semilogx if logx else ax.plot)(x[ok], 100 * errs[ok], ".-", color="C0", lw=0.9, ms=2)
+        style = ".-" if np.all(np.diff(x[ok]) > 0) else "."  # a curve where the values are in order
+        (ax.semilogx if logx else ax.plot)(
+            x[ok], 100 * errs[ok], style, color="C0", lw=0.9, ms=2 if style == ".-" else 4
+        )
     best = int(np.nanargmin(np.where(ok, errs, np.nan)))
     ax.plot(x[best], 100 * errs[best], "o", color="C3", ms=4)
     ax.set_xlabel(f"{key} searched (only the best few evaluated exactly)" if (~ok).any() else f"{key} searched")
@@ -193,17 +200,30 @@ HOW = {
 def evidence_figure(d, c, out: Path, name: str, title: str = "") -> str:
     """Why candidate `c` is (or is not) missing, per joint, plus its parameter search when it has
     one. What the residual is plotted against is the effect's own `evidence`."""
-    plt = pyplot()
     data = d.base.data
     n = data.n_joints
     rows = data.rows
     q, qd, e = data.q[rows], data.qd[rows], d.base.residual
     has_search = c.fit is not None and c.effect in c.fit.search
-    ncols = n + int(has_search)
-    fig, axes = plt.subplots(1, ncols, figsize=(5.2 * ncols, 3.9), squeeze=False)
-    axes = axes[0]
+    count = n + int(has_search)
+    text = _headline(c, d.verdict)
+    if c.note:
+        text += "\n" + c.note
+    if c.problems:
+        text += "\nnot proposed: " + "; ".join(c.problems)
+    ncols = min(count, WRAP)
+    fig, grid = panels(
+        -(-count // ncols),
+        ncols,
+        (5.0, 3.4),
+        f"{title or Path(data.rec.path).name}, model {d.base.model.spec} + {c.effect}: {text}",
+    )
+    axes = grid.ravel()
+    for ax in axes[count:]:
+        ax.set_axis_off()
     effect = c.fit.model.get(c.effect) if c.fit is not None else None
     term = _term(c, data) if effect is not None and effect.linear else None
+    how = ""
     for i in range(n):
         ax = axes[i]
         if c.mode is not None:
@@ -243,19 +263,16 @@ def evidence_figure(d, c, out: Path, name: str, title: str = "") -> str:
             f"joint {i + 1}" + (f": removes {100 * red:.1f} %" if red is not None else ""), fontsize=9, loc="left"
         )
         ax.set_xlabel(xl)
-        ax.set_ylabel("residual")
-        ax.legend(fontsize=7, loc="upper right")
+        if i % ncols == 0:
+            ax.set_ylabel("residual")
+    # every joint's panel says the same: the legend once, on the first joint's
+    axes[0].legend(fontsize=7, loc="upper right" if c.mode is None else "lower left")
+    if how:
         axes[0].text(0.01, 0.02, how, transform=axes[0].transAxes, fontsize=7, color="0.3")
     if has_search:
-        _search_panel(axes[-1], c)
-    text = _headline(c, d.verdict)
-    if c.note:
-        text += "\n" + c.note
-    if c.problems:
-        text += "\nnot proposed: " + "; ".join(c.problems)
-    fig.suptitle(f"{title or Path(data.rec.path).name}, model {d.base.model.spec} + {c.effect}: {text}", fontsize=9)
-    fig.tight_layout()
-    return save(fig, out, name)
+        _search_panel(axes[n], c)
+    tidy(axes[:count])
+    return save(fig, out, name, tight=False)
 
 
 def _compliance_panel(ax, c, i: int):
@@ -272,7 +289,6 @@ def _compliance_panel(ax, c, i: int):
     ax.set_title(
         f"joint {i + 1}: frequency response (resonance peak: {'yes' if m.resonant else 'no'})", fontsize=9, loc="left"
     )
-    ax.legend(fontsize=7, loc="lower left")
 
 
 def evidence_figures(d, out: Path, prefix: str = "", title: str = "") -> dict[str, str]:

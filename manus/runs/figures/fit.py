@@ -9,75 +9,79 @@ from pathlib import Path
 import numpy as np
 
 from manus.experiments.freerun import nrmse_fit
-from manus.runs.figures.common import pyplot, save
+from manus.runs.figures.common import envelope, panels, pyplot, save, tidy
 
 ZOOM_S = 2.0  # the zoom on the tracking error: this many seconds in the middle of the recording
 
 
 def compare_figure(f, run, out: Path, name: str = "compare.png", title: str = "") -> str:
-    """Row 1: the measured torque (filtered as identification sees it) against the model's
-    prediction, per joint. Row 2: measured positions against the free run. Row 3 (closed loop):
-    the tracking error q − q_ref measured and simulated, over a zoom (the position alone follows
-    the reference whatever the model). `run` is a `manus.experiments.freerun.FreeRun`, or a string saying why
-    there is none."""
-    plt = pyplot()
+    """One row per joint. Column 1: the measured torque (filtered as identification sees it)
+    against the model's prediction. Column 2: measured positions against the free run. Column 3
+    (closed loop): the tracking error q − q_ref measured and simulated, over a zoom (the position
+    alone follows the reference whatever the model). `run` is a
+    `manus.experiments.freerun.FreeRun`, or a string saying why there is none. Long series are
+    drawn as what each pixel column shows (`envelope`)."""
     d = f.data
     n = d.n_joints
     t_rows = d.rec.t[d.rows]
     tau, pred = f.data.tau(f.delay), f.predicted()
     fit_tau = nrmse_fit(tau, pred)
     closed = not isinstance(run, str) and run.q_ref is not None
-    rows = 3 if closed else 2
-    fig, axes = plt.subplots(rows, n, figsize=(6.2 * n, 2.5 * rows + 0.5), squeeze=False)
+    how = run if isinstance(run, str) else run.how
+    fig, axes = panels(
+        n,
+        3 if closed else 2,
+        (6.2, 2.3),
+        f"{title or Path(d.rec.path).name}: model {f.model.spec}, rel_error {100 * f.rel_error:.2f} %, "
+        f"torque low-passed at {d.cutoff_hz:.0f} Hz\nfree run (JAX simulator, fitted parameters): {how}",
+    )
     unit = "N·m" if d.rec.structure_name == "manus2" else "N or N·m"
     for i in range(n):
-        ax = axes[0, i]
-        ax.plot(t_rows, tau[:, i], color="k", lw=0.7, label="measured (filtered)")
-        ax.plot(t_rows, pred[:, i], color="C1", lw=0.7, alpha=0.85, label="model")
+        ax = axes[i, 0]
+        ax.plot(*envelope(t_rows, tau[:, i]), color="k", lw=0.7, label="measured (filtered)")
+        ax.plot(*envelope(t_rows, pred[:, i]), color="C1", lw=0.7, alpha=0.85, label="model")
         ax.set_title(f"torque, joint {i + 1}: fit {fit_tau[i]:.1f} %", fontsize=9, loc="left")
         ax.set_ylabel(f"τ{i + 1} [{unit}]")
-        ax.legend(loc="upper right", fontsize=7)
-        ax = axes[1, i]
+        ax = axes[i, 1]
         if isinstance(run, str):
-            ax.text(
-                0.5,
-                0.5,
-                f"no free run:\n{run}",
-                ha="center",
-                va="center",
-                transform=ax.transAxes,
-                fontsize=8,
-                wrap=True,
-            )
             ax.set_axis_off()
             continue
-        ax.plot(run.t, run.q[:, i], color="k", lw=0.8, label="measured")
-        ax.plot(run.t, run.q_sim[:, i], color="C0", lw=0.8, ls="--", label=f"free run ({run.mode})")
+        ax.plot(*envelope(run.t, run.q[:, i]), color="k", lw=0.8, label="measured")
+        ax.plot(*envelope(run.t, run.q_sim[:, i]), color="C0", lw=0.8, ls="--", label=f"free run ({run.mode})")
         ax.set_title(f"position, joint {i + 1}: fit {run.fit_q[i]:.2f} %", fontsize=9, loc="left")
         ax.set_ylabel(f"q{i + 1}")
-        ax.legend(loc="upper right", fontsize=7)
         if closed:
-            ax = axes[2, i]
+            ax = axes[i, 2]
             mid = len(run.t) // 2
             half = int(0.5 * ZOOM_S / d.dt)
             sl = slice(max(0, mid - half), mid + half)
-            ax.plot(run.t[sl], (run.q - run.q_ref)[sl, i], color="k", lw=0.8, label="measured")
-            ax.plot(run.t[sl], (run.q_sim - run.q_ref)[sl, i], color="C0", lw=0.8, ls="--", label="free run")
+            ax.plot(*envelope(run.t[sl], (run.q - run.q_ref)[sl, i]), color="k", lw=0.8, label="measured")
+            ax.plot(*envelope(run.t[sl], (run.q_sim - run.q_ref)[sl, i]), color="C0", lw=0.8, ls="--", label="free run")
             ax.set_title(
                 f"tracking error q{i + 1} − q_ref{i + 1} (zoom): fit {run.fit_tracking[i]:.1f} % over the whole run",
                 fontsize=9,
                 loc="left",
             )
+    if isinstance(run, str):
+        axes[0, 1].text(
+            0.5,
+            0.5,
+            f"no free run:\n{run}",
+            ha="center",
+            va="center",
+            transform=axes[0, 1].transAxes,
+            fontsize=8,
+            wrap=True,
+        )
+    for ax in axes[-1]:
+        ax.set_xlabel("t [s]")
+    for ax in axes[:-1].flat:  # a column's panels span the same time: its labels under the last row
+        ax.tick_params(labelbottom=False)
+    for ax in axes[0]:  # every joint's panels say the same: the legend once, on the first joint's
+        if ax.has_data():
             ax.legend(loc="upper right", fontsize=7)
-        axes[-1, i].set_xlabel("t [s]")
-    how = run if isinstance(run, str) else run.how
-    fig.suptitle(
-        f"{title or Path(d.rec.path).name}: model {f.model.spec}, rel_error {100 * f.rel_error:.2f} %, "
-        f"torque low-passed at {d.cutoff_hz:.0f} Hz\nfree run (JAX simulator, fitted parameters): {how}",
-        fontsize=9,
-    )
-    fig.tight_layout()
-    return save(fig, out, name)
+    tidy(axes)
+    return save(fig, out, name, tight=False)
 
 
 def waterfall_figure(discovery, out: Path, name: str = "waterfall.png", title: str = "") -> str:
