@@ -139,11 +139,11 @@ class PositionJudging:
         if spec not in self.fits:
             try:
                 f = fit(self.base.fit.data, spec, columns=self.cols, method=method)
+                if not isinstance(f, OutputErrorFit):
+                    raise ModelError(f"output error did not fit {spec} ({f.why})")
+                self.fits[spec] = linear(replace(f, why=self.reason))
             except np.linalg.LinAlgError as e:  # (a simulation that leaves the data: its steps are not finite)
                 raise ModelError(f"its minimisation failed ({e})") from e
-            if not isinstance(f, OutputErrorFit):
-                raise ModelError(f"output error did not fit {spec} ({f.why})")
-            self.fits[spec] = linear(replace(f, why=self.reason))
         return self.fits[spec]
 
     def rel(self, sse: np.ndarray | float) -> float:
@@ -158,7 +158,7 @@ class PositionJudging:
         try:
             if lin is None or lin.fit is not after:
                 lin = linear(after) if isinstance(after, OutputErrorFit) else self.of(after.model.spec)
-        except ModelError as e:
+        except (ModelError, np.linalg.LinAlgError) as e:
             return False, f"output error cannot fit it ({e})"
         sb, sa = float(self.base_sse.sum()), float(lin.held_out(self.test).sum())
         share = float(np.sqrt(max(sb - sa, 0.0) / self.motion)) if self.motion > 0 else 0.0
@@ -179,8 +179,8 @@ def dynamic_motion(data) -> float:
 
 
 def judging(ctx: Context, cands: list[Candidate], method: str) -> tuple[PositionJudging | None, str]:
-    """The position judging of this step (`PositionJudging`), or None (judged by the torque) and a
-    note where output error was needed and could not be had. Judged by positions where the base
+    """The position judging of this step (`PositionJudging`), or None (judged by the torque), and a
+    note for the diagnosis (where output error was needed and could not be had: why). Judged by positions where the base
     fit is OE, or where `method` is "auto" and `auto` would fit OE to the model with a candidate
     (`output_error.oe_reason` on the candidate's least-squares fit)."""
     data, cols, base = ctx.data, ctx.cols, ctx.base
@@ -211,13 +211,17 @@ def judging(ctx: Context, cands: list[Candidate], method: str) -> tuple[Position
         test[g, idx] = True
     judged = PositionJudging(why, reason, cols, lin, test, lin.held_out(test), dynamic_motion(data))
     judged.fits[f.model.spec] = lin
-    return judged, ""
+    return judged, (
+        "the candidates are judged by output error's held-out position errors; what is left in the residual "
+        "(unexplained) is still tested on the torque error"
+    )
 
 
 def rejudge(ctx: Context, pj: PositionJudging, cands: list[Candidate]) -> None:
     """Each candidate with a fit judged again by its OE fit's position errors (see the module
-    docstring): its fit, error reductions, held-out errors, p and significance replaced; a
-    structural mode (judged in its frequency band) stays as it is."""
+    docstring): its fit, error reductions, held-out errors, p, significance, problems and note
+    replaced (a search value on the edge of its range stays a problem); a structural mode (judged
+    in its frequency band) stays as it is."""
     base = pj.base
     for c in cands:
         if c.fit is None or not isinstance(c.evidence, Judged):
@@ -228,7 +232,7 @@ def rejudge(ctx: Context, pj: PositionJudging, cands: list[Candidate]) -> None:
         except ModelError as e:
             c.significant = False
             c.problems = [f"output error cannot fit {spec}: {e}"]
-            c.note = "; ".join(x for x in (c.note, "judged by positions: not judged") if x)
+            c.note = "; ".join(x for x in (c.note, "output error cannot fit it: not judged by positions") if x)
             continue
         f = lin.fit
         sse = lin.held_out(pj.test)
@@ -258,6 +262,7 @@ def rejudge(ctx: Context, pj: PositionJudging, cands: list[Candidate]) -> None:
         )
         c.fit = f
         c.error_reduction, c.cv_error_reduction, c.p_value, c.cv_sse = reduction, cv_red, p, sse
+        c.note = ""  # (what the torque's judging said: its held parameters, its place; `replaces` stays)
         c.significant = bool(p < ctx.alpha and (explains >= ctx.min_share or reduction >= MOST) and cv_red > 0)
         problems = [v for e in own for v in e.violations(s, f.params, f.stds)]
         lost = [k for k in names if k in f.redundant]
@@ -281,7 +286,7 @@ def _score(ctx: Context, pj: PositionJudging, c: Candidate, f: OutputErrorFit) -
         problem, theta, r, X = _linearise(
             replace(f, redundant=sorted(set(f.redundant) | set(base.redundant))), start, scale
         )
-    except ModelError:
+    except (ModelError, np.linalg.LinAlgError):
         return None
     tested = np.array([k in new for k in problem.free])
     if not tested.any():

@@ -195,8 +195,8 @@ def diagnose(
                 cands.append(c)
             continue
         cands.append(judge(ctx, offer))
-    judged, why_torque = judging(ctx, cands, method)  # (None: judged by the torque, as above)
-    notes += [why_torque] if why_torque else []
+    judged, judged_note = judging(ctx, cands, method)  # (None: judged by the torque, as above)
+    notes += [judged_note] if judged_note else []
     if judged is not None:
         rejudge(ctx, judged, cands)
     elif per_joint:
