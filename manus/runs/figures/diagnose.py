@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from manus.adaptive.diagnosis.leftover import RIPPLE, what_removes
-from manus.runs.figures.common import envelope, panels, pyplot, save, tidy
+from manus.runs.figures.common import close_all, envelope, panels, pyplot, save, tidy
 
 Z99 = 2.576  # two-sided 99 % normal quantile
 MAX_LAG_ROWS = 60
@@ -197,9 +197,10 @@ HOW = {
 }
 
 
-def evidence_figure(d, c, out: Path, name: str, title: str = "") -> str:
+def evidence_figure(d, c, out: Path, name: str, title: str = "", reuse: dict | None = None) -> str:
     """Why candidate `c` is (or is not) missing, per joint, plus its parameter search when it has
-    one. What the residual is plotted against is the effect's own `evidence`."""
+    one. What the residual is plotted against is the effect's own `evidence`. `reuse`: figures of
+    the same shape drawn on again (`panels`)."""
     data = d.base.data
     n = data.n_joints
     rows = data.rows
@@ -217,6 +218,7 @@ def evidence_figure(d, c, out: Path, name: str, title: str = "") -> str:
         ncols,
         (5.0, 3.4),
         f"{title or Path(data.rec.path).name}, model {d.base.model.spec} + {c.effect}: {text}",
+        reuse,
     )
     axes = grid.ravel()
     for ax in axes[count:]:
@@ -272,7 +274,7 @@ def evidence_figure(d, c, out: Path, name: str, title: str = "") -> str:
     if has_search:
         _search_panel(axes[n], c)
     tidy(axes[:count])
-    return save(fig, out, name, tight=False)
+    return save(fig, out, name, tight=False, close=reuse is None)
 
 
 def _compliance_panel(ax, c, i: int):
@@ -293,11 +295,15 @@ def _compliance_panel(ax, c, i: int):
 
 def evidence_figures(d, out: Path, prefix: str = "", title: str = "") -> dict[str, str]:
     """One evidence figure per candidate: {effect: path}."""
-    return {
-        c.effect: evidence_figure(d, c, out, f"{prefix}evidence_{c.effect}.png", title)
-        for c in d.candidates
-        if c.fit is not None or c.mode is not None
-    }
+    reuse = {}
+    try:
+        return {
+            c.effect: evidence_figure(d, c, out, f"{prefix}evidence_{c.effect}.png", title, reuse)
+            for c in d.candidates
+            if c.fit is not None or c.mode is not None
+        }
+    finally:
+        close_all(reuse)
 
 
 def unexplained_figure(d, out: Path, name: str, title: str = "") -> str | None:

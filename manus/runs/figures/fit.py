@@ -18,9 +18,9 @@ def compare_figure(f, run, out: Path, name: str = "compare.png", title: str = ""
     """One row per joint. Column 1: the measured torque (filtered as identification sees it)
     against the model's prediction. Column 2: measured positions against the free run. Column 3
     (closed loop): the tracking error q − q_ref measured and simulated, over a zoom (the position
-    alone follows the reference whatever the model). `run` is a
-    `manus.experiments.freerun.FreeRun`, or a string saying why there is none. Long series are
-    drawn as what each pixel column shows (`envelope`)."""
+    alone follows the reference whatever the model). `run` is a `manus.experiments.freerun.FreeRun`,
+    or a string saying why there is none (then the torque alone, the string in the title). Long
+    series are drawn as what each pixel column shows (`envelope`)."""
     d = f.data
     n = d.n_joints
     t_rows = d.rec.t[d.rows]
@@ -30,7 +30,7 @@ def compare_figure(f, run, out: Path, name: str = "compare.png", title: str = ""
     how = run if isinstance(run, str) else run.how
     fig, axes = panels(
         n,
-        3 if closed else 2,
+        1 if isinstance(run, str) else 3 if closed else 2,
         (6.2, 2.3),
         f"{title or Path(d.rec.path).name}: model {f.model.spec}, rel_error {100 * f.rel_error:.2f} %, "
         f"torque low-passed at {d.cutoff_hz:.0f} Hz\nfree run (JAX simulator, fitted parameters): {how}",
@@ -42,10 +42,9 @@ def compare_figure(f, run, out: Path, name: str = "compare.png", title: str = ""
         ax.plot(*envelope(t_rows, pred[:, i]), color="C1", lw=0.7, alpha=0.85, label="model")
         ax.set_title(f"torque, joint {i + 1}: fit {fit_tau[i]:.1f} %", fontsize=9, loc="left")
         ax.set_ylabel(f"τ{i + 1} [{unit}]")
-        ax = axes[i, 1]
-        if isinstance(run, str):
-            ax.set_axis_off()
+        if isinstance(run, str):  # the title says why there is no free run
             continue
+        ax = axes[i, 1]
         ax.plot(*envelope(run.t, run.q[:, i]), color="k", lw=0.8, label="measured")
         ax.plot(*envelope(run.t, run.q_sim[:, i]), color="C0", lw=0.8, ls="--", label=f"free run ({run.mode})")
         ax.set_title(f"position, joint {i + 1}: fit {run.fit_q[i]:.2f} %", fontsize=9, loc="left")
@@ -62,17 +61,6 @@ def compare_figure(f, run, out: Path, name: str = "compare.png", title: str = ""
                 fontsize=9,
                 loc="left",
             )
-    if isinstance(run, str):
-        axes[0, 1].text(
-            0.5,
-            0.5,
-            f"no free run:\n{run}",
-            ha="center",
-            va="center",
-            transform=axes[0, 1].transAxes,
-            fontsize=8,
-            wrap=True,
-        )
     for ax in axes[-1]:
         ax.set_xlabel("t [s]")
     for ax in axes[:-1].flat:  # a column's panels span the same time: its labels under the last row
