@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from manus.adaptive.diagnosis.leftover import RIPPLE, what_removes
-from manus.runs.figures.common import close_all, envelope, panels, pyplot, save, tidy
+from manus.runs.figures.common import close_all, envelope, panels, save, tidy
 
 Z99 = 2.576  # two-sided 99 % normal quantile
 MAX_LAG_ROWS = 60
@@ -312,7 +312,6 @@ def unexplained_figure(d, out: Path, name: str, title: str = "") -> str | None:
     u = d.unexplained or {}
     if not u.get("joint"):
         return None
-    plt = pyplot()
     f = d.verdict.fit if d.verdict is not None and d.verdict.fit is not None else d.base
     data = f.data
     rows, j = data.rows, u["joint"] - 1
@@ -325,7 +324,16 @@ def unexplained_figure(d, out: Path, name: str, title: str = "") -> str | None:
         "position x direction": data.q[rows, i],
         RIPPLE: data.q[rows, i],
     }.get(what, data.rec.t[rows])
-    fig, ax = plt.subplots(1, 1, figsize=(7, 4))
+    verdict = "something no effect of the vocabulary explains" if u["significant"] else "no structure beyond noise"
+    fig, axes = panels(
+        1,
+        1,
+        (7.4, 4.0),
+        f"{title or Path(data.rec.path).name}: left after {f.model.spec}: {verdict}\n"
+        f"{what_removes(u)} removes {100 * u['fraction']:.0f} % held out "
+        f"(p = {u['p_value']:.2g}, {u.get('tests', 0)} variables tested)",
+    )
+    ax = axes[0, 0]
     if what == RIPPLE:  # the residual per unit of the model's torque: the ripple ε(q) where the torque is not small
         fitted = f.predicted()[:, i]
         big = np.abs(fitted) > 0.3 * np.sqrt(np.mean(fitted**2))
@@ -343,17 +351,9 @@ def unexplained_figure(d, out: Path, name: str, title: str = "") -> str | None:
     ax.axhline(0, color="k", lw=0.6)
     ax.set_xlabel(f"position of joint {i + 1}" if what == RIPPLE else u["against"] if what != "frequency" else "t [s]")
     ax.set_ylabel(f"residual, joint {j + 1}" + (f" / the model's torque, joint {i + 1}" if what == RIPPLE else ""))
-    verdict = "something no effect of the vocabulary explains" if u["significant"] else "no structure beyond noise"
-    how = what_removes(u)
-    ax.set_title(
-        f"{title or Path(data.rec.path).name}: left after {f.model.spec}: {verdict}\n"
-        f"{how} removes {100 * u['fraction']:.0f} % held out "
-        f"(p = {u['p_value']:.2g}, {u.get('tests', 0)} variables tested)",
-        fontsize=9,
-    )
     ax.legend(fontsize=7)
-    fig.tight_layout()
-    return save(fig, out, name)
+    tidy(axes)
+    return save(fig, out, name, tight=False)
 
 
 def diagnosis_figures(d, out: Path, stem: str) -> dict:
