@@ -35,7 +35,7 @@ def pyplot():
     return plt
 
 
-def panels(nrows: int, ncols: int, size: tuple[float, float], title: str = "", reuse: dict | None = None, **subplots):
+def panels(nrows: int, ncols: int, size: tuple[float, float], title: str = "", reuse: dict | None = None):
     """A figure of `nrows` × `ncols` panels, each `size` (width, height) inches with its share of
     the gaps, margins fixed in inches and room above for `title` (wrapped to the figure's width):
     no layout pass is needed to place them. Returns (fig, axes[nrows, ncols]).
@@ -47,7 +47,7 @@ def panels(nrows: int, ncols: int, size: tuple[float, float], title: str = "", r
     w, h = size
     width = ncols * w + MARGIN["left"] + MARGIN["right"] - GAP[0]
     lines = [part for line in title.splitlines() for part in textwrap.wrap(line, int(width * COLUMNS_PER_INCH)) or [""]]
-    key = (nrows, ncols, size, len(lines), tuple(sorted(subplots.items())))
+    key = (nrows, ncols, size, len(lines))
     if reuse is not None and key in reuse:
         fig, axes, heading = reuse[key]
         for ax in axes.flat:
@@ -67,7 +67,7 @@ def panels(nrows: int, ncols: int, size: tuple[float, float], title: str = "", r
         "hspace": GAP[1] / axes_h,
     }
     with plt.rc_context({"axes.titley": 1.0}):  # titles at the top (`tidy` moves what could be under them)
-        fig, axes = plt.subplots(nrows, ncols, figsize=(width, height), squeeze=False, gridspec_kw=grid, **subplots)
+        fig, axes = plt.subplots(nrows, ncols, figsize=(width, height), squeeze=False, gridspec_kw=grid)
     heading = fig.text(0.5, 1 - 0.12 / height, "\n".join(lines), ha="center", va="top", fontsize=9)
     if reuse is not None:
         reuse[key] = (fig, axes, heading)
