@@ -2,18 +2,26 @@
 
 The fitted model (`manus.adaptive.Fit`: its effects with their non-linear parameters, and θ) is
 simulated with the JAX simulator (`manus.plants.simulator.Simulator`: the same effects, set-valued
-friction, the recorded encoder grid) over the whole recording, driven the way the rig was:
+friction), driven the way the rig was:
 
-- **closed loop on the recorded reference** when the recording says which controller ran and
-  logged its reference: manus's impedance controller (metadata `controller: impedance K=.. B=..`,
-  columns `qref1..n`, as `manus simulate` writes), or the EMPS rig's P-PD loop
-  vir = kp·kv·(qg − qm) − kv·v̂, force = gtau·vir (metadata `kp`, `kv`, `gtau`, column `qg`;
-  replayed on the recorded qm it gives the recorded `vir` within 0.7 %). The simulated arm then
-  meets the same reference through the same controller, as the real one did;
-- **open loop on the recorded torque** otherwise. A free run of a model with friction driven by
-  open-loop torque drifts (a small error in the Coulomb level or the inertia integrates into a
-  position error that nothing pulls back), so its position fit says more about the drift than
-  about the model; the figure says so.
+- **closed loop on the recorded reference, over the whole recording,** when the recording says
+  which controller ran and logged its reference: manus's impedance controller (metadata
+  `controller: impedance K=.. B=..`, columns `qref1..n`, as `manus simulate` writes), or the EMPS
+  rig's P-PD loop vir = kp·kv·(qg − qm) − kv·v̂, force = gtau·vir (metadata `kp`, `kv`, `gtau`,
+  column `qg`; replayed on the recorded qm it gives the recorded `vir` within 0.7 %). The
+  simulated arm then meets the same reference through the same controller, as the real one did,
+  on the recorded encoder grid;
+- **open loop on the recorded torque, in windows** otherwise: the recording is cut into windows of
+  `manus.adaptive.identify.instruments.WINDOW_S`, each simulated from the measured (filtered) state
+  at its start, all at once (the simulation IDIM-IV's instruments come from, compiled once for
+  both). Over a whole recording a model with friction driven by open-loop torque drifts (a small
+  error in the Coulomb level or the inertia integrates into a position error that nothing pulls
+  back), so its position fit would say more about the drift than about the model; a window says
+  how far the model's own motion strays from the arm's in that time. The figure says so.
+
+Each control period is cut into sub-steps of at most `instruments.SUBSTEP_S` (the simulator is
+second order; at 1 kHz two sub-steps, at 5 kHz one), of `instruments.FINE_SUBSTEP_S` where those
+diverge.
 
 Under stiff closed-loop control the position follows the reference whatever the model, so the
 position fit alone is flattering: the tracking error q − q_ref, which the plant's dynamics shape,
@@ -28,11 +36,9 @@ from dataclasses import dataclass
 import jax.numpy as jnp
 import numpy as np
 
-from manus.adaptive.controllers import PPD, Replay
+from manus.adaptive.controllers import PPD
 from manus.plants.errors import ManusError
 from manus.plants.references import Sampled
-
-SUBSTEPS = 10
 
 
 def nrmse_fit(y: np.ndarray, yhat: np.ndarray) -> np.ndarray:
@@ -88,13 +94,13 @@ def _controller(rec, n: int, limit: float | None):
 
 
 def free_run(f, open_loop: bool = False) -> FreeRun:
-    """Simulate the fitted model `f` (a `manus.adaptive.Fit`) over its whole recording: a serial
+    """Simulate the fitted model `f` (a `manus.adaptive.Fit`) against its recording: a serial
     chain's with physically consistent parameters (`manus.adaptive.identify.consistency.physical`:
     the fit's own where it has been through that stage, as `fit` returns it)."""
     from manus.adaptive.identify.consistency import physical
+    from manus.adaptive.identify.instruments import FINE_SUBSTEP_S, WINDOW_S, substeps, windows
     from manus.plants.closed_loop import simulate
     from manus.plants.errors import ModelError
-    from manus.plants.references import Hold
     from manus.plants.simulator import Actuator, Encoder, Simulator
 
     rec = f.data.rec
@@ -105,26 +111,40 @@ def free_run(f, open_loop: bool = False) -> FreeRun:
     if f.consistency is None:  # not through the consistent stage yet (a chain's estimate breaking physics moves)
         f = physical(f)
     params = {k: float(v) for k, v in f.params.items()}
-    encoder = Encoder(step=f.data.step) if f.data.step > 0 else None
     actuator = Actuator() if rec.structure_name == "manus2" else None
     ref = _reference(rec)
     ctl = None if open_loop or ref is None else _controller(rec, n, None if actuator is None else actuator.limit)
-    if ctl is not None:
+    if ctl is None:
+        run = windows(f.data, model, params)
+        if run is None:
+            raise ModelError("the fitted model cannot be simulated from the recorded command (it diverges)")
+        q_sim, mode = run[0], "open loop"
+        how = (
+            f"open loop: the recorded torque played back in windows of {WINDOW_S:g} s, each from the measured "
+            "state (over a whole recording friction models drift: no loop pulls them back)"
+        )
+    else:
         controller, how = ctl
         reference = Sampled(jnp.asarray(rec.t - rec.t[0]), jnp.asarray(ref))
         mode, how = "closed loop", f"closed loop: {how} on the recorded reference"
-    else:
-        controller, reference = Replay(jnp.asarray(rec.tau)), Hold(rec.q[0])
-        mode, how = (
-            "open loop",
-            "open loop: the recorded torque played back (friction models drift: no loop pulls them back)",
-        )
-    plant = Simulator(
-        model, params, rate_hz=rec.sample_rate_hz, substeps=SUBSTEPS, actuator=actuator, encoder=encoder, q0=rec.q[0]
-    )
-    seconds = len(rec) / rec.sample_rate_hz
-    traj = simulate(plant, controller, reference, seconds)
-    q_sim = np.asarray(traj.q)[: len(rec)]
+        encoder = Encoder(step=f.data.step) if f.data.step > 0 else None
+        steps = dict.fromkeys((substeps(rec.dt), substeps(rec.dt, FINE_SUBSTEP_S)))
+        for i, step in enumerate(steps):  # finer where the period's sub-steps diverge (as IV's windows)
+            plant = Simulator(
+                model,
+                params,
+                rate_hz=rec.sample_rate_hz,
+                substeps=step,
+                actuator=actuator,
+                encoder=encoder,
+                q0=rec.q[0],
+            )
+            try:
+                q_sim = np.asarray(simulate(plant, controller, reference, len(rec) / rec.sample_rate_hz).q)[: len(rec)]
+                break
+            except ModelError:
+                if i == len(steps) - 1:
+                    raise
     q = rec.q[: len(q_sim)]
     if f.unconstrained is not None:
         how += "; the physically consistent parameters (the estimate breaks physics)"

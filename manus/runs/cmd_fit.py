@@ -1,7 +1,9 @@
 """`manus fit REC --model EFFECTS`: identify a model's parameters from a recording (inverse
 dynamics, `manus.adaptive.identify`), report each with its standard deviation and the rel_error, and draw the
-`compare` figure: measured against predicted torque, and measured positions against a free run of
-the fitted model in the JAX simulator (`manus.experiments.freerun`)."""
+`compare` figure: measured against predicted torque, and measured positions against the fitted
+model simulated in the JAX simulator (`manus.experiments.freerun`: closed loop over the whole
+recording through a controller the recording names, otherwise open loop on the recorded torque in
+windows restarted from the measured state)."""
 
 from __future__ import annotations
 
@@ -19,7 +21,8 @@ def add_arguments(p) -> None:
     p.add_argument(
         "--open-loop",
         action="store_true",
-        help="free-run on the recorded torque even when the recording names its controller and reference",
+        help="simulate open loop on the recorded torque (in windows restarted from the measured state) even when "
+        "the recording names its controller and reference",
     )
     p.add_argument(
         "--no-sim", action="store_true", help="skip the free-run simulation (the figure shows the torque only)"

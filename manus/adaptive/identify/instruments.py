@@ -8,12 +8,19 @@ differentiated, quantized positions, and when the torque is a small difference o
 zero (errors in variables). IV replaces Yᵀ in the normal equations by Zᵀ, with instruments Z
 correlated with the true regressor but not with its noise: here Z = Y evaluated on the motion
 *simulated* by the current model from the recorded command, which carries no measurement noise.
-Iterated: simulate with θ_k, θ_{k+1} = (ZᵀY)⁻¹ Zᵀτ.
+Iterated: simulate with θ_k, θ_{k+1} = (ZᵀY)⁻¹ Zᵀτ, at most `ITERATIONS` times, stopping once
+no parameter moves by more than `CONVERGED` of its standard deviation (the instruments simulated
+from θ_k gave θ_k back).
 
 The simulation is the project's simulator (`manus.plants.Simulator`: exact stick-slip, the
-model's delay, the command held over each period), run in short windows restarted from the
-measured (filtered) state, all windows at once under `vmap`, so that an open-loop simulation's
-drift (or a closed loop that is not modelled) does not decorrelate the instruments.
+model's delay, the command held over each period), run in windows of `WINDOW_S` restarted from
+the measured (filtered) state with the commands recorded before each in the delay line, all
+windows at once under `vmap`, so that an open-loop simulation's drift (or a closed loop that is
+not modelled) does not decorrelate the instruments. A period is cut into sub-steps of at most
+`SUBSTEP_S` (the scheme is second order: two at 1 kHz, one at 5 kHz), of `FINE_SUBSTEP_S` where
+those diverge. The parameters are traced arrays: one compilation serves every iteration, and the
+free run of an open-loop recording (`manus.experiments.freerun`), which simulates the same windows;
+the last simulation is kept, so a free run of the parameters IV last simulated costs nothing.
 """
 
 from __future__ import annotations
@@ -31,8 +38,12 @@ from manus.adaptive.identify.result import Fit, fit_rows
 from manus.plants.effects import Model
 from manus.plants.simulator import Simulator
 
-ITERATIONS = 3
+ITERATIONS = 3  # at most
+CONVERGED = 0.1  # the iterations stop once no parameter moves by more than this share of its std
 WINDOW_S = 0.5  # simulated windows restart from the measured state this often
+MIN_WINDOW = 8  # samples
+SUBSTEP_S = 5e-4  # the simulation's sub-step [s] at most
+FINE_SUBSTEP_S = 1e-4  # ... where that one diverges (a fast mode: a light joint under viscous friction)
 Z_DISAGREE = 3.0  # LS and IV disagree when a parameter differs by more than this many std
 IV_WORSE = 1.5  # IV is not used when its error exceeds LS's by this factor (a model too wrong to simulate)
 
@@ -51,10 +62,24 @@ def _physical(model: Model, params: dict) -> dict | None:
     return out
 
 
+def substeps(dt: float, step: float = SUBSTEP_S) -> int:
+    """Sub-steps per control period: the fewest whose step is at most `step`."""
+    return max(1, int(np.ceil(dt / step - 1e-9)))
+
+
+def window_size(data: Data) -> int:
+    """Samples per simulated window: `WINDOW_S`, at least `MIN_WINDOW`, at most the recording."""
+    return int(max(MIN_WINDOW, min(round(WINDOW_S / data.dt), len(data.rec))))
+
+
+_last: list = []  # the last simulation: [data, model, clipped parameters, its (q, q̇) or None]
+
+
 @eqx.filter_jit
-def _windows(sim: Simulator, q0, qd0, taus):
-    def one(q0, qd0, tau):
+def _windows(sim: Simulator, q0, qd0, history, taus):
+    def one(q0, qd0, history, tau):
         state, _ = sim.reset(None, q0, qd0)
+        state = state._replace(commands=history)
 
         def tick(st, u):
             q, qd = sim.truth(st)
@@ -63,31 +88,52 @@ def _windows(sim: Simulator, q0, qd0, taus):
 
         return jax.lax.scan(tick, state, tau)[1]
 
-    return jax.vmap(one)(q0, qd0, taus)
+    return jax.vmap(one)(q0, qd0, history, taus)
 
 
-def simulate(data: Data, model: Model, params: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """(q, q̇, q̈) of the model driven by the recorded command, in windows restarted from the
-    measured state; None when it cannot be simulated (unphysical inertia, divergence)."""
+def windows(data: Data, model: Model, params: dict) -> tuple[np.ndarray, np.ndarray] | None:
+    """(q, q̇) of the model driven by the recorded command over the whole recording, in windows of
+    `window_size` samples each restarted from the measured (filtered) state with the commands
+    recorded before it in its delay line, `substeps` per period (of `FINE_SUBSTEP_S` where those
+    diverge); None when it cannot be simulated (no inertia, an inertia not positive definite,
+    divergence). Modal effects are left out; parameters below an effect's lower bound are
+    clipped to it."""
     if not any(e.inertial for e in model.effects):
         return None  # without its inertia the model has no motion of its own to simulate
     sim_model = Model(model.structure, tuple(e for e in model.effects if not e.modal))
     p = _physical(sim_model, {k: params[k] for k in sim_model.names})
     if p is None:
         return None
-    dt, T, n = data.dt, len(data.rec), data.n_joints
-    W = int(max(8, min(round(WINDOW_S / dt), T)))
+    if _last and _last[0] is data and _last[1] is model and _last[2] == p:
+        return _last[3]  # the free run of the parameters IV's last instruments came from
+    dt, T, n, W = data.dt, len(data.rec), data.n_joints, window_size(data)
     count = int(np.ceil(T / W))
-    pad = count * W - T
-    tau = np.concatenate([data.rec.tau, np.repeat(data.rec.tau[-1:], pad, 0)]).reshape(count, W, n)
-    starts = np.minimum(np.arange(count) * W, T - 1)
-    sim = Simulator(sim_model, p, rate_hz=1 / dt, substeps=10, actuator=None, encoder=None)
-    q_sim, qd_sim = _windows(sim, jnp.asarray(data.q[starts]), jnp.asarray(data.qd[starts]), jnp.asarray(tau))
-    q, qd = np.asarray(q_sim).reshape(-1, n)[:T], np.asarray(qd_sim).reshape(-1, n)[:T]
-    if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
+    tau = np.asarray(data.rec.tau, float)
+    starts = np.arange(count) * W
+    taus = np.concatenate([tau, np.repeat(tau[-1:], count * W - T, 0)]).reshape(count, W, n)
+    run = None
+    for step in dict.fromkeys((substeps(dt), substeps(dt, FINE_SUBSTEP_S))):
+        sim = Simulator(sim_model, p, rate_hz=1 / dt, substeps=step, actuator=None, encoder=None)
+        lags = int(sim._lags().max()) + 1  # the delay line's length
+        history = tau[np.clip(starts[:, None] - 1 - np.arange(lags)[None, :], 0, None)]
+        q, qd = _windows(sim, *(jnp.asarray(x) for x in (data.q[starts], data.qd[starts], history, taus)))
+        q, qd = np.asarray(q).reshape(-1, n)[:T], np.asarray(qd).reshape(-1, n)[:T]
+        if np.all(np.isfinite(q)) and np.all(np.isfinite(qd)):
+            run = (q, qd)
+            break
+    _last[:] = [data, model, p, run]
+    return run
+
+
+def simulate(data: Data, model: Model, params: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """(q, q̇, q̈) of `windows`, q̈ differentiated inside each window; None as `windows`."""
+    run = windows(data, model, params)
+    if run is None:
         return None
-    per_window = qd.reshape(-1, W, n) if pad == 0 else np.pad(qd, ((0, pad), (0, 0))).reshape(-1, W, n)
-    qdd = np.asarray(np.gradient(per_window, dt, axis=1)).reshape(-1, n)[:T]
+    q, qd = run
+    T, n, W = len(q), data.n_joints, window_size(data)
+    per_window = np.pad(qd, ((0, -T % W), (0, 0))).reshape(-1, W, n)
+    qdd = np.asarray(np.gradient(per_window, data.dt, axis=1)).reshape(-1, n)[:T]
     return q, qd, qdd
 
 
@@ -98,16 +144,18 @@ def instruments(data: Data, f: Fit) -> Columns | None:
 
 
 def iv_fit(data: Data, cols: Columns, ls: Fit, method: str, start: Fit | None = None) -> Fit:
-    """IDIM-IV from the LS fit `ls` (ITERATIONS rounds), the first instruments simulated from
-    `start` (default `ls`; a serial chain's consistent parameters where `ls` breaks physics,
-    `consistency.physical`); `method="auto"` keeps the one the evidence favours (`choose`) and
-    says why."""
-    current, iv, icols = start or ls, None, None
+    """IDIM-IV from the LS fit `ls` (at most ITERATIONS rounds, fewer once `converged`), the
+    first instruments simulated from `start` (default `ls`; a serial chain's consistent
+    parameters where `ls` breaks physics, `consistency.physical`); `method="auto"` keeps the one
+    the evidence favours (`choose`) and says why."""
+    current, iv = start or ls, None
     for _ in range(ITERATIONS):
         icols = instruments(data, current)
         if icols is None:
             break
         iv = fit_rows(data, cols, ls.model, ls.search, icols)
+        if converged(current, iv):
+            break
         current = iv
     if iv is None:
         why = (
@@ -122,6 +170,15 @@ def iv_fit(data: Data, cols: Columns, ls: Fit, method: str, start: Fit | None = 
     if method == "iv":
         return replace(iv, why="instrumental variables (asked for)")
     return choose(ls, iv)
+
+
+def converged(before: Fit, after: Fit) -> bool:
+    """Whether the instruments simulated from `before` gave back its parameters: each within
+    `CONVERGED` of `after`'s standard deviation."""
+    if before.names != after.names or before.model.spec != after.model.spec:
+        return False
+    sd = np.nan_to_num(after.std, nan=np.inf)
+    return bool(np.all(np.abs(after.theta - before.theta) <= CONVERGED * sd))
 
 
 def choose(ls: Fit, iv: Fit) -> Fit:
