@@ -267,12 +267,10 @@ def judge(ctx: Context, offer: Offer) -> Candidate:
     for _ in range(2):
         keep = np.array([k not in held for k in e0.names(s)]) if held else None
         # (a linear candidate's score test needs every value's statistics: the search uses them too)
-        g = grid(data, cols, under, e0, ctx.starts, values, ctx.icols, keep, exact=e0.linear)
-        chosen_in, _ = g.choose_each(train)  # the search inside each fold, on its training blocks
-        sse = np.zeros(len(ctx.folds))
-        for i in np.unique(chosen_in):
-            st, on = g.exact(i), chosen_in == i
-            sse[on] = st.sses(st.coefs(train[on], g.lower), test[on])  # (within the bounds the choice was made in)
+        g = grid(data, cols, under, e0, ctx.starts, values, ctx.icols, keep, exact=e0.linear, base=ctx.stats(under))
+        # the search inside each fold, on its training blocks; its held-out error (within the bounds the choice
+        # was made in)
+        chosen_in, sse = g.held_out(train, test)
         best, errs = g.choose(ctx.whole)
         chosen = g.values[best]
         f = ctx.fit(under.with_effect(chosen), held)

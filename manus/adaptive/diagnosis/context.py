@@ -3,7 +3,7 @@ its columns, the model fitted, the held-out blocks and the levels."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -13,6 +13,8 @@ from manus.adaptive.identify.prepare import Data
 from manus.adaptive.identify.result import Fit, fit_rows
 from manus.adaptive.identify.search import delay_of
 from manus.plants.effects import Model, Span
+
+KEEP = 3  # statistics a context keeps (each holds its rows' columns)
 
 
 @dataclass(frozen=True, eq=False)
@@ -29,6 +31,7 @@ class Context:
     span: Span  # what the effects' search spaces are derived from
     alpha: float  # the level each candidate is judged at (the step's, shared among its candidates)
     min_share: float  # the share of the recorded torque (RMS) a candidate must explain
+    _stats: dict = field(init=False, repr=False, default_factory=dict)  # `stats` computed, by model and delay
 
     @property
     def whole(self) -> np.ndarray:
@@ -52,8 +55,17 @@ class Context:
 
     def stats(self, model: Model, delay: float | np.ndarray | None = None) -> Stats:
         """The least-squares statistics of `model` over the segments (its instruments' too with
-        IV), the torque read `delay` late (default: the model's own, `delay_of`)."""
-        z = None if self.icols is None else self.icols.model(model)
-        return Stats.of(
-            self.cols.model(model), self.data.tau(delay_of(model) if delay is None else delay), self.starts, z
-        )
+        IV), the torque read `delay` late (default: the model's own, `delay_of`); the last few
+        kept (every candidate of a step is judged on top of the same model)."""
+        delay = delay_of(model) if delay is None else delay
+        key = (model.spec, np.asarray(delay, float).tobytes())
+        if key not in self._stats:
+            if len(self._stats) >= KEEP:
+                del self._stats[next(iter(self._stats))]
+            z = None if self.icols is None else self.icols.model(model)
+            self._stats[key] = Stats.of(self.cols.model(model), self.data.tau(delay), self.starts, z)
+        return self._stats[key]
+
+    def remember(self, model: Model, delay: float | np.ndarray, st: Stats) -> None:
+        """`st` as `stats(model, delay)` (computed before this context)."""
+        self._stats[(model.spec, np.asarray(delay, float).tobytes())] = st

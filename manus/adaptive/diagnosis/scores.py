@@ -17,10 +17,10 @@ from typing import NamedTuple, cast
 import numpy as np
 from scipy import stats
 
-from manus.adaptive.identify.lsq import RCOND, Stats
+from manus.adaptive.identify.lsq import RCOND, Appended, Stats
 
 
-def block_scores(st: Stats, test: np.ndarray, blocks: np.ndarray) -> Scores:
+def block_scores(st: Stats | Appended, test: np.ndarray, blocks: np.ndarray) -> Scores:
     """The score of the columns `test` (a bool mask over the columns of `st`: a candidate's, on
     top of a model of the others) per block, (G, k), and each block's share of their
     information, (G, k, k).
@@ -32,8 +32,10 @@ def block_scores(st: Stats, test: np.ndarray, blocks: np.ndarray) -> Scores:
     so that Z̃ᵀX = 0; Z = X for least squares). Their sum is what the tested columns would
     explain; a block's information Q_b = (Z̃ᵀE)_b is its share of the signal they carry: fitted,
     they take Q_b β̂ out of block b's score. `blocks` (G, S): the segments each block holds."""
-    A, b = st.normal()
     test = np.asarray(test, bool)
+    if isinstance(st, Appended) and st.tests_appended(test):
+        return _appended_scores(st, blocks)
+    A, b = st.normal()
     idx = np.r_[np.flatnonzero(~test), np.flatnonzero(test)]
     A, b = A[:, idx][:, :, idx], b[:, idx]
     p = int((~test).sum())
@@ -47,6 +49,19 @@ def block_scores(st: Stats, test: np.ndarray, blocks: np.ndarray) -> Scores:
     k = T.shape[1]
     TA = (T.T[None] @ A[:, :, p:]).reshape(A.shape[0], k * k)  # (S, k·k): each segment's Z̃ᵀE
     return Scores(masks @ (u @ T), (masks @ TA).reshape(masks.shape[0], k, k))
+
+
+def _appended_scores(st: Appended, blocks: np.ndarray) -> Scores:
+    """`block_scores` of exactly the columns appended to `st.base`, from its blocks: the base's fit
+    on every row is the same for every set of columns appended to it (`Stats.whole_fit`)."""
+    Asum, theta, u0 = st.base.whole_fit()
+    B, C, D, bE = st.normal_blocks()
+    k = D.shape[-1]
+    T0 = -np.linalg.lstsq(Asum.T, C.sum(0).T, rcond=RCOND)[0] if theta.size else np.zeros((0, k))
+    masks = np.asarray(blocks, float)
+    u = u0 @ T0 + (bE - C @ theta)  # (S, k): the partialled instruments against the model's residual
+    TA = (T0.T[None] @ B + D).reshape(D.shape[0], k * k)  # (S, k·k): each segment's Z̃ᵀE
+    return Scores(masks @ u, (masks @ TA).reshape(masks.shape[0], k, k))
 
 
 class Jackknife(NamedTuple):

@@ -181,6 +181,7 @@ def diagnose(
     tried, why_not = offered(base.model, span, data.rec.prismatic)
     notes += why_not
     ctx = Context(data, cols, icols, base, base_sse, starts, folds, span, alpha / max(1, len(tried)), min_share)
+    ctx.remember(base.model, base.delay, base_st)
     cands: list[Candidate] = []
     for offer in tried:
         if offer.effect.modal:

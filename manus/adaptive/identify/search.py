@@ -28,6 +28,8 @@ def delay_of(model: Model) -> float | np.ndarray:
     return e.per_joint(model.n_joints) if isinstance(e.seconds, tuple) else float(e.seconds)
 
 
+Stats = lsq.Stats | lsq.Appended  # a grid value's statistics
+
 SCREEN_ABOVE = 24  # grids longer than this are ranked on unfiltered columns first
 SCREEN_KEEP = 3  # ... and this many best are evaluated exactly
 
@@ -38,14 +40,14 @@ class Grid:
     on the same segments (so a fold can choose its own value on its training segments)."""
 
     values: list  # the effect at each grid value
-    stats: list[lsq.Stats | None]  # the rest of the model plus that value (exact columns), or None until needed
-    screen: list[lsq.Stats] | None  # on unfiltered columns (long grids), else None
-    build: Callable[[int], lsq.Stats] | None  # value index -> exact lsq.Stats
+    stats: list[Stats | None]  # the rest of the model plus that value (exact columns), or None until needed
+    screen: list[lsq.Appended] | None  # on unfiltered columns (long grids), else None
+    build: Callable[[int], Stats] | None  # value index -> exact statistics
     lower: np.ndarray | None = None  # each column's lower bound (the effect's physical ones; −inf: none)
     own: np.ndarray | None = None  # which columns are the effect's (a mask: the last ones)
-    every: lsq.Stats | None = None  # every value's exact statistics at once (a leading axis), when built together
+    every: lsq.Appended | None = None  # every value's exact statistics at once (a leading axis), when built together
 
-    def exact(self, i: int) -> lsq.Stats:
+    def exact(self, i: int) -> Stats:
         """Value i's exact statistics (built on first use)."""
         st = self.stats[i]
         if st is None:
@@ -85,6 +87,21 @@ class Grid:
             errs[on, i] = st.sses(st.coefs(masks[on], self.lower), masks[on])
         return np.argmin(errs, axis=1), errs
 
+    def held_out(self, train: np.ndarray, test: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """For each held-out block (its training segments `train` and its own `test`, (F, S)
+        each): the value chosen on its training segments (`choose_each`), and the squared error
+        on its own segments of that value's fit on its training ones, within the bounds (F,)."""
+        if self.every is not None:  # (every value's fits on the training segments at once)
+            C = self.every.coefs(train, self.lower)  # (V, F, P)
+            chosen = np.argmin(self.every.sses(C, train), axis=0)
+            return chosen, self.every.sses(C, test)[chosen, np.arange(train.shape[0])]
+        chosen, _ = self.choose_each(train)
+        sse = np.zeros(train.shape[0])
+        for i in np.unique(chosen):
+            st, on = self.exact(int(i)), chosen == i
+            sse[on] = st.sses(st.coefs(train[on], self.lower), test[on])
+        return chosen, sse
+
     def free(self, use: np.ndarray) -> np.ndarray:
         """Per value (V,): does its fit on the segments `use`, within the bounds, leave any of
         the effect's own columns off its bound? A value whose every column is
@@ -112,20 +129,23 @@ def grid(
     icols: Columns | None = None,
     keep: np.ndarray | None = None,
     exact: bool = False,
+    base: lsq.Stats | None = None,
 ) -> Grid:
     """The grid search of `effect`'s non-linear parameter on top of `rest` (see `Grid`): a linear
     effect changes the columns, a timing effect the torque. `icols`: instruments (IV). `keep`: a
     mask over the effect's columns (the others held at 0, their physical bound). `exact`: every
-    value's statistics built now, their columns computed together (no screening)."""
+    value's statistics built now, their columns computed together (no screening). `base`: the
+    statistics of `rest` on these segments where they are at hand (its instruments' too with IV)."""
     vals: list[Effect] = list(values if values is not None else effect.space(data.span()))
     src: Columns | _Kept = cols if keep is None else _Kept(cols, keep)
     isrc: Columns | _Kept | None = icols if keep is None or icols is None else _Kept(icols, keep)
     delay = delay_of(rest)
     Y = src.model(rest)
-    Z = isrc.model(rest) if isrc is not None else None
-    base = lsq.Stats.of(Y, data.tau(delay), starts, Z)
-    if effect.timing:
-        build = lambda i: lsq.Stats.of(Y, data.tau(_timing(vals[i], rest, delay)), starts, Z)
+    if base is None:
+        base = lsq.Stats.of(Y, data.tau(delay), starts, isrc.model(rest) if isrc is not None else None)
+    st = base
+    if effect.timing:  # (a delay's value moves the torque only)
+        build = lambda i: st.retimed(data.tau(_timing(vals[i], rest, delay)))
         return Grid(vals, [None] * len(vals), None, build)
     build = lambda i: base.extend(src.effect(vals[i]), isrc.effect(vals[i]) if isrc is not None else None)
     bounds = np.asarray(effect.lower_bounds(rest.structure), float)  # the effect's own columns' physical bounds
