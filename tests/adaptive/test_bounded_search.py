@@ -45,7 +45,7 @@ def test_the_search_chooses_the_value_the_physics_allows():
     tau = base @ np.array([1.0, -0.5]) - 0.9 * e1[..., 0] + 0.3 * e2[..., 0] + 0.2 * rng.normal(size=(rows, 1))
     starts = np.arange(0, rows, 150)
     st0 = lsq.Stats.of(base, tau, starts)
-    stats: list[lsq.Stats | None] = [st0.extend(e1), st0.extend(e2)]
+    stats: list[search.Stats | None] = [st0.extend(e1), st0.extend(e2)]
     lower = np.array([-np.inf, -np.inf, 0.0])
     own = np.array([False, False, True])
     whole = np.ones(starts.size, bool)
