@@ -117,3 +117,22 @@ def test_output_error_needs_a_model_with_inertia(coarse):
 
     with pytest.raises(ModelError, match="no inertia"):
         fit(coarse, "viscous,coulomb,gravity", method="oe")
+
+
+def test_a_model_whose_simulation_leaves_the_motion_is_refused_by_name(coarse, monkeypatch):
+    """Without gravity the swung pendulum cannot be simulated from the recorded command (the
+    command is far smaller than gravity): output error refuses the model with a message naming
+    why, never an internal error; and where the minimisation's linear algebra fails on a window
+    whose simulation left the data, that failure is the same one-line refusal."""
+    from manus.adaptive.identify import output_error as oe
+    from manus.plants.errors import ModelError
+
+    with pytest.raises(ModelError, match="simulat"):
+        fit(coarse, "rigid,viscous", method="oe")
+
+    def diverged(*args, **kwargs):
+        raise np.linalg.LinAlgError("SVD did not converge")
+
+    monkeypatch.setattr(oe, "_minimise", diverged)
+    with pytest.raises(ModelError, match="leaves the recorded motion within a window"):
+        fit(coarse, MODEL, method="oe")

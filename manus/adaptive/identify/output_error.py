@@ -383,7 +383,8 @@ class Problem:
 
 
 def _window_costs(r: np.ndarray) -> np.ndarray:
-    c = np.sum(r**2, axis=1)
+    with np.errstate(over="ignore", invalid="ignore"):  # (a diverged window's cost is inf)
+        c = np.sum(r**2, axis=1)
     return np.where(np.isfinite(c), c, np.inf)
 
 
@@ -496,7 +497,8 @@ def output_error(
 ) -> OutputErrorFit:
     """The OE fit of `ls.model` on `data`, started from the estimate (`_starts`) whose simulation
     follows the positions best; `why` is the report's `method_why`. Refused (ModelError) where
-    the model has no inertia or no start can be simulated."""
+    the model has no inertia, no start can be simulated, or its simulation leaves the recorded
+    motion so far that the minimisation's steps are not finite."""
     model = ls.model
     if not any(e.inertial for e in model.effects):
         raise ModelError(f"output error simulates the model: {model.spec} has no inertia (add rigid)")
@@ -519,8 +521,15 @@ def output_error(
         bad = "; ".join(ls.violations()) or "its inertia is not positive definite"
         raise ModelError(f"output error: no estimate to start from can be simulated (LS: {bad})")
     _, label, theta0, qd0 = best
-    theta, _, r, Jt, Jv, its = _minimise(problem, theta0, qd0)
-    std_free = _std(r, Jt, Jv)
+    try:
+        theta, _, r, Jt, Jv, its = _minimise(problem, theta0, qd0)
+        std_free = _std(r, Jt, Jv)
+    except np.linalg.LinAlgError as e:  # (a window's simulation left the data: its steps are not finite)
+        raise ModelError(
+            f"output error: the simulation of {model.spec} from the recorded command leaves the recorded "
+            f"motion within a window ({e}): the model lacks what holds the motion (gravity, a spring?) "
+            "or cannot follow it; fit it with --method ls, or add the missing effect"
+        ) from None
     names = list(ls.names)
     values = {**problem.fixed, **dict(zip(problem.free, theta.tolist(), strict=True))}
     full = np.array([values[k] for k in names])
