@@ -64,6 +64,10 @@ from manus.plants.errors import ModelError
 
 TORQUE = "torque"
 POSITION = "position (output error)"
+# Output error's Jacobian costs one simulation of every window per parameter: where `auto` would turn
+# to it only for some candidate, a model with more parameters than this (a 6–7-joint chain's ~80) is
+# judged by the torque.
+AFFORDABLE = 30
 
 
 @dataclass(frozen=True)
@@ -181,13 +185,16 @@ def dynamic_motion(data) -> float:
 def judging(ctx: Context, cands: list[Candidate], method: str) -> tuple[PositionJudging | None, str]:
     """The position judging of this step (`PositionJudging`), or None (judged by the torque), and a
     note for the diagnosis (where output error was needed and could not be had: why). Judged by positions where the base
-    fit is OE, or where `method` is "auto" and `auto` would fit OE to the model with a candidate
-    (`output_error.oe_reason` on the candidate's least-squares fit)."""
+    fit is OE, or where `method` is "auto", the model has at most `AFFORDABLE` parameters and `auto`
+    would fit OE to the model with a candidate (`output_error.oe_reason` on the candidate's
+    least-squares fit)."""
     data, cols, base = ctx.data, ctx.cols, ctx.base
     why = reason = ""
     if base.method == "oe":
         why, reason = f"the model's fit is output error ({base.why})", base.why
     elif method == "auto" and base.method == "ls":
+        if len(base.names) > AFFORDABLE:
+            return None, ""
         for c in cands:
             if c.fit is None or c.fit.method != "ls":
                 continue
