@@ -45,8 +45,9 @@ def _products(A: np.ndarray, B: np.ndarray, starts: np.ndarray) -> np.ndarray:
     la, lb = A.shape[:-3], B.shape[:-3]
     out = np.empty(np.broadcast_shapes(la, lb) + (starts.size, A.shape[-1], B.shape[-1]))
     for s, (a, b) in enumerate(zip(starts, ends, strict=True)):
-        As = A[..., a:b, :, :].reshape(la + (-1, A.shape[-1]))
-        Bs = B[..., a:b, :, :].reshape(lb + (-1, B.shape[-1]))
+        m = (b - a) * A.shape[-2]  # the segment's rows, stated: a block of no columns cannot infer them
+        As = A[..., a:b, :, :].reshape(la + (m, A.shape[-1]))
+        Bs = B[..., a:b, :, :].reshape(lb + (m, B.shape[-1]))
         out[..., s, :, :] = np.swapaxes(As, -1, -2) @ Bs
     return out
 
