@@ -37,19 +37,46 @@ def step_rows(discovery) -> list[list]:
 
 
 def make_figures(section: Section, out: Path, prefix: str, free_run: bool = True) -> None:
-    """Draw the section's figures into `out` (names start with `prefix`)."""
+    """Draw the section's figures into `out` (names start with `prefix`): the steps' evidence and
+    the final residual in a worker (`Painter`) while the waterfall, the free run and its `compare`
+    figure are made here."""
     from manus.experiments.freerun import free_run_or_reason
-    from manus.runs.figures.diagnose import evidence_figure, resid_figure, unexplained_figure
+    from manus.runs.figures.diagnose import (
+        evidence_figure,
+        evidence_panels,
+        resid_figure,
+        resid_panels,
+        unexplained_figure,
+    )
     from manus.runs.figures.fit import compare_figure, waterfall_figure
+    from manus.runs.figures.worker import Painter
 
     disc = section.discovery
     name = Path(section.recording).name
-    figs = {"waterfall": waterfall_figure(disc, out, f"{prefix}waterfall.png", name), "steps": []}
-    for s in disc.steps:
-        path = evidence_figure(s.diagnosis, s.verdict, out, f"{prefix}step{s.index}_{s.effect}.png", name)
-        figs["steps"].append((s.spec, path))
+    n = disc.start.data.n_joints
+    painter = Painter(len(disc.steps) * evidence_panels(n) + (resid_panels(n) if disc.final is not None else 0))
+    steps = [
+        (
+            s.spec,
+            painter.draw(
+                evidence_figure,
+                s.diagnosis.base,
+                s.verdict,
+                s.diagnosis.verdict,
+                out,
+                f"{prefix}step{s.index}_{s.effect}.png",
+                name,
+            ),
+        )
+        for s in disc.steps
+    ]
+    resid = (
+        None
+        if disc.final is None
+        else painter.draw(resid_figure, disc.final.base, out, f"{prefix}final_resid.png", name)
+    )
+    figs: dict = {"waterfall": waterfall_figure(disc, out, f"{prefix}waterfall.png", name)}
     if disc.final is not None:
-        figs["resid"] = resid_figure(disc.final, out, f"{prefix}final_resid.png", name)
         left = unexplained_figure(disc.final, out, f"{prefix}final_unexplained.png", name)
         if left:
             figs["unexplained"] = left
@@ -57,6 +84,9 @@ def make_figures(section: Section, out: Path, prefix: str, free_run: bool = True
     run = free_run_or_reason(final) if free_run else "skipped"
     section.free_run = run if isinstance(run, str) else run.how
     figs["compare"] = compare_figure(final, run, out, f"{prefix}final_compare.png", name)
+    figs["steps"] = [(spec, job.result()) for spec, job in steps]
+    if resid is not None:
+        figs["resid"] = resid.result()
     section.figures = figs
 
 

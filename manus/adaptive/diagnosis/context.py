@@ -3,6 +3,7 @@ its columns, the model fitted, the held-out blocks and the levels."""
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -15,6 +16,7 @@ from manus.adaptive.identify.search import delay_of
 from manus.plants.effects import Model, Span
 
 KEEP = 3  # statistics a context keeps (each holds its rows' columns)
+_STATS_LOCK = threading.Lock()  # candidates are judged on threads (`verdict`): one computes statistics at a time
 
 
 @dataclass(frozen=True, eq=False)
@@ -59,13 +61,15 @@ class Context:
         kept (every candidate of a step is judged on top of the same model)."""
         delay = delay_of(model) if delay is None else delay
         key = (model.spec, np.asarray(delay, float).tobytes())
-        if key not in self._stats:
-            if len(self._stats) >= KEEP:
-                del self._stats[next(iter(self._stats))]
-            z = None if self.icols is None else self.icols.model(model)
-            self._stats[key] = Stats.of(self.cols.model(model), self.data.tau(delay), self.starts, z)
-        return self._stats[key]
+        with _STATS_LOCK:
+            if key not in self._stats:
+                if len(self._stats) >= KEEP:
+                    del self._stats[next(iter(self._stats))]
+                z = None if self.icols is None else self.icols.model(model)
+                self._stats[key] = Stats.of(self.cols.model(model), self.data.tau(delay), self.starts, z)
+            return self._stats[key]
 
     def remember(self, model: Model, delay: float | np.ndarray, st: Stats) -> None:
         """`st` as `stats(model, delay)` (computed before this context)."""
-        self._stats[(model.spec, np.asarray(delay, float).tobytes())] = st
+        with _STATS_LOCK:
+            self._stats[(model.spec, np.asarray(delay, float).tobytes())] = st

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from manus.adaptive.diagnosis.candidates import Candidate, compliance, judge, offered
+from manus.adaptive.diagnosis.candidates import Candidate, Offer, compliance, judge, offered
 from manus.adaptive.diagnosis.context import Context
 from manus.adaptive.diagnosis.leftover import residual_structure
 from manus.adaptive.diagnosis.oe_judging import POSITION, TORQUE, PositionJudging, judging, overlaps, rejudge
@@ -183,19 +183,15 @@ def diagnose(
     ctx = Context(data, cols, icols, base, base_sse, starts, folds, span, alpha / max(1, len(tried)), min_share)
     ctx.remember(base.model, base.delay, base_st)
     cands: list[Candidate] = []
-    for offer in tried:
-        if offer.effect.modal:
-            c = compliance(ctx)
-            if isinstance(c, str):
-                notes.append(f"compliance: the recording cannot show a structural mode: {c}")
-            else:
-                assert c.mode is not None, "a mode candidate carries its mode"
-                why = c.mode.unresolved(1 / data.dt, data.cutoff_hz)
-                if why:
-                    c.problems.append(why)
-                cands.append(c)
+    for c in _judged(ctx, tried):
+        if isinstance(c, str):
+            notes.append(f"compliance: the recording cannot show a structural mode: {c}")
             continue
-        cands.append(judge(ctx, offer))
+        if c.mode is not None:
+            why = c.mode.unresolved(1 / data.dt, data.cutoff_hz)
+            if why:
+                c.problems.append(why)
+        cands.append(c)
     judged, judged_note = judging(ctx, cands, method)  # (None: judged by the torque, as above)
     notes += [judged_note] if judged_note else []
     if judged is not None:
@@ -221,6 +217,24 @@ def _torque_gain(c: Candidate) -> float:
     """What a candidate removes from the torque error held out (a mode, without inverse-dynamics
     columns and above the identification band: nothing)."""
     return 0.0 if c.mode is not None else c.cv_error_reduction
+
+
+JUDGES = 2  # candidates judged at once (threads: their statistics and columns spend most of their time outside the GIL)
+
+
+def _judged(ctx: Context, tried: list[Offer]) -> list[Candidate | str]:
+    """Each offer judged in `ctx`, in their order: an effect by `judge`, a structural mode by
+    `compliance` (a sentence where the recording cannot show one). `JUDGES` at a time: each
+    candidate is judged alone from what `ctx` holds, so the results do not depend on the order."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    def one(offer: Offer) -> Candidate | str:
+        return compliance(ctx) if offer.effect.modal else judge(ctx, offer)
+
+    if len(tried) < 2:
+        return [one(offer) for offer in tried]
+    with ThreadPoolExecutor(JUDGES, thread_name_prefix="manus-judge") as pool:
+        return list(pool.map(one, tried))
 
 
 def _relevant_on_joints(ctx: Context, base_st: lsq.Stats, cands: list[Candidate]) -> None:

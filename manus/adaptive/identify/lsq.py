@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import functools
 import itertools
+import threading
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import ClassVar, NamedTuple
@@ -194,24 +195,26 @@ class Stats:
         latter's factorisation (`Factor`), kept for the next call with the same masks (the
         statistics `retimed` share them: they depend on the columns only)."""
         key = (m.shape, m.tobytes())
-        if key not in self._factors:
-            if len(self._factors) >= KEEP:
-                del self._factors[next(iter(self._factors))]
-            Gm = _over_masks(m, self.G)
-            Am = Gm if self.H is None else _over_masks(m, self.H)
-            self._factors[key] = Over(Gm, Am, Factor.of(Am, self.iv))
-        return self._factors[key]
+        with _KEPT:
+            if key not in self._factors:
+                if len(self._factors) >= KEEP:
+                    del self._factors[next(iter(self._factors))]
+                Gm = _over_masks(m, self.G)
+                Am = Gm if self.H is None else _over_masks(m, self.H)
+                self._factors[key] = Over(Gm, Am, Factor.of(Am, self.iv))
+            return self._factors[key]
 
     def whole_fit(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The normal matrix summed over every segment (P, P), the minimum-norm fit there (`RCOND`)
         and each segment's normal equations' residual b − A θ (S, P): kept (every set of columns
         appended to these statistics is scored against this fit)."""
-        if not self._whole:
-            A, b = self.normal()
-            Asum = A.sum(0)
-            theta = np.linalg.lstsq(Asum, b.sum(0), rcond=RCOND)[0]
-            self._whole.extend([Asum, theta, b - A @ theta])
-        Asum, theta, u = self._whole
+        with _KEPT:
+            if not self._whole:
+                A, b = self.normal()
+                Asum = A.sum(0)
+                theta = np.linalg.lstsq(Asum, b.sum(0), rcond=RCOND)[0]
+                self._whole.extend([Asum, theta, b - A @ theta])
+            Asum, theta, u = self._whole
         return Asum, theta, u
 
     def retimed(self, tau: np.ndarray) -> Stats:
@@ -227,6 +230,7 @@ class Stats:
 
 
 KEEP = 8  # sets of segment masks whose sums and factorisations a `Stats` keeps
+_KEPT = threading.RLock()  # guards what a `Stats` keeps (candidates sharing one are judged on threads)
 
 
 class Over(NamedTuple):

@@ -26,6 +26,7 @@ the kinematics, the rows.
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -56,6 +57,9 @@ PREFETCH_BYTES = 64e6  # full-rate arrays a search holds at once (shifted torque
 # reversal holds the joint for an instant, an unknown torque the filter spreads over about a period)
 JOINT_STANDSTILL_S = 0.0
 JOINT_GUARD = 1.0
+
+
+_TAU_LOCK = threading.RLock()  # guards `Data._tau`, the torque's filtered shifts kept
 
 
 @dataclass
@@ -136,10 +140,11 @@ class Data:
         they commute, so the torque goes through that filter once. The cut-off's low-pass leaves
         the rests of the motion out, so it follows the shift: the torque that acted at a moving
         sample is the one recorded `delay` earlier.)"""
-        if "band" not in self._tau:
-            self._tau["band"] = lowpass(self.rec.tau, self.dt, self.kinematic_hz)
         hold = 0.5 if self.hold == "zoh" else 0.0
-        out = self._late(np.asarray(delay, float) / self.dt + hold)
+        with _TAU_LOCK:  # (candidates are judged on threads: the shifts kept are shared)
+            if "band" not in self._tau:
+                self._tau["band"] = lowpass(self.rec.tau, self.dt, self.kinematic_hz)
+            out = self._late(np.asarray(delay, float) / self.dt + hold)
         if full:
             return out
         return out[self.rows] if self.mask is None else out[self.rows] * self.mask

@@ -13,6 +13,7 @@ import numpy as np
 
 from manus.adaptive.diagnosis.leftover import RIPPLE, what_removes
 from manus.runs.figures.common import close_all, envelope, panels, save, tidy
+from manus.runs.figures.worker import Job, Painter
 
 Z99 = 2.576  # two-sided 99 % normal quantile
 MAX_LAG_ROWS = 60
@@ -51,14 +52,18 @@ def _row_dt(data) -> float:
     return float(np.median(np.diff(data.rows))) * data.dt
 
 
-def resid_figure(d, out: Path, name: str = "resid.png", title: str = "") -> str:
-    """Per joint, two rows of three panels: residual autocorrelation and its cross-correlation
-    with the input (the velocity, what drives the inverse model), both with 99 % bands; the
-    residual against time, against velocity, against position (binned means over the cloud);
-    and its spectrum beside the torque's."""
+def resid_panels(n_joints: int) -> int:
+    """The panels of `resid_figure` on `n_joints` joints."""
+    return 6 * n_joints
+
+
+def resid_figure(f, out: Path, name: str = "resid.png", title: str = "") -> str:
+    """The residual of fit `f`, per joint two rows of three panels: residual autocorrelation and
+    its cross-correlation with the input (the velocity, what drives the inverse model), both with
+    99 % bands; the residual against time, against velocity, against position (binned means over
+    the cloud); and its spectrum beside the torque's."""
     from scipy import signal
 
-    f = d.base
     data = f.data
     n = data.n_joints
     r, rows = f.residual, data.rows
@@ -197,17 +202,23 @@ HOW = {
 }
 
 
-def evidence_figure(d, c, out: Path, name: str, title: str = "", reuse: dict | None = None) -> str:
-    """Why candidate `c` is (or is not) missing, per joint, plus its parameter search when it has
-    one. What the residual is plotted against is the effect's own `evidence`. `reuse`: figures of
-    the same shape drawn on again (`panels`)."""
-    data = d.base.data
+def evidence_panels(n_joints: int) -> int:
+    """The panels of an `evidence_figure` on `n_joints` joints (at most)."""
+    return n_joints + 1
+
+
+def evidence_figure(base, c, verdict, out: Path, name: str, title: str = "", reuse: dict | None = None) -> str:
+    """Why candidate `c` is (or is not) missing from the model fitted as `base`, per joint, plus
+    its parameter search when it has one (`verdict`: the step's, None or another candidate). What
+    the residual is plotted against is the effect's own `evidence`. `reuse`: figures of the same
+    shape drawn on again (`panels`)."""
+    data = base.data
     n = data.n_joints
     rows = data.rows
-    q, qd, e = data.q[rows], data.qd[rows], d.base.residual
+    q, qd, e = data.q[rows], data.qd[rows], base.residual
     has_search = c.fit is not None and c.effect in c.fit.search
     count = n + int(has_search)
-    text = _headline(c, d.verdict)
+    text = _headline(c, verdict)
     if c.note:
         text += "\n" + c.note
     if c.problems:
@@ -217,7 +228,7 @@ def evidence_figure(d, c, out: Path, name: str, title: str = "", reuse: dict | N
         -(-count // ncols),
         ncols,
         (5.0, 3.4),
-        f"{title or Path(data.rec.path).name}, model {d.base.model.spec} + {c.effect}: {text}",
+        f"{title or Path(data.rec.path).name}, model {base.model.spec} + {c.effect}: {text}",
         reuse,
     )
     axes = grid.ravel()
@@ -234,8 +245,8 @@ def evidence_figure(d, c, out: Path, name: str, title: str = "", reuse: dict | N
         assert c.fit is not None and effect is not None  # a candidate without a mode is a fitted effect
         how = HOW.get(effect.evidence, "")
         if effect.evidence == "shift":
-            x = np.gradient(data.tau(d.base.delay, full=True)[:, i], data.dt)[rows]
-            shift = np.broadcast_to(np.asarray(c.fit.delay - d.base.delay, float), (data.n_joints,))[i]
+            x = np.gradient(data.tau(base.delay, full=True)[:, i], data.dt)[rows]
+            shift = np.broadcast_to(np.asarray(c.fit.delay - base.delay, float), (data.n_joints,))[i]
             xl, y = f"dτ{i + 1}/dt (torque rate)", shift * x
         elif effect.evidence == "position" and "order" in effect.describe():
             N = float(effect.describe().get("orders", [effect.describe()["order"]])[-1])
@@ -293,13 +304,13 @@ def _compliance_panel(ax, c, i: int):
     )
 
 
-def evidence_figures(d, out: Path, prefix: str = "", title: str = "") -> dict[str, str]:
-    """One evidence figure per candidate: {effect: path}."""
+def evidence_figures(base, verdict, candidates, out: Path, prefix: str = "", title: str = "") -> dict[str, str]:
+    """An `evidence_figure` per candidate (those fitted or with a mode): {effect: path}."""
     reuse = {}
     try:
         return {
-            c.effect: evidence_figure(d, c, out, f"{prefix}evidence_{c.effect}.png", title, reuse)
-            for c in d.candidates
+            c.effect: evidence_figure(base, c, verdict, out, f"{prefix}evidence_{c.effect}.png", title, reuse)
+            for c in candidates
             if c.fit is not None or c.mode is not None
         }
     finally:
@@ -356,10 +367,16 @@ def unexplained_figure(d, out: Path, name: str, title: str = "") -> str | None:
     return save(fig, out, name, tight=False)
 
 
-def diagnosis_figures(d, out: Path, stem: str) -> dict:
-    """A diagnosis's figures: the residual, one evidence figure per candidate, what is left."""
-    return {
-        "resid": resid_figure(d, out, f"{stem}_resid.png"),
-        "evidence": evidence_figures(d, out, prefix=f"{stem}_"),
-        "unexplained": unexplained_figure(d, out, f"{stem}_unexplained.png"),
-    }
+def diagnosis_figures(d, out: Path, stem: str, painter: Painter | None = None, resid: Job | None = None) -> dict:
+    """A diagnosis's figures: the residual (`resid`: already being drawn), one evidence figure per
+    candidate, what is left. With a `painter`, the first half of the evidence figures are drawn
+    by it while this process draws the rest."""
+    painter = painter or Painter(0)
+    resid = resid or painter.draw(resid_figure, d.base, out, f"{stem}_resid.png")
+    shown = [c for c in d.candidates if c.fit is not None or c.mode is not None]
+    half = len(shown) // 2 if painter.remote else 0
+    there = painter.draw(evidence_figures, d.base, d.verdict, shown[:half], out, f"{stem}_")
+    here = evidence_figures(d.base, d.verdict, shown[half:], out, f"{stem}_")
+    left = unexplained_figure(d, out, f"{stem}_unexplained.png")
+    drawn = {**there.result(), **here}
+    return {"resid": resid.result(), "evidence": {c.effect: drawn[c.effect] for c in shown}, "unexplained": left}

@@ -1,0 +1,87 @@
+"""Figures drawn in a second process while the analysis goes on (`Painter`).
+
+A 6–7-joint diagnosis draws about a hundred panels: seconds of matplotlib, all of it Python
+holding one core, while the statistics leave the other core mostly idle. A `Painter` with a
+worker hands it figure functions (`draw(fn, *args)`: the function and its arguments pickled, the
+results of the analysis it draws) and keeps going; each `Job.result()` waits for its figure. Figures few
+enough that starting the worker (a Python with matplotlib and JAX: about 2 s of the other core)
+would cost more than drawing them are drawn at once, here: `Painter(panels)` decides from the
+number of panels the caller expects. The worker is started once per process and kept for the
+next command (the test suite runs many); a worker that dies leaves its figures drawn here."""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+from typing import Any
+
+WORKER_PANELS = 40  # panels from which a worker is worth starting (about what 2 s of drawing makes)
+
+
+@functools.lru_cache(maxsize=1)
+def _pool() -> ProcessPoolExecutor:
+    import multiprocessing
+
+    return ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"), initializer=_ready)
+
+
+def _ready() -> None:
+    """The worker's start: JAX as `manus` runs it (a figure may evaluate a model), pyplot and the
+    figure modules imported before the first figure is asked for."""
+    import importlib
+
+    from manus.runs.cli import configure_jax
+
+    configure_jax()
+    for module in ("common", "diagnose", "fit"):
+        importlib.import_module(f"manus.runs.figures.{module}")
+    from manus.runs.figures.common import pyplot
+
+    pyplot()
+
+
+def _started() -> None:
+    """A job that only makes sure the worker is up."""
+
+
+class Job:
+    """A figure being drawn: `result()` waits for it (what its function returned, a path). One whose
+    worker died is drawn here."""
+
+    def __init__(self, fn: Callable, args: tuple, future: Future | None):
+        self._fn, self._args, self._future = fn, args, future
+        self._value = fn(*args) if future is None else None
+
+    def result(self) -> Any:
+        if self._future is not None:
+            try:
+                self._value = self._future.result()
+            except BrokenProcessPool:
+                _pool.cache_clear()
+                self._value = self._fn(*self._args)
+            self._future = None
+        return self._value
+
+
+class Painter:
+    """Figure functions run beside the analysis (in the worker) or at once (here)."""
+
+    def __init__(self, panels: int):
+        self.remote = panels >= WORKER_PANELS
+        if self.remote:
+            self._submit(_started)  # the worker starts importing now, while the caller works
+
+    def _submit(self, fn: Callable, *args) -> Future | None:
+        try:
+            return _pool().submit(fn, *args)
+        except BrokenProcessPool:
+            _pool.cache_clear()
+            self.remote = False
+            return None
+
+    def draw(self, fn: Callable, *args) -> Job:
+        """`fn(*args)` (a figure function; its arguments, the analysis's results, picklable): in
+        the worker when there is one, else now."""
+        return Job(fn, args, self._submit(fn, *args) if self.remote else None)

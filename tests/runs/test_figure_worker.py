@@ -1,0 +1,65 @@
+"""Figures drawn beside the analysis (manus.runs.figures.worker): what the worker draws is, pixel for
+pixel, what this process draws; a worker that dies leaves its figures drawn here; a few panels are
+drawn at once, without a worker."""
+
+import os
+import signal
+
+import numpy as np
+import pytest
+from matplotlib.image import imread
+
+from manus.runs.figures import worker
+from manus.runs.figures.diagnose import diagnosis_figures
+from manus.runs.figures.worker import WORKER_PANELS, Painter
+
+
+@pytest.fixture(scope="module")
+def diagnosis():
+    """A 2-joint recording with an offset hidden, diagnosed (its candidates fitted, a verdict)."""
+    from manus.adaptive import diagnose
+    from manus.experiments import calibration
+
+    c = calibration.case(0, "offset", rates=(200,))
+    return diagnose(c.rec, c.start)
+
+
+def _paths(figures: dict) -> list[str]:
+    return [
+        figures["resid"],
+        *figures["evidence"].values(),
+        *([figures["unexplained"]] if figures["unexplained"] else []),
+    ]
+
+
+def test_the_worker_draws_what_this_process_draws(diagnosis, tmp_path):
+    here = diagnosis_figures(diagnosis, tmp_path / "here", "d", Painter(0))
+    painter = Painter(WORKER_PANELS)
+    assert painter.remote
+    there = diagnosis_figures(diagnosis, tmp_path / "there", "d", painter)
+    assert (
+        list(there["evidence"])
+        == list(here["evidence"])
+        == [c.effect for c in diagnosis.candidates if c.fit is not None or c.mode is not None]
+    )
+    assert len(here["evidence"]) >= 6
+    for a, b in zip(_paths(here), _paths(there), strict=True):
+        assert os.path.basename(a) == os.path.basename(b) and "/there/" in b
+        np.testing.assert_array_equal(imread(a), imread(b))
+
+
+def test_a_dead_worker_leaves_its_figures_drawn_here(diagnosis, tmp_path):
+    painter = Painter(WORKER_PANELS)
+    painter.draw(int, "1").result()  # the worker is up
+    for pid in list(worker._pool()._processes):  # killed as an out-of-memory killer would
+        os.kill(pid, signal.SIGKILL)
+    figures = diagnosis_figures(diagnosis, tmp_path, "d", painter)
+    assert all(os.path.getsize(p) > 10_000 for p in _paths(figures))
+    assert Painter(WORKER_PANELS).draw(int, "2").result() == 2  # the next one starts a new worker
+
+
+def test_few_panels_are_drawn_at_once_here():
+    painter = Painter(WORKER_PANELS - 1)
+    assert not painter.remote
+    job = painter.draw(os.getpid)
+    assert job.result() == os.getpid()  # drawn in this process, before `draw` returned
