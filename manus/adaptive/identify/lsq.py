@@ -484,16 +484,20 @@ def _bounded(M: np.ndarray, r: np.ndarray, low: np.ndarray | None, iv: bool) -> 
     C = _solve(M, r, iv)
     if low is None or not np.isfinite(low).any():
         return C
+    low, r = np.broadcast_to(low, C.shape), np.broadcast_to(r, C.shape)
+    M = np.broadcast_to(M, C.shape[:-1] + M.shape[-2:])
     held = np.zeros(C.shape, bool)
     for _ in range(C.shape[-1]):
         more = (low > C) & ~held
-        if not more.any():
+        again = more.any(-1)  # the solutions that hold one more coefficient (the others stay as they are)
+        if not again.any():
             break
         held |= more
-        x = np.where(held, low, 0.0)
-        free = (~held).astype(float)
-        r2 = (r - np.einsum("...pq,...q->...p", M, x)) * free
-        C = np.where(held, low, _solve(M * free[..., :, None] * free[..., None, :], r2, iv))
+        h, m = held[again], M[again]
+        x = np.where(h, low[again], 0.0)
+        free = (~h).astype(float)
+        r2 = (r[again] - np.einsum("...pq,...q->...p", m, x)) * free
+        C[again] = np.where(h, low[again], _solve(m * free[..., :, None] * free[..., None, :], r2, iv))
     return C
 
 

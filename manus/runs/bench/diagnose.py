@@ -263,14 +263,23 @@ def run_one(
 ) -> dict:
     """`manus.experiments.judging.judge` in a worker: float64 and the environment, as `manus`
     runs (a spawned worker was not started by it). A chain recording is judged a second time
-    with relevance over all the torque only where `pooled`."""
+    with relevance over all the torque only where `pooled`. JAX's compiled programs are let go
+    after each recording: each recording compiles its own (its length, rate and structure), and
+    their code stays mapped until then (a chain recording adds about 1800 maps; the kernel's limit
+    of 65530 stopped a calibration in one process after 75 of them, with "LLVM compilation error:
+    Cannot allocate memory")."""
+    import jax
+
     from manus.runs.cli import configure_jax
 
     configure_jax()
     from manus.experiments.judging import judge
 
     baseline = pooled and simulator == "chain"
-    return judge(seed, hidden, alpha, blocks, rates, amplitude, lost, simulator, baseline=baseline)
+    try:
+        return judge(seed, hidden, alpha, blocks, rates, amplitude, lost, simulator, baseline=baseline)
+    finally:
+        jax.clear_caches()
 
 
 def calibrate(args) -> dict:
