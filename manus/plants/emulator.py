@@ -17,7 +17,21 @@ A CMD_STOP ends the session at zero torque; after a watchdog trip the emulator k
 may command it; packets from anyone else, and malformed or out-of-order ones, are counted and
 dropped. For fault injection, `drop` loses that fraction of the packets each way and `garbage`
 sends that fraction of junk datagrams before sensor packets. `log` writes what the device did
-(measured and true positions, applied torques, flags) as a streamed recording.
+(measured and true positions, applied torques, flags, whether the fault was on) as a streamed
+recording.
+
+`fault` plays a rig gone wrong, from `fault_at` seconds after each HELLO to the end of that
+session (CMD_STOP, a watchdog trip's linger, or a new HELLO), whatever the host commands:
+
+- `runaway`: joint 1's motor driver delivers the D/A's full scale (volt_limit × torque_per_volt,
+  positive; through the D/A its largest code), the other joints what is commanded;
+- `stall`: an obstacle blocks the arm: the physics is held where it was (positions frozen,
+  velocities zero), so every sample reports the counts of the onset;
+- `jump`: a broken encoder line: joint 1 reports 2**31 - 1 counts (INT32_MAX), the physics goes on;
+- `bad-info`: the INFO packet says volt_limit = +inf (everything else true; the D/A keeps its
+  true range). It is the session's INFO: this fault is on from the HELLO, whatever `fault_at`;
+- `late`: each sample is sent `LATE_NS` after it was taken (stamped with the time it was taken;
+  the loop sends it while it waits for later periods), so the host's commands miss their deadlines.
 """
 
 from __future__ import annotations
@@ -27,7 +41,7 @@ import math
 import select
 import socket
 import time
-from collections import Counter
+from collections import Counter, deque
 from pathlib import Path
 
 import numpy as np
@@ -37,6 +51,10 @@ from manus.plants.device import WARM_EVERY_NS, WARM_GAP_NS
 from manus.plants.errors import ManusError
 from manus.plants.recording import RecordingWriter
 from manus.plants.simulator import Simulator
+
+FAULTS = ("runaway", "stall", "jump", "bad-info", "late")  # see the module docstring
+INT32_MAX = 2**31 - 1  # the counts a broken encoder line reports (`jump`)
+LATE_NS = 3_000_000  # how long after it was taken a sample is sent (`late`)
 
 
 class Emulator:
@@ -54,14 +72,22 @@ class Emulator:
         log=None,
         seed: int = 0,
         spin: float = 0.002,
+        fault: str | None = None,
+        fault_at: float = 1.0,
     ):
         import jax
+        import jax.numpy as jnp
 
         encoder = sim.encoder
         if encoder is None or sim.actuator is None:
             raise ManusError("the emulator needs a simulator with an encoder and an actuator (a rig has both)")
         if not (0 <= drop < 1 and 0 <= garbage < 1):
             raise ManusError(f"drop and garbage are fractions in [0, 1), got {drop} and {garbage}")
+        if fault is not None and fault not in FAULTS:
+            raise ManusError(f"unknown fault {fault!r}: the emulator plays {', '.join(FAULTS)}")
+        if not (math.isfinite(fault_at) and fault_at >= 0):
+            raise ManusError(f"fault_at is seconds after the session starts (finite, >= 0), got {fault_at}")
+        self.fault, self.fault_at_ns = fault, int(round(fault_at * 1e9))
         self.sim, self.watchdog, self.linger = sim, float(watchdog), float(linger)
         self.drop, self.garbage = float(drop), float(garbage)
         self.rng = np.random.default_rng(seed)
@@ -85,13 +111,24 @@ class Emulator:
             q_true, qd_true = sim.truth(state)
             return state, encoder.counts(state.q).astype(np.int64), q_true, qd_true, act(tau)
 
+        def held(state, tau):  # `stall`: the physics stays where it is, at rest
+            state = state._replace(
+                qd=jnp.zeros_like(state.qd),
+                link_qd=None if state.link_qd is None else jnp.zeros_like(state.link_qd),
+            )
+            q_true, qd_true = sim.truth(state)
+            return state, encoder.counts(state.q).astype(np.int64), q_true, qd_true, act(tau)
+
         self._tick = jax.jit(tick)
+        self._held = jax.jit(held)
         self._reset = jax.jit(lambda: sim.reset()[0])
         self.refused: Counter = Counter()
         self.stats: Counter = Counter()
         self.peer = None
         self.session = 0
         self.active = False
+        self.onset_ns = 0
+        self._pending: deque[tuple[int, bytes]] = deque()
         self._writer = None
         if log is not None:
             cols = (
@@ -99,7 +136,7 @@ class Emulator:
                 + [f"q{i + 1}" for i in range(self.n)]
                 + [f"tau{i + 1}" for i in range(self.n)]
                 + [f"qd{i + 1}" for i in range(self.n)]
-                + ["flags", "session", "seq"]
+                + ["flags", "session", "seq", "fault"]
             )
             self._writer = RecordingWriter(
                 log,
@@ -112,6 +149,7 @@ class Emulator:
                     "truth": sim.model.spec,
                     "source": "manus emulate (device side)",
                     "streamed": "true",
+                    **({"fault": fault, "fault_at": f"{fault_at:g}"} if fault else {}),
                 },
             )
         self._warm_up()
@@ -120,6 +158,8 @@ class Emulator:
         state = self._reset()
         for _ in range(3):
             state, *_ = self._tick(state, np.zeros(self.n))
+            if self.fault == "stall":
+                self._held(state, np.zeros(self.n))
         self.state = state
 
     # -- packets --------------------------------------------------------------------------
@@ -142,8 +182,14 @@ class Emulator:
         self.saturated = False
         self._last = None
         self.t0 = getattr(self, "t0", now)
-        self._send(P.encode_info(0, now, self.info))
+        self.onset_ns = now if self.fault == "bad-info" else now + self.fault_at_ns
+        self._pending.clear()  # `late`: (when to send, packet), oldest first
+        info = self.info._replace(volt_limit=math.inf) if self.fault == "bad-info" else self.info
+        self._send(P.encode_info(0, now, info))
         self.next_ns = now + self.period_ns
+
+    def _fault_on(self, now: int) -> bool:
+        return self.fault is not None and now >= self.onset_ns
 
     def _handle(self, data: bytes, addr, now: int) -> None:
         try:
@@ -199,8 +245,11 @@ class Emulator:
         """The log's last row of a session: the device at zero torque from `now`."""
         if self._writer is not None and self._last is not None:
             q, qd = self._last
+            fault = float(self._fault_on(now))
             self._rows.append(
-                np.concatenate([[(now - self.t0) / 1e9], q, np.zeros(self.n), qd, [self.flags, self.session, self.seq]])
+                np.concatenate(
+                    [[(now - self.t0) / 1e9], q, np.zeros(self.n), qd, [self.flags, self.session, self.seq, fault]]
+                )
             )
 
     def _drain(self) -> None:
@@ -214,8 +263,14 @@ class Emulator:
                 return
             self._handle(data, addr, time.perf_counter_ns())
 
+    def _send_due(self, now: int) -> None:
+        """`late`: send the held-back samples whose time has come."""
+        while self._pending and self._pending[0][0] <= now:
+            self._send(self._pending.popleft()[1])
+
     def _wait_until(self, t_ns: int | None) -> None:
-        """Take packets until `t_ns` (perf_counter_ns); None: block until one arrives (idle)."""
+        """Take packets (and send the held-back samples) until `t_ns` (perf_counter_ns); None:
+        block until one arrives (idle)."""
         clock = time.perf_counter_ns
         while True:
             self._drain()
@@ -225,14 +280,17 @@ class Emulator:
                 select.select([self.sock], [], [], 0.2)
                 continue
             now = clock()
+            if self.active:
+                self._send_due(now)
             if now >= t_ns:
                 return
-            if self.active and t_ns - now > WARM_GAP_NS and now >= self._next_warm:
+            wake = min(t_ns, self._pending[0][0]) if self.active and self._pending else t_ns
+            if self.active and wake - now > WARM_GAP_NS and now >= self._next_warm:
                 self._tick(self.state, self.tau)  # thrown away: keeps the step in the caches (3x faster)
                 self._next_warm = clock() + WARM_EVERY_NS
                 continue
-            if t_ns - now > self.spin_ns:
-                select.select([self.sock], [], [], (t_ns - now - self.spin_ns) / 1e9)
+            if wake - now > self.spin_ns:
+                select.select([self.sock], [], [], (wake - now - self.spin_ns) / 1e9)
 
     # -- the real-time tick ---------------------------------------------------------------
     def _period(self, now: int) -> None:
@@ -249,14 +307,24 @@ class Emulator:
         elif self.saturated:
             flags |= P.STATUS_SATURATED
         self.flags = flags
-        self.state, counts, _q_true, qd_true, applied = self._tick(self.state, self.tau)
-        counts = np.asarray(counts)
+        fault = self.fault if self._fault_on(now) else None
+        tau = self.tau
+        if fault == "runaway":
+            tau = tau.copy()
+            tau[0] = self.info.volt_limit * self.info.torque_per_volt
+        step = self._held if fault == "stall" else self._tick
+        self.state, counts, _q_true, qd_true, applied = step(self.state, tau)
+        counts = np.array(counts)
+        if fault == "jump":
+            counts[0] = INT32_MAX
         self.seq += 1
         if self.garbage and self.rng.random() < self.garbage:
             self._send(self._junk())
             self.stats["garbage_sent"] += 1
         if self.drop and self.rng.random() < self.drop:
             self.stats["dropped_out"] += 1
+        elif fault == "late":
+            self._pending.append((now + LATE_NS, P.encode_sensor(self.seq, now, counts, flags)))
         else:
             self._send(P.encode_sensor(self.seq, now, counts, flags))
         self.stats["ticks"] += 1
@@ -264,7 +332,13 @@ class Emulator:
             q = counts * (2 * math.pi / self.info.counts_per_rev)
             self._last = (q, np.asarray(qd_true))
             row = np.concatenate(
-                [[(now - self.t0) / 1e9], q, np.asarray(applied), self._last[1], [flags, self.session, self.seq]]
+                [
+                    [(now - self.t0) / 1e9],
+                    q,
+                    np.asarray(applied),
+                    self._last[1],
+                    [flags, self.session, self.seq, float(fault is not None)],
+                ]
             )
             self._rows.append(row)
             if len(self._rows) >= 20:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import signal
 from pathlib import Path
 
@@ -39,6 +40,23 @@ def add_arguments(p) -> None:
         help="busy-wait this long before each tick instead of sleeping (a sleeping vCPU wakes late; default 2)",
     )
     p.add_argument("--seed", type=int, default=0, help="seed of the fault injection")
+    p.add_argument(
+        "--fault",
+        choices=("runaway", "stall", "jump", "bad-info", "late"),
+        default=None,
+        help="fault injection: a rig gone wrong from --fault-at seconds after each session starts to its end, "
+        "whatever is commanded. runaway: joint 1's driver delivers the D/A's full positive torque; stall: the arm "
+        "is blocked (positions frozen, velocities zero); jump: joint 1's encoder reports 2**31-1 counts; bad-info: "
+        "the INFO packet says volt_limit=inf (from the session's start); late: each sample is sent 3 ms after it "
+        "was taken (stamped when taken), so the host's commands miss their deadlines",
+    )
+    p.add_argument(
+        "--fault-at",
+        type=float,
+        default=1.0,
+        metavar="SECONDS",
+        help="when --fault starts, in seconds after each session starts (HELLO) (default 1)",
+    )
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout at exit")
     p.add_argument(
         "--torque-limit",
@@ -62,6 +80,8 @@ def run(args) -> dict:
         raise ManusError("--counts must be positive: a rig's encoder has a resolution")
     if args.robot and not args.torque_limit > 0:
         raise ManusError("--torque-limit must be positive")
+    if not (math.isfinite(args.fault_at) and args.fault_at >= 0):
+        raise ManusError(f"--fault-at {args.fault_at:g}: seconds after the session starts (finite, >= 0)")
     plant = build_plant(args, robot_torque_limit=args.torque_limit if args.robot else None)
     emu = Emulator(
         plant,
@@ -73,10 +93,13 @@ def run(args) -> dict:
         log=args.log,
         seed=args.seed,
         spin=args.spin_ms / 1e3,
+        fault=args.fault,
+        fault_at=args.fault_at,
     )
+    fault = f", fault {args.fault} at {args.fault_at:g} s into each session" if args.fault else ""
     note(
         f"emulating {plant.model.spec} ({plant.model.n_joints} joints, {plant.rate_hz:g} Hz) "
-        f"on udp://{args.host}:{emu.port}",
+        f"on udp://{args.host}:{emu.port}{fault}",
     )
     signal.signal(signal.SIGTERM, _interrupt)  # a terminate closes the log like Ctrl-C
     try:
@@ -84,7 +107,7 @@ def run(args) -> dict:
     except KeyboardInterrupt:
         emu.close()
         stats = {"refused": dict(emu.refused), **dict(emu.stats)}
-    return {"port": emu.port, "truth": plant.model.spec, "sessions": emu.session, **stats}
+    return {"port": emu.port, "truth": plant.model.spec, "fault": args.fault, "sessions": emu.session, **stats}
 
 
 def _interrupt(*_):
@@ -93,7 +116,8 @@ def _interrupt(*_):
 
 def render(r: dict) -> str:
     refused = ", ".join(f"{k} {v}" for k, v in sorted(r["refused"].items())) or "none"
+    fault = f", fault {r['fault']}" if r.get("fault") else ""
     return (
-        f"emulator on port {r['port']} ({r['truth']}): {r['sessions']} session(s), {r.get('ticks', 0)} ticks, "
+        f"emulator on port {r['port']} ({r['truth']}{fault}): {r['sessions']} session(s), {r.get('ticks', 0)} ticks, "
         f"{r.get('late', 0)} late commands, {r.get('watchdog_trips', 0)} watchdog trips; refused: {refused}"
     )
