@@ -147,15 +147,17 @@ def compiled_tick(
     model_spec: str,
     structure: str | None,
     reference: str,
-    torque_limit: float | None = None,
+    limits=None,
     robot: str | None = None,
 ):
     """The hardware loop's tick (`manus.plants.hardware.CompiledTick`) of `controller` +
     `estimator` following `reference`, for the device described by `info` (its joints, rate,
-    encoder and torque limit), warmed up. `structure`: manus2 or axis (default: manus2 for a
-    2-joint device); `robot`: a URDF instead, adapted in pseudo-inertia coordinates."""
+    encoder and torque limit), within the rig's `limits` (`manus.plants.limits.Limits`; default:
+    the thesis arm's), warmed up. `structure`: manus2 or axis (default: manus2 for a 2-joint
+    device); `robot`: a URDF instead, adapted in pseudo-inertia coordinates."""
     from manus.plants import Model, structure_named
     from manus.plants.hardware import CompiledTick
+    from manus.plants.limits import Limits
     from manus.plants.references import CENTRE, reference_named
 
     n = info.n_joints
@@ -175,9 +177,8 @@ def compiled_tick(
         shape = structure_named(structure, n)
     dt = 1.0 / info.rate_hz
     model = Model(shape, model_spec)
-    limit = info.torque_limit if torque_limit is None else min(torque_limit, info.torque_limit)
-    if not limit > 0:
-        raise ManusError(f"--torque-limit must be positive, got {torque_limit}")
+    limits = limits or Limits()
+    limit = min(limits.torque, info.torque_limit)
     gains = {} if controller == "impedance" else {"limit": limit}
     c = make_controller(controller, model, dt, estimator=estimator, **gains)
     arm = structure == "manus2"
@@ -185,6 +186,6 @@ def compiled_tick(
         ref = reference_named(reference, np.array(CENTRE) if arm else np.zeros(n), arm)
     except ManusError as e:
         raise ManusError(f"{e} (try --reference multisine)") from None
-    tick = CompiledTick(c, ref, dt, info.counts_per_rev, n, limit)
+    tick = CompiledTick(c, ref, dt, info.counts_per_rev, n, limits, info.torque_limit)
     tick.warm_up()
     return tick

@@ -142,6 +142,9 @@ class UdpDevice(Device):
                 if isinstance(packet, P.Info):
                     self.info = packet
                     self.last_seq = None
+                    if packet.problem():  # nothing is computed from a description that cannot be true
+                        self.stop()
+                        raise DeviceError(f"{self.url}: the device's INFO {packet.problem()}: refusing to drive it")
                     return packet
         raise DeviceError(
             f"{self.url}: no answer from the device within {timeout:g} s "

@@ -6,15 +6,18 @@ in real time, with safety limits, self-measurement and a recording written as it
 
 Each tick: the device's sample k arrives (encoder counts), the compiled tick turns it into
 positions, runs the controller against the reference at t = k T, checks every number for NaN or
-Inf and clamps the torque; the loop clamps again (torque, then volts: no stepper output can pass
-the limits), sends the command, and logs the row. The device owns the clock (it samples at its
-rate); the loop answers each sample before the next one is due.
+Inf and the rig's limits (`manus.plants.limits`: velocity, workspace, encoder jump, stall), and
+clamps the torque; the loop checks the limits again on what it received and clamps again (torque,
+then volts: no stepper output can pass the limits), sends the command, and logs the row. The
+device owns the clock (it samples at its rate); the loop answers each sample before the next one
+is due.
 
-Safety: a non-finite value anywhere (measurement, controller state, command), or the device
-reporting FAULT, stops the run with zero torque (`stopped_by` "fault"); no valid sample for
-`watchdog` seconds, or the device reporting that its own watchdog fired, stops it with
-"watchdog"; Ctrl-C or SIGTERM stop it with "user"; on every way out the device is sent zero torque
-and the end of the session, and the recording is flushed and closed.
+Safety: a limit tripped stops the run with zero torque (`stopped_by` "limit"); a non-finite value
+anywhere (measurement, controller state, command), or the device reporting FAULT, stops it with
+"fault"; no valid sample for `watchdog` seconds, or the device reporting that its own watchdog
+fired, stops it with "watchdog"; Ctrl-C or SIGTERM stop it with "user"; on every way out the
+device is sent zero torque and the end of the session, and the recording is flushed, its last
+lines saying why the run stopped, and closed. The recording reaches the file every 10 ms.
 
 Self-measurement, kept per tick in the recording (`compute_us`, `period_us`, `late`) and
 summarized in the result: compute = from the sample in hand to the command sent; jitter = the
@@ -31,24 +34,26 @@ import signal
 import threading
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
 from manus.plants import protocol as P
 from manus.plants.device import Device
 from manus.plants.errors import ManusError
+from manus.plants.limits import NONFINITE, Limits, Resolved, check, reason
 from manus.plants.recording import RecordingWriter
 from manus.plants.stepper import Controller, Plant, Reference
 
 if TYPE_CHECKING:
     from jax.typing import ArrayLike
 
-STOPS = ("end", "watchdog", "fault", "user")
+STOPS = ("end", "watchdog", "fault", "limit", "user")
 FIRST_SAMPLE_TIMEOUT = 0.5  # s: after HELLO, the device's first sample
-LOG_EVERY = 20  # rows handed to the writer at once (it flushes to disk at least every 0.1 s)
+LOG_EVERY = 10  # rows handed to the writer at once ...
+FLUSH_S = 0.01  # ... which writes them to the file at least this often (what a SIGKILL can lose)
 
 
 def realtime_jax() -> None:
@@ -60,15 +65,37 @@ def realtime_jax() -> None:
     jax.config.update("jax_cpu_enable_async_dispatch", False)
 
 
+class Tick(Protocol):
+    """What `run_loop` uses of a stepper (`CompiledTick`, or the numpy baseline of `manus bench
+    hardware`): its joints, period, encoder step and extra columns, the limits it runs within
+    (`Resolved` once started), and start/step/keep_warm as `CompiledTick`'s."""
+
+    n: int
+    dt: float
+    q_step: float
+    extras: list[str]
+    limits: Resolved
+
+    def start(self, counts) -> None: ...
+
+    def step(self, k: int, counts) -> tuple[np.ndarray, np.ndarray, int, bool]: ...
+
+    def keep_warm(self) -> None: ...
+
+
 class CompiledTick:
     """A controller and a reference compiled into one function of (state, counts, k), jitted
-    once with the configuration closed over. The state travels as one flat float vector and
+    once with the configuration closed over, the rig's `Limits` checked inside it (`check`). The
+    state travels as one flat float vector (the controller's, then the limits' own: the last
+    positions and command, how long each joint has been held, the trip, the workspace box) and
     the outputs come back in the same vector, so a tick is one call and one transfer.
 
-    `step(k, counts) -> (tau (n,), extras (m,), ok)`: the command [N·m] (zero unless ok), the
-    values named by `extras` (reference positions, the velocity estimate when the controller
-    keeps one: `Controller.velocity`), and whether every number was finite and the controller
-    has not stopped itself (`Controller.stopped`)."""
+    `step(k, counts) -> (tau (n,), extras (m,), trip, clamped)`: the command [N·m] (zero once
+    tripped), the values named by `extras` (reference positions, the velocity estimate when the
+    controller keeps one: `Controller.velocity`), the trip's code (`manus.plants.limits.TRIPS`;
+    0: none; latched: every later tick keeps it and commands zero) and whether the command was
+    clamped to the torque limit. A non-finite number anywhere, or the controller stopping itself
+    (`Controller.stopped`), trips "non-finite"."""
 
     def __init__(
         self,
@@ -77,7 +104,8 @@ class CompiledTick:
         dt: float,
         counts_per_rev: float,
         n_joints: int,
-        torque_limit: float,
+        limits: Limits | None = None,
+        device_torque: float = math.inf,
     ):
         import jax
         import jax.numpy as jnp
@@ -85,12 +113,17 @@ class CompiledTick:
 
         self.n, self.dt = n_joints, float(dt)
         step = 2 * math.pi / float(counts_per_rev)
-        limit = float(torque_limit)
         self.q_step = step
-        probe = controller.init(jnp.asarray(reference(0.0).q, float))
-        flat0, unravel = ravel_pytree(probe)
+        self.rules = limits or Limits()
+        self.device_torque = float(device_torque)
+        probe = self.rules.resolved(n_joints, np.zeros(n_joints), self.device_torque, self.dt)
+        self.limits: Resolved = probe  # (the workspace box set at `start`, from where the rig stands)
+        limit = probe.torque
+        probe_state = controller.init(jnp.asarray(reference(0.0).q, float))
+        flat0, unravel = ravel_pytree(probe_state)
         self.size = int(flat0.size)
-        velocity = controller.velocity(probe)
+        n = n_joints
+        velocity = controller.velocity(probe_state)
         has_v = velocity is not None and np.shape(velocity) == (n_joints,)
         self.extras = [f"qref{i + 1}" for i in range(n_joints)] + (
             [f"vhat{i + 1}" for i in range(n_joints)] if has_v else []
@@ -101,16 +134,24 @@ class CompiledTick:
             return jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in leaves])) if leaves else jnp.array(True)
 
         def tick(flat, counts, k):
-            state = unravel(flat)
+            s = self.size
+            state = unravel(flat[:s])
+            q_prev, tau_prev, held = flat[s : s + n], flat[s + n : s + 2 * n], flat[s + 2 * n : s + 3 * n]
+            tripped, low, high = flat[s + 3 * n], flat[s + 3 * n + 1 : s + 4 * n + 1], flat[s + 4 * n + 1 :]
             q = counts * step
             ref = reference(k * dt)
             state, tau = controller.step(state, q, ref)
-            ok = finite(state) & jnp.all(jnp.isfinite(tau)) & jnp.all(jnp.isfinite(ref.q))
+            ok = finite(state) & jnp.all(jnp.isfinite(tau)) & jnp.all(jnp.isfinite(ref.q)) & jnp.all(jnp.isfinite(q))
             ok = ok & ~jnp.any(jnp.asarray(controller.stopped(state)))  # a latched controller stop
-            tau = jnp.where(ok, jnp.clip(tau, -limit, limit), 0.0)
+            lim = replace(probe, low=low, high=high)
+            code, _, held = check(lim, q, q_prev, 1, tau_prev, held, jnp)
+            trip = jnp.where(tripped > 0, tripped, jnp.where(ok, code, NONFINITE).astype(flat.dtype))
+            clamped = jnp.any(jnp.abs(tau) > limit) & (trip == 0)
+            tau = jnp.where(trip == 0, jnp.clip(tau, -limit, limit), 0.0)
             velocity = controller.velocity(state)
             extra = [ref.q] + ([velocity] if has_v and velocity is not None else [])
-            return jnp.concatenate([ravel_pytree(state)[0], tau, *extra, ok[None].astype(flat.dtype)])
+            own = [q, tau, held, trip[None], low, high]
+            return jnp.concatenate([ravel_pytree(state)[0], *own, tau, *extra, clamped[None].astype(flat.dtype)])
 
         def init(counts):
             return ravel_pytree(controller.init(counts * step))[0]
@@ -127,8 +168,14 @@ class CompiledTick:
         self.flat = None
 
     def start(self, counts) -> None:
-        self.flat = np.asarray(self._init(np.asarray(counts, np.int32)))
-        self._last = (0, np.asarray(counts, np.int32))
+        """A run from the rig's first sample: the controller's state, and the workspace box
+        resolved around where the rig stands (`Limits.resolved`)."""
+        counts = np.asarray(counts, np.int32)
+        q = counts * self.q_step
+        self.limits = self.rules.resolved(self.n, q, self.device_torque, self.dt)
+        own = np.concatenate([q, np.zeros(2 * self.n), [0.0], self.limits.low, self.limits.high])
+        self.flat = np.concatenate([np.asarray(self._init(counts)), own])
+        self._last = (0, counts)
 
     def keep_warm(self) -> None:
         """Run the last tick again and throw the result away. Called while waiting for a
@@ -139,9 +186,11 @@ class CompiledTick:
     def step(self, k: int, counts):
         out = np.asarray(self._tick(self.flat, counts, k))
         self._last = (k, counts)
-        s, n = self.size, self.n
-        self.flat = out[:s]
-        return out[s : s + n], out[s + n : -1], bool(out[-1])
+        n = self.n
+        end = self.size + 5 * n + 1
+        self.flat = out[:end]
+        trip = int(out[self.size + 3 * n])
+        return out[end : end + n], out[end + n : -1], trip, bool(out[-1])
 
 
 @dataclass
@@ -264,22 +313,22 @@ def columns(n: int, extras: list[str]) -> list[str]:
         + [f"q{i + 1}" for i in range(n)]
         + [f"tau{i + 1}" for i in range(n)]
         + list(extras)
-        + ["compute_us", "period_us", "latency_us", "late", "flags", "seq"]
+        + ["compute_us", "period_us", "latency_us", "late", "flags", "seq", "clamped", "trip"]
     )
 
 
 def run_loop(
     device: Device,
-    stepper: CompiledTick,
+    stepper: Tick,
     seconds: float,
     record: str | Path | None = None,
     watchdog: float = 0.02,
-    torque_limit: float | None = None,
     volts: bool = True,
     meta: dict | None = None,
 ) -> Result:
-    """Run `stepper` (a `CompiledTick`: n, dt, q_step, extras, start, step, keep_warm) against
-    `device` for `seconds`; see the module docstring. Connects the device itself."""
+    """Run `stepper` (a `Tick`: a `CompiledTick`, or any with what it declares)
+    against `device` for `seconds`; see the module docstring. Connects the device itself. The
+    stepper's limits (`manus.plants.limits`) are checked again here on what was received and sent."""
     if not seconds > 0:
         raise ManusError(f"seconds must be positive, got {seconds}")
     if not watchdog > 0:
@@ -287,7 +336,6 @@ def run_loop(
     info = device.info or device.connect()  # what the device is (the session itself starts below)
     _check(device, info, stepper)
     n, period = stepper.n, int(round(1e9 * stepper.dt))
-    limit = info.torque_limit if torque_limit is None else min(float(torque_limit), info.torque_limit)
     ticks = int(round(seconds / stepper.dt))
     writer = None
     if record is not None:
@@ -299,8 +347,8 @@ def run_loop(
             "streamed": "true",
             **(meta or {}),
         }
-        writer = RecordingWriter(record, columns(n, stepper.extras), m)
-    width = 1 + 2 * n + len(stepper.extras) + 6
+        writer = RecordingWriter(record, columns(n, stepper.extras), m, flush_seconds=FLUSH_S)
+    width = 1 + 2 * n + len(stepper.extras) + 8
     rows = np.zeros((LOG_EVERY, width))
     nrow = 0
     t_in = np.zeros(ticks + 1, np.int64)
@@ -323,14 +371,24 @@ def run_loop(
                 result.stopped_by, result.reason = "watchdog", "no first sample from the device"
                 return result
             stepper.start(sample.counts)
+            lim = stepper.limits
+            limit = lim.torque
             seq0, offset = sample.seq, None
+            q_prev, tau_prev, held, k_prev = sample.counts * stepper.q_step, np.zeros(n), np.zeros(n), 0
             while True:
                 t0 = clock()
                 k = (sample.seq - seq0) & 0xFFFFFFFF
-                tau, extras, ok = stepper.step(k, sample.counts)
+                tau, extras, trip, clamped = stepper.step(k, sample.counts)
+                # the limits again, here, on what the device sent and what was sent to it
+                q = sample.counts * stepper.q_step
+                code, joint, held = check(lim, q, q_prev, max(k - k_prev, 1), tau_prev, held)
                 tau = tau.tolist()  # Python floats: a few µs less than numpy on 2 values
-                if not ok or not all(map(math.isfinite, tau)):
-                    tau, ok = [0.0] * n, False
+                if not all(map(math.isfinite, tau)):
+                    trip = trip or NONFINITE
+                trip = trip or int(code)  # the tick's own trip first, else the loop's
+                if trip:
+                    tau = [0.0] * n
+                clamped = clamped or any(abs(x) > limit for x in tau)
                 tau = [min(max(x, -limit), limit) for x in tau]  # the loop's own clamp, whatever the stepper did
                 out = [min(max(x / tpv, -vmax), vmax) for x in tau] if volts else tau
                 device.send(sample.seq, out, P.CMD_VOLTS if volts else 0)
@@ -340,7 +398,6 @@ def run_loop(
                 t_in[i], seqs[i], compute[i] = t0, k, t1 - t0
                 latency = t1 - (sample.time_ns + offset)
                 late[i] = latency > period
-                q = sample.counts * stepper.q_step
                 result.device_late += bool(sample.flags & P.STATUS_LATE)
                 q_log[i], tau_log[i], ref_log[i] = q, tau, extras[:n]
                 prev = t_in[i - 1] if i and seqs[i - 1] == k - 1 else t0 - period
@@ -351,6 +408,7 @@ def run_loop(
                         tau,
                         extras,
                         [(t1 - t0) / 1e3, (t0 - prev) / 1e3, latency / 1e3, late[i], sample.flags, sample.seq],
+                        [clamped, trip],
                     ]
                 )
                 nrow += 1
@@ -359,9 +417,14 @@ def run_loop(
                     if writer is not None:
                         writer.append(rows)
                     nrow = 0
-                if not ok:
-                    result.stopped_by, result.reason = "fault", f"non-finite value at tick {k} (zero torque sent)"
+                if trip:
+                    ticks_seen = max(k - k_prev, 1)
+                    why = reason(trip, int(joint), lim, q, q_prev, ticks_seen, k * stepper.dt)
+                    by = "" if trip in (code, NONFINITE) else " (found by the compiled tick)"
+                    result.stopped_by = "fault" if trip == NONFINITE else "limit"
+                    result.reason = f"{why} at tick {k}{by} (zero torque sent)"
                     break
+                q_prev, tau_prev, k_prev = q, np.asarray(tau), k
                 if sample.flags & P.STATUS_FAULT:
                     result.stopped_by, result.reason = "fault", "the device reports a fault (it refused a command)"
                     break
@@ -387,7 +450,7 @@ def run_loop(
         if writer is not None:
             if nrow:
                 writer.append(rows[:nrow])
-            writer.close()
+            writer.close({"stopped_by": result.stopped_by, "reason": result.reason})
     return _summary(
         result, device, period, t_in[:i], seqs[:i], compute[:i], late[:i], q_log[:i], ref_log[:i], tau_log[:i]
     )

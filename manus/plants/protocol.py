@@ -24,6 +24,7 @@ Version 1 is this layout; a change to it bumps `VERSION`.
 
 from __future__ import annotations
 
+import math
 import struct
 import zlib
 from typing import NamedTuple
@@ -94,6 +95,17 @@ class Info(NamedTuple):
     @property
     def torque_limit(self) -> float:
         return self.volt_limit * self.torque_per_volt
+
+    def problem(self) -> str:
+        """What makes this description of a rig unbelievable ('' when nothing does): a rate, an
+        encoder, a torque per volt and a D/A range are positive finite numbers, and a rig has joints."""
+        if self.n_joints < 1:
+            return f"says the device has {self.n_joints} joints"
+        for name in ("rate_hz", "counts_per_rev", "torque_per_volt", "volt_limit"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                return f"says {name} = {value!r} (a rig's is a positive finite number)"
+        return ""
 
 
 def size(kind: int, n_joints: int) -> int:

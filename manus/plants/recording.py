@@ -289,6 +289,15 @@ def _read_csv(path: Path) -> Recording:
     _check_header(path, header_at + 1, header)
     ncol = len(header)
     body = [(i + 1, line) for i, line in enumerate(lines[header_at + 1 :], start=header_at + 1) if line.strip()]
+    # '# key: value' lines after the rows: a streamed run's footer (why it stopped, written at its end)
+    footer = 0
+    while footer < len(body) and body[-1 - footer][1].lstrip().startswith("#"):
+        footer += 1
+    for _, line in body[len(body) - footer :]:
+        key, sep, value = line.strip()[1:].partition(":")
+        if sep:
+            meta[key.strip()] = value.strip()
+    body = body[: len(body) - footer]
     # A run killed mid-write leaves an incomplete last line: drop it with a warning. A streamed
     # file (`streamed: true`, written row by row by a live run) ends every complete row with a
     # newline, so there an unterminated last line is dropped even when it parses: its last
@@ -693,9 +702,13 @@ class RecordingWriter:
         self._f.flush()
         self._last = self._clock()
 
-    def close(self) -> None:
+    def close(self, footer: dict | None = None) -> None:
+        """Write what is pending and close; `footer`: '# key: value' lines after the rows (what the
+        run learned at its end: why it stopped), read back into the recording's metadata."""
         if not self._f.closed:
             self.flush()
+            for k, v in (footer or {}).items():
+                self._f.write(f"# {k}: {' '.join(str(v).split())}\n")
             self._f.close()
 
     def __enter__(self):

@@ -34,7 +34,20 @@ def add_arguments(p) -> None:
     p.add_argument(
         "--record", type=Path, default=None, metavar="FILE", help="the recording (.csv), written as the run goes"
     )
-    p.add_argument("--torque-limit", type=float, default=None, help="|τ| limit [N·m] (default: the device's)")
+    p.add_argument(
+        "--rig",
+        type=Path,
+        default=None,
+        metavar="FILE.toml",
+        help="the rig's limits: a TOML file with a [limits] table (torque, velocity, span or low/high, jump, "
+        "stall_seconds, stall_speed; docs/hardware.md); default: the thesis arm's (7 N·m, 4 rad/s, the start ± 1 rad)",
+    )
+    p.add_argument(
+        "--torque-limit",
+        type=float,
+        default=None,
+        help="|τ| limit [N·m], instead of the rig file's (never more than the device's D/A reaches)",
+    )
     p.add_argument("--torque", action="store_true", help="send torques (default: D/A volts)")
     p.add_argument(
         "--watchdog-ms",
@@ -60,6 +73,16 @@ def run(args) -> dict:
         raise ManusError("--watchdog-ms must be positive")
     if args.record is not None and args.record.suffix.lower() != ".csv":
         raise ManusError(f"--record {args.record}: the loop streams a .csv recording")
+    import dataclasses
+
+    from manus.plants.limits import Limits
+
+    limits = Limits.read(args.rig) if args.rig is not None else Limits()
+    if args.torque_limit is not None:
+        try:
+            limits = dataclasses.replace(limits, torque=args.torque_limit)
+        except ManusError as e:
+            raise ManusError(f"--torque-limit: {e}") from None
     with open_device(args.device) as device:
         info = device.connect()  # what the device is; the run opens its own session below
         device.stop()
@@ -74,7 +97,7 @@ def run(args) -> dict:
             args.model,
             args.structure,
             args.reference,
-            args.torque_limit,
+            limits,
             args.robot,
         )
         meta = {
@@ -87,14 +110,14 @@ def run(args) -> dict:
         }
         if args.robot:
             meta["robot"] = str(Path(args.robot).absolute())
-        note(f"running {args.seconds:g} s ...")
+        lim = stepper.limits
+        note(f"running {args.seconds:g} s (|τ| ≤ {lim.torque:g} N·m, |q̇| ≤ {lim.velocity:g} rad/s) ...")
         result = run_loop(
             device,
             stepper,
             args.seconds,
             args.record,
             watchdog=args.watchdog_ms / 1e3,
-            torque_limit=args.torque_limit,
             volts=not args.torque,
             meta=meta,
         ).as_dict()

@@ -27,9 +27,10 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import ClassVar
 
 import numpy as np
+
+from manus.plants.limits import NONFINITE, Resolved
 
 HELP = "the 1 kHz loop against the rig emulator: Kalman + Slotine-Li beside a numpy controller"
 PLANT = "rigid,viscous,coulomb,delay"
@@ -45,12 +46,15 @@ def add_arguments(p) -> None:
 
 class NumpyImpedance:
     """The baseline stepper: the thesis's filtered first difference (λ = 188.5 rad/s, Tustin)
-    and τ = K (q_d − q) + B (q̇_d − v̂), with the benign reference, in numpy."""
+    and τ = K (q_d − q) + B (q̇_d − v̂), with the benign reference, in numpy (the rig's limits
+    checked by the loop only)."""
 
-    extras: ClassVar[list[str]] = ["qref1", "qref2"]
+    extras: list[str]
+    limits: Resolved  # (set by `start`, around where the rig stands)
 
     def __init__(self, dt: float, counts_per_rev: float, limit: float, stiffness=30.0, damping=1.0, corner=188.5):
         self.n, self.dt, self.q_step, self.limit = 2, dt, 2 * math.pi / counts_per_rev, limit
+        self.extras = ["qref1", "qref2"]
         self.k, self.b = stiffness, damping
         self.alpha = (2 - corner * dt) / (2 + corner * dt)
         self.beta = 2 * corner / (2 + corner * dt)
@@ -58,7 +62,13 @@ class NumpyImpedance:
         self.sign = np.array([-1.0, 1.0])
 
     def start(self, counts) -> None:
+        from manus.plants.limits import Limits
+
         self.q_prev, self.v = counts * self.q_step, np.zeros(2)
+        self.limits = Limits().resolved(self.n, self.q_prev, self.limit, self.dt)
+
+    def keep_warm(self) -> None:
+        """Nothing to keep warm: no compiled code."""
 
     def step(self, k: int, counts):
         q = counts * self.q_step
@@ -67,8 +77,9 @@ class NumpyImpedance:
         t = k * self.dt
         q_d = self.centre + self.sign * 0.1 * (1 - math.cos(math.pi * t))
         qd_d = self.sign * 0.1 * math.pi * math.sin(math.pi * t)
-        tau = np.clip(self.k * (q_d - q) + self.b * (qd_d - self.v), -self.limit, self.limit)
-        return tau, q_d, bool(np.all(np.isfinite(tau)))
+        raw = self.k * (q_d - q) + self.b * (qd_d - self.v)
+        tau = np.clip(raw, -self.limits.torque, self.limits.torque)
+        return tau, q_d, 0 if np.all(np.isfinite(tau)) else NONFINITE, bool(np.any(np.abs(raw) > self.limits.torque))
 
 
 def _steal() -> tuple[int, int]:
