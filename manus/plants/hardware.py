@@ -43,7 +43,7 @@ import numpy as np
 from manus.plants import protocol as P
 from manus.plants.device import Device
 from manus.plants.errors import ManusError
-from manus.plants.limits import NONFINITE, Limits, Resolved, check, reason
+from manus.plants.limits import LOOP, NONFINITE, Limits, Resolved, check, reason
 from manus.plants.recording import RecordingWriter
 from manus.plants.stepper import Controller, Plant, Reference
 
@@ -375,6 +375,9 @@ def run_loop(
             limit = lim.torque
             seq0, offset = sample.seq, None
             q_prev, tau_prev, held, k_prev = sample.counts * stepper.q_step, np.zeros(n), np.zeros(n), 0
+            # the loop's quality over the last `lim.window` ticks: late commands and lost samples
+            late_ring, lost_ring = np.zeros(lim.window, bool), np.zeros(lim.window, np.int64)
+            n_late = n_lost = 0
             while True:
                 t0 = clock()
                 k = (sample.seq - seq0) & 0xFFFFFFFF
@@ -398,6 +401,13 @@ def run_loop(
                 t_in[i], seqs[i], compute[i] = t0, k, t1 - t0
                 latency = t1 - (sample.time_ns + offset)
                 late[i] = latency > period
+                slot, lost_now = i % lim.window, max(k - k_prev - 1, 0)
+                n_late += int(late[i]) - int(late_ring[slot])
+                n_lost += lost_now - int(lost_ring[slot])
+                late_ring[slot], lost_ring[slot] = late[i], lost_now
+                starved = n_late > lim.missed * lim.window or n_lost > lim.lost * lim.window
+                if starved and not trip:
+                    trip = LOOP
                 result.device_late += bool(sample.flags & P.STATUS_LATE)
                 q_log[i], tau_log[i], ref_log[i] = q, tau, extras[:n]
                 prev = t_in[i - 1] if i and seqs[i - 1] == k - 1 else t0 - period
@@ -417,6 +427,13 @@ def run_loop(
                     if writer is not None:
                         writer.append(rows)
                     nrow = 0
+                if trip == LOOP:
+                    result.stopped_by = "limit"
+                    result.reason = (
+                        f"loop quality at tick {k}: of the last {lim.window} ticks, {n_late} commands late and "
+                        f"{n_lost} samples lost (limits: {lim.missed:.0%}, {lim.lost:.0%}) (zero torque sent)"
+                    )
+                    break
                 if trip:
                     ticks_seen = max(k - k_prev, 1)
                     why = reason(trip, int(joint), lim, q, q_prev, ticks_seen, k * stepper.dt)

@@ -8,7 +8,12 @@ torque, latched for the rest of the run, the first tick any joint:
 - jumps by more than `jump` in one tick (an encoder glitch, a broken line: no arm moves so far in
   a millisecond; checked first, since a jump also reads as a speed);
 - is held at `STALL_SHARE` of the torque limit or more, moving slower than `stall_speed`, for
-  `stall_seconds` (a stall: the arm pressed against an obstacle, or against the person).
+  `stall_seconds` (a stall: the arm pressed against an obstacle, or against the person);
+
+and the loop stops the same way when it cannot keep up: more than `missed` of its commands late
+(sent more than a period after their sample) or more than `lost` of the samples lost, over the
+last `window` seconds (a loop starved by other work, a failing link: the controller no longer
+acts at the rate its gains were set for).
 
 The limits are the user's: a rig file (`Limits.read`, TOML, a `[limits]` table) or the defaults,
 which are safe for the thesis arm (MANUS-2: its actuators characterised at 6.7–6.8 N·m, 30 rpm
@@ -30,8 +35,8 @@ import numpy as np
 
 from manus.plants.errors import ManusError
 
-TRIPS = ("", "non-finite", "velocity", "workspace", "jump", "stall")  # a trip's code is its index here
-NONFINITE, VELOCITY, WORKSPACE, JUMP, STALL = 1, 2, 3, 4, 5
+TRIPS = ("", "non-finite", "velocity", "workspace", "jump", "stall", "loop")  # a trip's code is its index here
+NONFINITE, VELOCITY, WORKSPACE, JUMP, STALL, LOOP = 1, 2, 3, 4, 5, 6
 STALL_SHARE = 0.95  # a joint commanded at least this share of the torque limit pushes as hard as it may
 
 
@@ -47,9 +52,16 @@ class Limits:
     jump: float = 0.1  # |Δq| in one tick [rad] (at 4 rad/s and 1 kHz a joint moves 0.004 rad)
     stall_seconds: float = 0.5
     stall_speed: float = 0.05  # [rad/s]
+    missed: float = 0.05  # the share of late commands ...
+    lost: float = 0.05  # ... or of lost samples ...
+    window: float = 1.0  # ... over this many seconds that stops the loop
 
     def __post_init__(self):
-        for name in ("torque", "velocity", "span", "jump", "stall_seconds", "stall_speed"):
+        for name in ("missed", "lost"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | float) or not 0 < value <= 1:
+                raise ManusError(f"limits: {name} is a share of the window, in (0, 1], got {value!r}")
+        for name in ("torque", "velocity", "span", "jump", "stall_seconds", "stall_speed", "window"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) or value <= 0:
                 raise ManusError(f"limits: {name} must be a positive finite number, got {value!r}")
@@ -99,7 +111,19 @@ class Limits:
         else:
             low, high = np.asarray(start, float) - self.span, np.asarray(start, float) + self.span
         torque = min(self.torque, device_torque) if math.isfinite(device_torque) and device_torque > 0 else self.torque
-        return Resolved(torque, self.velocity, low, high, self.jump, self.stall_seconds, self.stall_speed, dt)
+        return Resolved(
+            torque,
+            self.velocity,
+            low,
+            high,
+            self.jump,
+            self.stall_seconds,
+            self.stall_speed,
+            dt,
+            self.missed,
+            self.lost,
+            max(1, round(self.window / dt)),
+        )
 
 
 @dataclass(frozen=True)
@@ -115,6 +139,9 @@ class Resolved:
     stall_seconds: float
     stall_speed: float
     dt: float
+    missed: float = 1.0
+    lost: float = 1.0
+    window: int = 1  # ticks
 
     def describe(self) -> str:
         box = ", ".join(f"[{a:.3g}, {b:.3g}]" for a, b in zip(self.low, self.high, strict=True))

@@ -32,6 +32,7 @@ import numpy as np
 
 from manus.plants.catalog import structure_named
 from manus.plants.errors import RecordingError, RecordingNote
+from manus.plants.limits import JUMP
 from manus.plants.structures import Structure
 from manus.plants.timebase import TimeBase, examine, grid
 
@@ -384,6 +385,15 @@ def _assemble(path, cols: dict, meta: dict, locate) -> Recording:
             else f"column 'qd{max(qd_cols)}' has no matching 'q{max(qd_cols)}'",
         )
     core = ["t"] + [f"{p}{i}" for p in ("q", "tau") + (("qd",) if qd_cols else ()) for i in range(1, n + 1)]
+    if (
+        "trip" in cols and cols["t"].size > 1 and cols["trip"][-1] == JUMP
+    ):  # the hardware loop's stop on an encoder jump
+        warnings.warn(
+            f"{path}{locate(cols['t'].size - 1)}: the last row left out: its encoder jumped (the run stopped there)",
+            RecordingNote,
+            stacklevel=3,
+        )
+        cols = {k: v[:-1] for k, v in cols.items()}
     bad = np.flatnonzero(~np.isfinite(cols["t"]))
     if bad.size:  # (a sample without its time has no place)
         raise RecordingError(f"{path}{locate(bad[0])}: column 't' is {cols['t'][bad[0]]} (NaN or infinite)")

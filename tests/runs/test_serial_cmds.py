@@ -292,10 +292,14 @@ def test_hardware_loop_on_a_robot(capsys, tmp_path):
             time.sleep(0.05)
         assert port is not None, "the emulator did not start"
         record = tmp_path / "run.csv"
+        rig = tmp_path / "rig.toml"
+        rig.write_text("[limits]\nmissed = 1.0\nlost = 1.0\n")  # (the loop's quality is judged below, by a skip)
         code, out, err = _run(
             capsys,
             [
                 "run-hardware",
+                "--rig",
+                str(rig),
                 "--device",
                 f"udp://127.0.0.1:{port}",
                 "--robot",
