@@ -320,6 +320,8 @@ def _read_csv(path: Path) -> Recording:
         if len(fields) != ncol:
             _fail(path, lineno, f"ragged row: {len(fields)} fields where the header has {ncol}")
         try:
+            if "_" in line:
+                raise ValueError("a digit separator")
             data[r] = [float(x) for x in fields]
         except ValueError:
             bad = next(j for j, x in enumerate(fields) if not _is_float(x))
@@ -334,6 +336,9 @@ def text_line(raw: bytes, offset: int) -> int:
 
 
 def _is_float(x: str) -> bool:
+    """A number as a CSV writes one (Python's `float` also takes '1_0' for 10: not here)."""
+    if "_" in x:
+        return False
     try:
         float(x)
         return True

@@ -253,7 +253,11 @@ class Serial(_Configuration):
 
         def collect(link: str, R: np.ndarray, p: np.ndarray, stop: set) -> np.ndarray:
             """The ten parameters of `link` and everything rigidly attached (joints in `stop` end it)."""
-            theta = urdf.moved(urdf.link_inertial(links[link]), R, p)
+            try:
+                own = urdf.link_inertial(links[link])
+            except ModelError as e:
+                raise ModelError(f"{path}: {e}") from None
+            theta = urdf.moved(own, R, p)
             for j in children[link]:
                 if j.name not in stop:  # fixed, or a locked branch (zero position: its origin alone)
                     theta = theta + collect(j.child, R @ j.R, R @ j.p + p, stop)

@@ -17,6 +17,7 @@ import argparse
 import contextlib
 import importlib
 import json
+import math
 import os
 import pkgutil
 import sys
@@ -133,10 +134,26 @@ def main(argv: list[str] | None = None) -> int:
         )
         return 1
     if args.json:
-        print(json.dumps(result, default=_jsonable))
+        print(json_text(result))
     elif text:
         print(text)
     return 0
+
+
+def json_text(result: dict) -> str:
+    """`result` as strict JSON: numpy values as numbers and lists, and a number that is not finite
+    (NaN, ±inf: no JSON number) as null."""
+
+    def finite(x):
+        if isinstance(x, float):
+            return x if math.isfinite(x) else None
+        if isinstance(x, dict):
+            return {k: finite(v) for k, v in x.items()}
+        if isinstance(x, list):
+            return [finite(v) for v in x]
+        return x
+
+    return json.dumps(finite(json.loads(json.dumps(result, default=_jsonable))), allow_nan=False)
 
 
 @contextlib.contextmanager

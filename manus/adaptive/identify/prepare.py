@@ -306,6 +306,11 @@ def prepare(
         note = "cut-off given"
     if not cutoff_hz > 0:
         raise ModelError(f"cut-off frequency must be positive (got {cutoff_hz})")
+    if cutoff_hz > 0.45 / dt * (1 + 1e-9) and note == "cut-off given":
+        raise ModelError(
+            f"cut-off {cutoff_hz:g} Hz: above what {1 / dt:g} Hz sampling shows (at most {0.45 / dt:g} Hz, "
+            "0.45 of the rate)"
+        )
     cutoff_hz = min(cutoff_hz, 0.45 / dt)
     band = min(KINEMATIC_BAND * cutoff_hz, 0.45 / dt)
     q, qd, qdd = differentiate(rec.q, dt, band)

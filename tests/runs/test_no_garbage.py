@@ -1,0 +1,69 @@
+"""Inputs that used to give garbage with exit 0: a number that JSON has no word for, a digit
+separator read as a number, a cut-off the sampling cannot show, a URDF link no rigid body can be."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from manus.plants.errors import ModelError, RecordingError
+from manus.plants.recording import read
+from manus.runs.cli import json_text, main
+
+PENDULUM = """<robot name="p">
+  <link name="base"/>
+  <link name="arm"><inertial><origin xyz="0 0 -0.5"/><mass value="MASS"/>
+    <inertia ixx="IXX" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>
+  <joint name="hinge" type="revolute"><parent link="base"/><child link="arm"/><axis xyz="0 1 0"/>
+    <dynamics damping="DAMPING"/></joint>
+</robot>
+"""
+
+
+def test_json_is_strict_whatever_the_numbers():
+    r = {"a": float("nan"), "b": [np.float64(np.inf), 1.5], "c": np.array([2.0, -np.inf]), "d": {"e": np.float32(3)}}
+    text = json_text(r)
+    assert json.loads(text) == {"a": None, "b": [None, 1.5], "c": [2.0, None], "d": {"e": 3.0}}
+    assert "NaN" not in text and "Infinity" not in text
+
+
+def _axis_csv(path, value="0.1"):
+    t = np.arange(400) * 1e-3
+    lines = ["# structure: axis", "t,q1,tau1"] + [f"{x:.4f},{math.sin(2 * x):.6f},{math.cos(3 * x):.6f}" for x in t]
+    lines[10] = f"{t[8]:.4f},{value},0.5"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_a_digit_separator_is_not_a_number(tmp_path):
+    read(_axis_csv(tmp_path / "ok.csv"))
+    with pytest.raises(RecordingError, match=r":11: column 'q1': '1_0' is not a number"):
+        read(_axis_csv(tmp_path / "sep.csv", "1_0"))
+
+
+def test_a_cut_off_above_what_the_sampling_shows_is_refused(tmp_path, capsys):
+    path = _axis_csv(tmp_path / "rec.csv")
+    code = main(["fit", str(path), "--model", "rigid,viscous", "--cutoff", "1e9", "--no-figures"])
+    err = capsys.readouterr().err
+    assert code == 2 and "cut-off 1e+09 Hz: above what 1000 Hz sampling shows (at most 450 Hz" in err, err
+
+
+@pytest.mark.parametrize(
+    "mass, ixx, damping, words",
+    [
+        ("-5", "0.01", "0", "link arm: mass -5.0 kg"),
+        ("nan", "0.01", "0", "link arm: mass nan kg"),
+        ("1", "-0.5", "0", "link arm: an inertia with a negative principal moment (-0.5 kg m²)"),
+        ("1", "0.01", "-0.1", "joint hinge: <dynamics damping=-0.1>"),
+    ],
+)
+def test_a_urdf_that_no_rigid_body_can_be_is_refused(tmp_path, mass, ixx, damping, words):
+    from manus.plants.serial import Serial
+
+    path = tmp_path / "p.urdf"
+    path.write_text(PENDULUM.replace("MASS", mass).replace("IXX", ixx).replace("DAMPING", damping))
+    with pytest.raises(ModelError, match=r"p\.urdf: " + words.replace("(", r"\(").replace(")", r"\)")):
+        Serial.from_urdf(path)
+    path.write_text(PENDULUM.replace("MASS", "1").replace("IXX", "0.01").replace("DAMPING", "0"))
+    assert Serial.from_urdf(path).n_joints == 1
