@@ -9,7 +9,7 @@ time stamps jitter does not, and must not be read as if it did.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.interpolate import CubicSpline
@@ -131,3 +131,33 @@ def spoiled(filled: np.ndarray, qdd: np.ndarray, dt: float, step: float, guard: 
         if not off < step:  # (no encoder step known: always)
             out[max(a - guard, 0) : b + guard] = True
     return out
+
+
+OUTLIER = 10.0  # a torque sample over this many times its joint's 99.5th percentile of |τ| is not a measurement
+
+
+def torque_outliers(rec: Recording) -> tuple[Recording, np.ndarray, str]:
+    """Torque samples nothing else in the recording comes near (a logger's glitch, a value in
+    another unit): over `OUTLIER` times their joint's 99.5th percentile of |τ| (a 22 N·m arm
+    logging one 1e6). Returns the recording with each replaced by a straight line between its
+    neighbours (the filters see no spike), which samples they are (to be left out as filled
+    samples are, `spoiled`), and a sentence saying so ('' when there are none)."""
+    tau = np.asarray(rec.tau, float)
+    scale = np.percentile(np.abs(tau), 99.5, axis=0)
+    scale = np.maximum(scale, 1e-3 * float(scale.max(initial=0.0)) + 1e-12)  # (a joint that is never driven)
+    wild = np.abs(tau) > OUTLIER * scale
+    rows = np.asarray(wild.any(axis=1))
+    if not rows.any() or rows.all():
+        return rec, np.zeros(len(rec), bool), ""
+    i = int(np.argmax(rows))
+    j = int(np.argmax(wild[i]))
+    idx = np.arange(len(rec))
+    clean = tau.copy()
+    for k in range(tau.shape[1]):
+        clean[rows, k] = np.interp(idx[rows], idx[~rows], tau[~rows, k])
+    note = (
+        f"{int(rows.sum())} torque sample{'s' if rows.sum() != 1 else ''} far outside the rest (the first at "
+        f"t = {rec.t[i]:.4g} s: tau{j + 1} = {tau[i, j]:.4g}, {abs(tau[i, j]) / scale[j]:.3g}× that joint's 99.5th "
+        "percentile): replaced by their neighbours for the filters"
+    )
+    return replace(rec, tau=clean), rows, note

@@ -67,3 +67,24 @@ def test_a_urdf_that_no_rigid_body_can_be_is_refused(tmp_path, mass, ixx, dampin
         Serial.from_urdf(path)
     path.write_text(PENDULUM.replace("MASS", "1").replace("IXX", "0.01").replace("DAMPING", "0"))
     assert Serial.from_urdf(path).n_joints == 1
+
+
+def test_a_torque_glitch_is_left_out_and_said():
+    """One torque sample of 1e6 N·m (a logger's glitch) in a simulated recording: the fit is the
+    clean recording's within one standard deviation (the same motion, the rows drawn around the
+    sample left out), its error the same, and the note says what was done."""
+    import dataclasses
+
+    from manus.adaptive import fit
+    from manus.experiments import calibration
+
+    rec = calibration.case(0, None, rates=(1000,)).rec
+    tau = rec.tau.copy()
+    tau[len(rec) // 2, 0] = 1e6
+    spiked = dataclasses.replace(rec, tau=tau)
+    clean, glitched = (fit(r, "rigid,viscous,coulomb", method="ls") for r in (rec, spiked))
+    assert clean.data.lost == "" and "1 torque sample far outside the rest" in glitched.data.lost
+    assert "tau1 = 1e+06" in glitched.data.lost
+    moved = np.abs(glitched.theta - clean.theta) / clean.std
+    assert moved.max() < 1.0, dict(zip(clean.names, moved, strict=True))
+    assert glitched.rel_error < 1.2 * clean.rel_error  # (a glitch kept in would leave an error of 1e6 N·m in a row)

@@ -34,7 +34,7 @@ import numpy as np
 from manus.estimators.offline import differentiate, edge, lowpass
 from manus.plants.effects import Span
 from manus.plants.errors import ModelError
-from manus.plants.gaps import gaps, on_grid, spoiled
+from manus.plants.gaps import gaps, on_grid, spoiled, torque_outliers
 from manus.plants.recording import Recording, smallest_step
 
 MIN_CUTOFF_HZ = 2.0
@@ -298,6 +298,9 @@ def prepare(
             "to differentiate the positions; no parameter is identifiable)"
         )
     recorded, (rec, filled) = rec, on_grid(rec)  # lost samples filled, to be left out (`spoiled`)
+    gapped = bool(filled.any())
+    rec, wild, wild_note = torque_outliers(rec)  # torque glitches: replaced for the filters, left out too
+    filled = filled | wild
     dt = rec.dt
     step = encoder_step(rec)
     if cutoff_hz is None:
@@ -321,9 +324,13 @@ def prepare(
     if filled.any():
         bad = spoiled(filled, qdd, dt, step, cut)
         keep &= ~bad
-        lost = (
-            f"{gaps(recorded).describe(recorded)}: filled for the filters (positions by a cubic spline); "
-            f"{int(bad.sum())} sample{'s' if bad.sum() != 1 else ''} left out (the filled ones, and the filter's "
+        said = (
+            [f"{gaps(recorded).describe(recorded)}: filled for the filters (positions by a cubic spline)"]
+            if gapped
+            else []
+        )
+        lost = "; ".join(said + ([wild_note] if wild_note else [])) + (
+            f"; {int(bad.sum())} sample{'s' if bad.sum() != 1 else ''} left out (the filled ones, and the filter's "
             f"settling, "
             f"{1e3 * cut * dt:.3g} ms, either side of a gap the fill may miss by more than an encoder step)"
         )
