@@ -162,6 +162,9 @@ class _Configuration(Structure):
         return tuple(a + b for a, b in zip(pose, shift, strict=True))
 
 
+MAX_LINKS = 500  # a URDF's links at most (its walks recurse once per link)
+
+
 class Serial(_Configuration):
     """A serial chain of revolute and prismatic joints in relative joint coordinates (q [rad or m]).
 
@@ -209,8 +212,19 @@ class Serial(_Configuration):
     @classmethod
     def _from_urdf(cls, path, tip, armature, gravity) -> Serial:
         links, joints = urdf.read(path)
+        if len(links) > MAX_LINKS:
+            raise ModelError(f"{path}: {len(links)} links; a robot's URDF has at most {MAX_LINKS} here")
         children = {name: [] for name in links}
+        parents: dict[str, str] = {}
         for j in joints.values():
+            if j.parent == j.child:
+                raise ModelError(f"{path}: joint {j.name} joins the link {j.child!r} to itself")
+            if j.child in parents:
+                raise ModelError(
+                    f"{path}: the link {j.child!r} is the child of two joints ({parents[j.child]}, {j.name}): "
+                    "a URDF is a tree, without loops"
+                )
+            parents[j.child] = j.name
             if j.kind not in ("revolute", "continuous", "prismatic", "fixed"):
                 raise ModelError(
                     f"{path}: joint {j.name} is {j.kind}; a serial chain takes revolute, "

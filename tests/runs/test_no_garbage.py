@@ -88,3 +88,44 @@ def test_a_torque_glitch_is_left_out_and_said():
     moved = np.abs(glitched.theta - clean.theta) / clean.std
     assert moved.max() < 1.0, dict(zip(clean.names, moved, strict=True))
     assert glitched.rel_error < 1.2 * clean.rel_error  # (a glitch kept in would leave an error of 1e6 N·m in a row)
+
+
+def test_a_urdf_that_is_not_a_tree_is_refused_at_once(tmp_path):
+    """A loop, a self-loop or a chain of thousands of links is refused before any walk (a loop
+    reachable from a recording's `# robot:` line walked forever, memory growing)."""
+    from manus.plants.serial import MAX_LINKS, Serial
+
+    arm = '<link name="arm"><inertial><mass value="1"/><inertia ixx="0.01" iyy="0.01" izz="0.01"/></inertial></link>'
+    hinge = '<joint name="{n}" type="revolute"><parent link="{p}"/><child link="{c}"/><axis xyz="0 1 0"/></joint>'
+    cases = {
+        "loop": (
+            f'<robot name="r"><link name="base"/>{arm}<link name="b"/>'
+            + hinge.format(n="j1", p="base", c="arm")
+            + hinge.format(n="j2", p="arm", c="b")
+            + hinge.format(n="j3", p="b", c="arm")
+            + "</robot>",
+            "the link 'arm' is the child of two joints (j1, j3)",
+        ),
+        "self": (
+            f'<robot name="r"><link name="base"/>{arm}'
+            + hinge.format(n="j1", p="base", c="arm")
+            + hinge.format(n="j2", p="arm", c="arm")
+            + "</robot>",
+            "joint j2 joins the link 'arm' to itself",
+        ),
+        "deep": (
+            '<robot name="r"><link name="l0"/>'
+            + "".join(f'<link name="l{i}"/>' for i in range(1, 3000))
+            + "".join(
+                f'<joint name="f{i}" type="fixed"><parent link="l{i - 1}"/><child link="l{i}"/></joint>'
+                for i in range(1, 3000)
+            )
+            + "</robot>",
+            f"3000 links; a robot's URDF has at most {MAX_LINKS} here",
+        ),
+    }
+    for name, (text, words) in cases.items():
+        path = tmp_path / f"{name}.urdf"
+        path.write_text(text)
+        with pytest.raises(ModelError, match=words.replace("(", r"\(").replace(")", r"\)")):
+            Serial.from_urdf(path)
