@@ -121,6 +121,8 @@ def run(args) -> dict:
             volts=not args.torque,
             meta=meta,
         ).as_dict()
+    if result["stopped_by"] == "limit" and args.rig is None:
+        result["reason"] += " (the thesis arm's default limits: a rig file, --rig FILE.toml, states another rig's)"
     if args.record is not None:
         summary = args.record.with_suffix(".stats.json")
         summary.write_text(json.dumps(result, indent=1) + "\n")
