@@ -157,6 +157,11 @@ class Effect(eqx.Module):
         more order); () for most."""
         return ()
 
+    def unresolved(self, span: Span) -> str | None:
+        """When this value of its non-linear parameter, given by the user, is one the recording
+        cannot show at all (a cogging period under one encoder step): why; None for most."""
+        return None
+
     def edge(self, span: Span) -> str | None:
         """When this (searched) value lies on the edge of `space(span)`: what that means."""
         grid = self.space(span)
@@ -641,6 +646,15 @@ class Cogging(Effect):
             for N in self._grid(span)
             if min(abs(float(N) - h) for h in held) > 0.5 * min(1.0, float(N) * 1e-3 + 0.5)
         )
+
+    def unresolved(self, span):
+        shortest = 2 * np.pi / max(float(N) for N in self.orders)
+        if span.step and shortest < span.step:
+            return (
+                f"{self.spec}: a period of {shortest:.3g}, under one encoder step ({span.step:.3g}): "
+                "no recording by this encoder can show it"
+            )
+        return None
 
     def edge(self, span):
         grid = self._grid(span)

@@ -28,8 +28,8 @@ def test_json_is_strict_whatever_the_numbers():
     assert "NaN" not in text and "Infinity" not in text
 
 
-def _axis_csv(path, value="0.1"):
-    t = np.arange(400) * 1e-3
+def _axis_csv(path, value="0.1", n=400):
+    t = np.arange(n) * 1e-3
     lines = ["# structure: axis", "t,q1,tau1"] + [f"{x:.4f},{math.sin(2 * x):.6f},{math.cos(3 * x):.6f}" for x in t]
     lines[10] = f"{t[8]:.4f},{value},0.5"
     path.write_text("\n".join(lines) + "\n")
@@ -129,3 +129,11 @@ def test_a_urdf_that_is_not_a_tree_is_refused_at_once(tmp_path):
         path.write_text(text)
         with pytest.raises(ModelError, match=words.replace("(", r"\(").replace(")", r"\)")):
             Serial.from_urdf(path)
+
+
+def test_an_effect_value_no_recording_can_show_is_refused(tmp_path, capsys):
+    path = _axis_csv(tmp_path / "rec.csv", n=8000)
+    code = main(["fit", str(path), "--model", "rigid,viscous,cogging:1e12", "--no-figures", "--method", "ls"])
+    err = capsys.readouterr().err
+    assert code == 2 and "cogging:1e+12: a period of 6.28e-12, under one encoder step" in err, err
+    assert main(["fit", str(path), "--model", "rigid,viscous,cogging:3", "--no-figures", "--method", "ls"]) == 0

@@ -81,9 +81,9 @@ def fit(
                 f"{e.name} is a structural mode above the identification bandwidth: "
                 "`manus diagnose` detects it from the spectrum; it has no inverse-dynamics columns"
             )
-        why = e.applies(model.structure, data.rec.prismatic)
+        why = e.applies(model.structure, data.rec.prismatic) or (e.unresolved(data.span()) if e.name in fixed else None)
         if why:
-            raise ModelError(f"{e.name}: {why}")
+            raise ModelError(why if why.startswith(e.spec) else f"{e.name}: {why}")
     if not np.any(data.rec.tau):
         raise ModelError(
             f"{data.rec.path}: the recorded torque is zero throughout: no model of it can be identified "
