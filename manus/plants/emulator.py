@@ -20,8 +20,10 @@ sends that fraction of junk datagrams before sensor packets. `log` writes what t
 (measured and true positions, applied torques, flags, whether the fault was on) as a streamed
 recording.
 
-`fault` plays a rig gone wrong, from `fault_at` seconds after each HELLO to the end of that
-session (CMD_STOP, a watchdog trip's linger, or a new HELLO), whatever the host commands:
+`fault` plays a rig gone wrong, from `fault_at` seconds after each HELLO by the device's own clock
+(its samples: from sample seq ⌈fault_at / T⌉ on, however late a loaded machine ran them) to the
+end of that session (CMD_STOP, a watchdog trip's linger, or a new HELLO), whatever the host
+commands:
 
 - `runaway`: joint 1's motor driver delivers the D/A's full scale (volt_limit × torque_per_volt,
   positive; through the D/A its largest code), the other joints what is commanded;
@@ -127,7 +129,7 @@ class Emulator:
         self.peer = None
         self.session = 0
         self.active = False
-        self.onset_ns = 0
+        self.onset_seq = 0
         self._pending: deque[tuple[int, bytes]] = deque()
         self._writer = None
         if log is not None:
@@ -182,14 +184,15 @@ class Emulator:
         self.saturated = False
         self._last = None
         self.t0 = getattr(self, "t0", now)
-        self.onset_ns = now if self.fault == "bad-info" else now + self.fault_at_ns
+        self.onset_seq = 0 if self.fault == "bad-info" else math.ceil(self.fault_at_ns * self.sim.rate_hz / 1e9 - 1e-9)
         self._pending.clear()  # `late`: (when to send, packet), oldest first
         info = self.info._replace(volt_limit=math.inf) if self.fault == "bad-info" else self.info
         self._send(P.encode_info(0, now, info))
         self.next_ns = now + self.period_ns
 
-    def _fault_on(self, now: int) -> bool:
-        return self.fault is not None and now >= self.onset_ns
+    def _fault_on(self, seq: int) -> bool:
+        """Whether sample `seq` of this session is faulty."""
+        return self.fault is not None and seq >= self.onset_seq
 
     def _handle(self, data: bytes, addr, now: int) -> None:
         try:
@@ -245,7 +248,7 @@ class Emulator:
         """The log's last row of a session: the device at zero torque from `now`."""
         if self._writer is not None and self._last is not None:
             q, qd = self._last
-            fault = float(self._fault_on(now))
+            fault = float(self._fault_on(self.seq))
             self._rows.append(
                 np.concatenate(
                     [[(now - self.t0) / 1e9], q, np.zeros(self.n), qd, [self.flags, self.session, self.seq, fault]]
@@ -307,7 +310,7 @@ class Emulator:
         elif self.saturated:
             flags |= P.STATUS_SATURATED
         self.flags = flags
-        fault = self.fault if self._fault_on(now) else None
+        fault = self.fault if self._fault_on(self.seq + 1) else None  # (the sample made now)
         tau = self.tau
         if fault == "runaway":
             tau = tau.copy()

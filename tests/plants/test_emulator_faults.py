@@ -90,11 +90,12 @@ def _columns(path: Path) -> dict[str, np.ndarray]:
 
 
 def _check_onset(s: Session, fault_at: float) -> np.ndarray:
-    """The log's `fault` column: 0 before the first sample at or after `fault_at`, 1 from it to
-    the session's end. -> whether each received sample is at or past the onset."""
-    t, fault, seq = s.log["t"], s.log["fault"], s.log["seq"]
+    """The log's `fault` column: 0 before the sample taken `fault_at` into the session by the
+    device's clock (seq ⌈fault_at / T⌉), 1 from it to the session's end. -> whether each received
+    sample is at or past the onset."""
+    fault, seq = s.log["fault"], s.log["seq"]
     first = np.flatnonzero(fault == 1)[0]
-    assert t[first - 1] < fault_at <= t[first]  # one session: its t counts from its HELLO
+    assert seq[first] == math.ceil(fault_at / T - 1e-9)
     assert np.all(fault[:first] == 0) and np.all(fault[first:] == 1)
     assert np.all(np.diff(seq[:-1]) == 1)  # every period logged (the last row: the STOP, same seq)
     return s.seq >= s.onset
