@@ -544,6 +544,17 @@ def _check_meta(path, meta, n, t):
                 "",
             )
             _fail(path, None, f"t advances by {step:.6g} per sample but sample_rate_hz is {rate:g}{hint}")
+    elif t.size >= 2 and float(np.median(np.diff(t))) >= 1.0 / MIN_RATE_HZ:
+        step = float(np.median(np.diff(t)))
+        _fail(
+            path,
+            None,
+            f"t advances by {step:.6g} per sample: {1 / step:.3g} samples per second, too slow for a robot's "
+            f"log (is t in milliseconds? manus reads seconds; a recording this slow states '# sample_rate_hz:')",
+        )
+
+
+MIN_RATE_HZ = 10.0  # a rate under this, not stated in the file, is taken for t in another unit than seconds
 
 
 def _grid_period(t: np.ndarray) -> float:

@@ -137,3 +137,16 @@ def test_an_effect_value_no_recording_can_show_is_refused(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 2 and "cogging:1e+12: a period of 6.28e-12, under one encoder step" in err, err
     assert main(["fit", str(path), "--model", "rigid,viscous,cogging:3", "--no-figures", "--method", "ls"]) == 0
+
+
+def test_time_in_milliseconds_is_named(tmp_path):
+    """A 1 kHz log whose t is in milliseconds reads as 1 sample per second: refused, the unit named
+    (it had given parameters off by 1e3–1e6); a slow recording that states its rate is read."""
+    t = np.arange(2000, dtype=float)
+    rows = "\n".join(f"{x:g},{math.sin(x / 300):.6f},{math.cos(x / 200):.6f}" for x in t)
+    path = tmp_path / "ms.csv"
+    path.write_text("# structure: axis\nt,q1,tau1\n" + rows + "\n")
+    with pytest.raises(RecordingError, match=r"t advances by 1 per sample: 1 samples per second.*milliseconds"):
+        read(path)
+    path.write_text("# structure: axis\n# sample_rate_hz: 1\nt,q1,tau1\n" + rows + "\n")
+    assert read(path).sample_rate_hz == 1
