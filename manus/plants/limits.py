@@ -139,16 +139,9 @@ class Resolved:
     stall_seconds: float
     stall_speed: float
     dt: float
-    missed: float = 1.0
-    lost: float = 1.0
-    window: int = 1  # ticks
-
-    def describe(self) -> str:
-        box = ", ".join(f"[{a:.3g}, {b:.3g}]" for a, b in zip(self.low, self.high, strict=True))
-        return (
-            f"|τ| ≤ {self.torque:g} N·m, |q̇| ≤ {self.velocity:g} rad/s, workspace {box} rad, jump ≤ {self.jump:g} "
-            f"rad/tick, stall {self.stall_seconds:g} s at ≥ {STALL_SHARE:.0%} of the torque"
-        )
+    missed: float
+    lost: float
+    window: int  # ticks
 
 
 def check(lim: Resolved, q, q_prev, ticks, tau_prev, held, xp=np):
