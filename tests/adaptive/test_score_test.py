@@ -50,12 +50,15 @@ def test_block_scores_are_the_partialled_scores_and_recover_the_full_fit():
     assert s == pytest.approx(per_block, rel=1e-8, abs=1e-10)
 
 
+@pytest.mark.parametrize("route", ["sums", "outer"])
 @pytest.mark.parametrize("mode", ["wild", "exact"])
-def test_the_flips_fast_algebra_equals_the_statistic_computed_again(mode, monkeypatch):
-    """Each draw's Ω is expanded algebraically (D − T·β − (T·β)ᵀ + S·β·β); a loop that flips the
-    blocks' jackknifed noise scores (wild) or the scores themselves (exact) and recomputes W from
-    them from scratch (refit, jackknife, Ω) counts the same exceedances."""
+def test_the_flips_fast_algebra_equals_the_statistic_computed_again(mode, route, monkeypatch):
+    """Each draw's Ω is expanded algebraically (D − T·β − (T·β)ᵀ + S·β·β) or summed from the
+    draw's jackknifed block scores; a loop that flips the blocks' jackknifed noise scores (wild)
+    or the scores themselves (exact) and recomputes W from them from scratch (refit, jackknife,
+    Ω) counts the same exceedances."""
     monkeypatch.setattr(score_test, "MIN_EFFECTIVE_BLOCKS", 0.0 if mode == "wild" else np.inf)
+    monkeypatch.setattr(score_test._Spread, "OUTER_K", 1 if route == "outer" else 99)
     rng = np.random.default_rng(1)
     G, k = 12, 3
     scores = []

@@ -94,7 +94,7 @@ class Scores:
 FLIPS = 2000  # sign-flip draws of `score_p` at least (its smallest p: 1/(draws + 1)) ...
 FLIPS_PER_ALPHA = 4  # ... and at least this many over the level a p is judged at
 FLIP_CHUNK = 250  # draws at a time, at most ...
-FLIP_MEMORY = 4_000_000  # ... and at most this many floats of a chunk's T·w (a 7-joint chain's 14 cogging columns)
+FLIP_WORK = 4_000_000  # ... and at most this many V·k³ (values searched × cube of the columns) a chunk
 MIN_EFFECTIVE_BLOCKS = 12.0  # below this many blocks sharing the information, the exact flips (see score_p)
 
 
@@ -180,37 +180,28 @@ def score_p(
     G = scores[0].s.shape[0]
     # A draw's pseudo-scores are w_b d_b (d: the jackknifed noise scores, or the scores s
     # themselves for the exact flips, signs flipped); its statistic is computed from them as from
-    # the data: m = Σ w d, β = Q⁻¹ m, the blocks'
-    # jackknifed scores L_b (w_b d_b − Q_b β) = w_b d2_b − Q2_b β (d2 = L d, Q2 = L Q), and per k,
-    # the values stacked, their Ω = D − T·β − (T·β)ᵀ + S·β·β with D = Σ d2 d2ᵀ (signs squared
-    # away), T = Σ w_b d2_b ⊗ Q2_b (one matrix product over the blocks), S = Σ Q2_b ⊗ Q2_b
+    # the data: m = Σ w d, β = Q⁻¹ m, the blocks' jackknifed scores e_b = L_b (w_b d_b − Q_b β) =
+    # w_b d2_b − Q2_b β (d2 = L d, Q2 = L Q) and their spread Ω = Σ e eᵀ (`_Spread`), per k the
+    # values stacked
     pre = []
     for k, vals in by_k.items():
         d = np.stack([j.noise if wild else j.s for j in vals])  # (V, G, k)
         Qi = np.stack([j.Q_inv for j in vals])
-        L = np.stack([j.L for j in vals])
-        d2 = (L @ d[..., None])[..., 0]
-        Q2 = L @ np.stack([j.Q for j in vals])  # (V, G, k, k)
-        D = np.einsum("vgi,vgj->vij", d2, d2)
-        T = np.einsum("vgi,vgjl->gvijl", d2, Q2).reshape(G, -1)
-        S = np.einsum("vgil,vgjm->vlmij", Q2, Q2).reshape(len(vals), k * k, k * k)
         Qs, R = np.stack([j.Q.sum(0) for j in vals]), np.stack([j.R for j in vals])
-        pre.append((k, len(vals), d.transpose(1, 0, 2).reshape(G, -1), Qi, D, T, S, Qs, R))
+        spread = _Spread(np.stack([j.L for j in vals]), d, np.stack([j.Q for j in vals]))
+        pre.append((k, len(vals), d.transpose(1, 0, 2).reshape(G, -1), Qi, spread, Qs, R))
     best = int(np.argmax(observed))
     rng = np.random.default_rng(seed)
     exceed = done = 0
-    per_draw = sum(V * k**3 for k, V, *_ in pre)  # floats a draw's T·w takes
-    chunk = int(np.clip(FLIP_MEMORY // max(per_draw, 1), 1, FLIP_CHUNK))
+    per_draw = sum(V * k**3 for k, V, *_ in pre)  # a draw's work, in the units of FLIP_WORK
+    chunk = int(np.clip(FLIP_WORK // max(per_draw, 1), 1, FLIP_CHUNK))  # (an early stop is checked between chunks)
     while done < draws:
         n = min(chunk, draws - done)
         w = rng.choice((-1.0, 1.0), size=(n, G))
         top = np.full(n, -np.inf)
-        for k, V, dflat, Qi, D, T, S, Qs, R in pre:
+        for k, V, dflat, Qi, spread, Qs, R in pre:
             m = (w @ dflat).reshape(n, V, k)
-            beta = (Qi[None] @ m[..., None])[..., 0]  # (n, V, k)
-            tb = ((w @ T).reshape(n, V, k * k, k) @ beta[..., None]).reshape(n, V, k, k)
-            bb = (beta[..., :, None] * beta[..., None, :]).reshape(n, V, 1, k * k)
-            omega = D[None] - tb - tb.transpose(0, 1, 3, 2) + (bb @ S[None]).reshape(n, V, k, k)
+            omega = spread(w, (Qi[None] @ m[..., None])[..., 0])
             m = physical(m, Qs, Qi, R, omega, signed)
             W = np.sum(m * _solve_psd(omega.reshape(-1, k, k), m.reshape(-1, k)).reshape(n, V, k), axis=2)
             top = np.maximum(top, W.max(1))
@@ -219,6 +210,37 @@ def score_p(
         if (1 + exceed) / (1 + draws) > stop_above:  # surely above it, whatever the rest would give
             break
     return (1 + exceed) / (1 + done), best, "wild" if wild else "exact"
+
+
+class _Spread:
+    """The spread Ω = Σ_b e_b e_bᵀ of a draw's jackknifed block scores e_b = w_b d2_b − Q2_b β (d2 =
+    L d, Q2 = L Q), for draws w (n, G) and their β (n, V, k): (n, V, k, k). With few columns, from
+    sums over the blocks worked out once, Ω = D − T·β − (T·β)ᵀ + S·β·β (D = Σ d2 d2ᵀ, T = Σ w_b d2_b ⊗
+    Q2_b, S = Σ Q2_b ⊗ Q2_b: a draw costs G·V·k³ in one matrix product); with many (`OUTER_K`),
+    from the e_b themselves (2·G·V·k², in small products, slower per operation)."""
+
+    OUTER_K = 10
+
+    def __init__(self, L: np.ndarray, d: np.ndarray, Q: np.ndarray):
+        V, G, k = d.shape
+        d2, Q2 = (L @ d[..., None])[..., 0], L @ Q  # (V, G, k), (V, G, k, k)
+        self.outer = k >= self.OUTER_K
+        if self.outer:
+            self.d2, self.Q2 = d2, Q2.reshape(V, G * k, k)
+            return
+        self.D = np.einsum("vgi,vgj->vij", d2, d2)
+        self.T = np.einsum("vgi,vgjl->gvijl", d2, Q2).reshape(G, -1)
+        self.S = np.einsum("vgil,vgjm->vlmij", Q2, Q2).reshape(V, k * k, k * k)
+
+    def __call__(self, w: np.ndarray, beta: np.ndarray) -> np.ndarray:
+        n, V, k = beta.shape
+        if self.outer:
+            G = w.shape[1]
+            e = w[:, None, :, None] * self.d2[None] - (self.Q2[None] @ beta[..., None]).reshape(n, V, G, k)
+            return np.swapaxes(e, 2, 3) @ e
+        tb = ((w @ self.T).reshape(n, V, k * k, k) @ beta[..., None]).reshape(n, V, k, k)
+        bb = (beta[..., :, None] * beta[..., None, :]).reshape(n, V, 1, k * k)
+        return self.D[None] - tb - tb.transpose(0, 1, 3, 2) + (bb @ self.S[None]).reshape(n, V, k, k)
 
 
 def physical(
@@ -238,7 +260,7 @@ def physical(
     K = R.shape[1]
     b = np.einsum("vij,nvj->nvi", Qi, m)
     Ainv = Qi[None] @ omega @ Qi[None]  # (n, V, k, k): β̂'s covariance
-    S = np.einsum("vKk,nvkl,vJl->nvKJ", R, Ainv, R)  # the columns' coefficients' covariance
+    S = R[None] @ Ainv @ np.swapaxes(R, 1, 2)[None]  # the columns' coefficients' covariance
     beta, Cb = b, np.einsum("vKk,nvk->nvK", R, b)
     held = signed & (Cb < 0)
     for _ in range(int(np.sum(signed))):
