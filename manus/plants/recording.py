@@ -33,6 +33,7 @@ import numpy as np
 from manus.plants.catalog import structure_named
 from manus.plants.errors import RecordingError, RecordingNote
 from manus.plants.limits import JUMP
+from manus.plants.reading import npz_arrays, read_csv, regular_file
 from manus.plants.structures import Structure
 from manus.plants.timebase import TimeBase, examine, grid
 
@@ -208,6 +209,7 @@ def read(path: str | os.PathLike, robot: str | os.PathLike | None = None) -> Rec
         raise RecordingError(f"{path}: no such file")
     if path.is_dir():
         raise RecordingError(f"{path}: is a directory, not a recording")
+    regular_file(path)
     suffix = path.suffix.lower()
     if suffix == ".npz":
         rec = _read_npz(path)
@@ -257,106 +259,10 @@ def _fail(path, line, problem) -> NoReturn:
 
 
 def _read_csv(path: Path) -> Recording:
-    raw = path.read_bytes()
-    if not raw.strip():
-        _fail(path, None, "empty file")
-    if b"\x00" in raw[:65536]:
-        _fail(path, None, "binary file, not a CSV recording (expected text: '# key: value' lines, a header, rows)")
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as e:
-        _fail(path, text_line(raw, e.start), "not UTF-8 text: binary or corrupted file")
-    lines = text.split("\n")
-    complete = text.endswith("\n")
-    if complete:
-        lines = lines[:-1]
-    meta: dict[str, str] = {}
-    header_at = None
-    for i, line in enumerate(lines):
-        s = line.strip()
-        if not s:
-            continue
-        if s.startswith("#"):
-            key, sep, value = s[1:].partition(":")
-            if not sep:
-                continue  # a plain comment
-            meta[key.strip()] = value.strip()
-            continue
-        header_at = i
-        break
-    if header_at is None:
-        _fail(path, None, "no header row (expected e.g. 't,q1,q2,tau1,tau2')")
-    header = [h.strip() for h in lines[header_at].split(",")]
-    _check_header(path, header_at + 1, header)
-    ncol = len(header)
-    body = [(i + 1, line) for i, line in enumerate(lines[header_at + 1 :], start=header_at + 1) if line.strip()]
-    # '# key: value' lines after the rows: a streamed run's footer (why it stopped, written at its end)
-    footer = 0
-    while footer < len(body) and body[-1 - footer][1].lstrip().startswith("#"):
-        footer += 1
-    for _, line in body[len(body) - footer :]:
-        key, sep, value = line.strip()[1:].partition(":")
-        if sep:
-            meta[key.strip()] = value.strip()
-    body = body[: len(body) - footer]
-    # A run killed mid-write leaves an incomplete last line: drop it with a warning. A streamed
-    # file (`streamed: true`, written row by row by a live run) ends every complete row with a
-    # newline, so there an unterminated last line is dropped even when it parses: its last
-    # number may have been cut short (0.4183 -> 0.41).
-    if body and not complete:
-        lineno, last = body[-1]
-        if not _row_ok(last, ncol) or meta.get("streamed", "").lower() == "true":
-            warnings.warn(
-                f"{path}:{lineno}: incomplete last line dropped (the file was cut mid-write)",
-                RecordingNote,
-                stacklevel=2,
-            )
-            body = body[:-1]
-    if not body:
-        _fail(path, header_at + 2, "no data rows after the header")
-    data = np.empty((len(body), ncol))
-    for r, (lineno, line) in enumerate(body):
-        fields = line.split(",")
-        if len(fields) != ncol:
-            _fail(path, lineno, f"ragged row: {len(fields)} fields where the header has {ncol}")
-        try:
-            if "_" in line:
-                raise ValueError("a digit separator")
-            data[r] = [float(x) for x in fields]
-        except ValueError:
-            bad = next(j for j, x in enumerate(fields) if not _is_float(x))
-            _fail(path, lineno, f"column {header[bad]!r}: {fields[bad].strip()!r} is not a number")
-    cols = {h: data[:, j] for j, h in enumerate(header)}
-    rows = np.array([lineno for lineno, _ in body])
-    return _assemble(path, cols, meta, lambda r: f":{rows[r]}")
-
-
-def text_line(raw: bytes, offset: int) -> int:
-    return raw[:offset].count(b"\n") + 1
-
-
-def _is_float(x: str) -> bool:
-    """A number as a CSV writes one (Python's `float` also takes '1_0' for 10: not here)."""
-    if "_" in x:
-        return False
-    try:
-        float(x)
-        return True
-    except ValueError:
-        return False
-
-
-def _row_ok(line: str, ncol: int) -> bool:
-    fields = line.split(",")
-    return len(fields) == ncol and all(_is_float(x) for x in fields)
-
-
-def _check_header(path, lineno, header):
-    dup = sorted({h for h in header if header.count(h) > 1})
-    if dup:
-        _fail(path, lineno, f"column {dup[0]!r} appears twice in the header")
-    if "" in header:
-        _fail(path, lineno, "empty column name in the header")
+    cols, meta, locate, notes = read_csv(path)
+    for n in notes:
+        warnings.warn(n, RecordingNote, stacklevel=3)
+    return _assemble(path, cols, meta, locate)
 
 
 def _numbered(cols: dict, prefix: str) -> list[int]:
@@ -607,11 +513,7 @@ def _check_grid(path, meta, q):
 
 
 def _read_npz(path: Path) -> Recording:
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            arrays = {k: np.asarray(z[k]) for k in z.files}
-    except Exception as e:  # a zip that is not one, a pickle, a truncated file
-        _fail(path, None, f"not a readable .npz recording ({type(e).__name__}: {e})")
+    arrays = npz_arrays(path)
     if not arrays:
         _fail(path, None, "empty file: the .npz holds no arrays")
     cols, meta = {}, {}

@@ -295,7 +295,7 @@ def _phase_period(s: np.ndarray, T: float) -> float:
     width = T / max(x[-1] - x[0], T)  # the peak's relative width
     trial = np.arange(-SEARCH, SEARCH, width / 4)
     best, value = 0.0, -1.0
-    for chunk in np.array_split(trial, max(1, trial.size * x.size // 2**21)):
+    for chunk in np.array_split(trial, max(1, trial.size * x.size // 2**19)):
         r = np.abs(np.exp(2j * np.pi * np.outer((1 + chunk) / T, x)).sum(axis=1))
         if r.max() > value:
             best, value = float(chunk[np.argmax(r)]), float(r.max())
@@ -322,18 +322,40 @@ def grid(t: np.ndarray) -> tuple[np.ndarray, float, float]:
         nb = s.size // block
         if nb < 3:
             break
-        mean = np.exp(2j * np.pi * s[: nb * block] / T).reshape(nb, block).mean(axis=1)
+        mean = _phasors(s[: nb * block], T, block)
         w = np.abs(mean)
         if not w.sum() > 0:
             break
         centre = s[: nb * block].reshape(nb, block).mean(axis=1)
         beta = np.polyfit(centre, np.unwrap(np.angle(mean)), 1, w=np.sqrt(w))[0]
         T = 1.0 / (1.0 / T - beta / (2 * np.pi))
-    offset = float(np.angle(np.mean(np.exp(2j * np.pi * s / T)))) / (2 * np.pi) * T
+    offset = float(np.angle(_phasors(s, T, s.size)[0])) / (2 * np.pi) * T
     i = np.rint((s - offset) / T)
-    (a, T), *_ = np.linalg.lstsq(np.stack([np.ones(s.size), i], 1), s, rcond=None)
+    # (a, T): least squares of s on [1, i], in the sums of its normal equations about their means
+    im, sm = i.mean(), s.mean()
+    i -= im
+    T = float(i @ (s - sm) / (i @ i)) if i.size > 1 else T
+    a = sm - T * im
     i = np.rint((s - a) / T).astype(np.int64)
     return i - i[0], float(origin + a + i[0] * T), float(T)
+
+
+PHASOR_ROWS = 1 << 16  # rows whose phasors are held at once (`_phasors`)
+
+
+def _phasors(s: np.ndarray, T: float, block: int) -> np.ndarray:
+    """The mean of exp(2πi s/T) over each `block` of rows of s (its length a multiple of `block`),
+    worked out `PHASOR_ROWS` at a time: a long recording's phasors are never all held."""
+    z = lambda x: np.exp(2j * np.pi * x / T)
+    if block <= PHASOR_ROWS:
+        step = PHASOR_ROWS // block * block
+        return np.concatenate([z(s[k : k + step]).reshape(-1, block).mean(axis=1) for k in range(0, s.size, step)])
+    return np.array(
+        [
+            sum(z(s[k : min(k + PHASOR_ROWS, b + block)]).sum() for k in range(b, b + block, PHASOR_ROWS)) / block
+            for b in range(0, s.size, block)
+        ]
+    )
 
 
 def _settle(x: np.ndarray) -> np.ndarray:
