@@ -24,6 +24,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+EXACT_BELOW = 2.0**20 * math.pi / 2  # rad: float64 sin and cos exact to rounding below this |x| (above)
+
 _PI = Fraction("3.14159265358979323846264338327950288419716939937510582097494459230781640628620899")
 _HALF_PI = _PI / 2
 

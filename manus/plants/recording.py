@@ -32,6 +32,7 @@ import numpy as np
 
 from manus.plants.catalog import structure_named
 from manus.plants.errors import RecordingError, RecordingNote
+from manus.plants.fastmath import EXACT_BELOW
 from manus.plants.limits import JUMP
 from manus.plants.reading import npz_arrays, read_csv, regular_file
 from manus.plants.structures import Structure
@@ -376,8 +377,27 @@ def _unwrap(rec: Recording, locate) -> None:
     """A revolute joint's angle recorded modulo a turn (in [−π, π) or [0, 2π): a pendulum that
     goes over the top) jumps by about 2π between two samples, which no joint can move in one
     period: unwrapped, in place, with a note. A jump of more than π that is not a whole number
-    of turns (the neighbouring steps' size off one) is no wrap and no motion: refused, by name."""
+    of turns (the neighbouring steps' size off one) is no wrap and no motion: refused, by name. So
+    is an angle beyond `EXACT_BELOW` (about 250 000 turns), where no sine of it is exact: an
+    offset, raw counts or another unit; and, where no encoder grid is declared, angles on an
+    encoder's grid of a whole number of steps per 360 but not per 2π (`_grid_in_degrees`)."""
+    declared = "counts_per_rev" in rec.meta or "position_step" in rec.meta
     for j, prismatic in enumerate(rec.prismatic):
+        far = np.flatnonzero(np.abs(rec.q[:, j]) >= EXACT_BELOW) if not prismatic else np.zeros(0, int)
+        if len(far):
+            value = rec.q[far[0], j]
+            raise RecordingError(
+                f"{rec.path}{locate(far[0])}: q{j + 1} is {value:.6g} rad ({value / (2 * math.pi):.3g} turns): "
+                f"beyond {EXACT_BELOW:.3g} rad, where an angle's sine and cosine are no longer exact: an "
+                "offset, encoder counts or another unit? (manus reads radians; subtract the offset)"
+            )
+        per_360 = None if prismatic or declared else _grid_in_degrees(rec.q[:, j])
+        if per_360:
+            raise RecordingError(
+                f"{rec.path}: q{j + 1} moves on an encoder's grid of {per_360} steps per 360, a whole "
+                f"number, and {per_360 * math.pi / 180:.6g} per 2π: degrees, not radians? manus reads "
+                "radians (or state the encoder's counts_per_rev)"
+            )
         d = np.diff(rec.q[:, j])
         wraps = np.abs(d) > math.pi
         big = np.flatnonzero(wraps)
@@ -475,6 +495,32 @@ def smallest_step(q: np.ndarray) -> float:
     d = np.abs(np.diff(q, axis=0))
     d = d[d > 0]
     return float(d.min()) if d.size else 0.0
+
+
+GRID_COUNTS = 2**24  # at most this many encoder steps in a turn
+
+
+def _grid_in_degrees(q: np.ndarray) -> int | None:
+    """The steps per 360 of the encoder grid an angle lies on, where that is a whole number (at
+    most `GRID_COUNTS`) and the steps per 2π are not: an encoder in degrees. The grid's step is
+    read over the angle's whole path (the steps it moved by, each a whole number of the smallest),
+    so that numbers written to 12 digits give whole counts to 1e-9 of them. None on no grid
+    (filtered, interpolated, noisy positions), on a short decimal's (numbers printed to a few
+    places: 0.001 rad), or where the counts are whole in radians."""
+    grid = smallest_step(q[:, None])
+    if not grid or q.size < 3:
+        return None
+    d = np.abs(np.diff(q))
+    step = float(d.sum() / np.round(d / grid).sum())
+    x = (q - q[0]) / step
+    if np.mean(np.abs(x - np.round(x)) > 0.05) > 0.5:
+        return None
+    digits = step / 10.0 ** (math.floor(math.log10(step)) - 1)  # its first two significant digits
+    if abs(digits - round(digits)) < 1e-6:
+        return None  # a short decimal (0.001, 0.25): numbers printed to a few places, no encoder
+    per_360, per_turn = 360.0 / step, 2 * math.pi / step
+    whole = lambda c, tol: abs(c - round(c)) < max(tol, 1e-9 * c)  # (to the digits a CSV keeps)
+    return round(per_360) if whole(per_360, 1e-3) and per_360 <= GRID_COUNTS and not whole(per_turn, 1e-4) else None
 
 
 # positions in another unit than the encoder's declared grid: (their grid / the declared one, what it means)

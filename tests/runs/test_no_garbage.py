@@ -1,5 +1,6 @@
 """Inputs that used to give garbage with exit 0: a number that JSON has no word for, a digit
-separator read as a number, a cut-off the sampling cannot show, a URDF link no rigid body can be."""
+separator read as a number, a cut-off the sampling cannot show, a URDF link no rigid body can be,
+angles in degrees or offset beyond exact trigonometry."""
 
 import json
 import math
@@ -150,3 +151,47 @@ def test_time_in_milliseconds_is_named(tmp_path):
         read(path)
     path.write_text("# structure: axis\n# sample_rate_hz: 1\nt,q1,tau1\n" + rows + "\n")
     assert read(path).sample_rate_hz == 1
+
+
+def _walk(rng, turn, counts, n=4000):
+    """An angle's random walk on an encoder of `counts` steps per `turn` (2π: radians, 360:
+    degrees), fast then slow (a few steps per sample, where single steps show), written to 12
+    digits as manus writes a CSV."""
+    step = turn / counts
+    fast = rng.normal(0, 0.003, n // 2) * turn / (2 * math.pi)
+    x = np.cumsum(np.r_[fast, rng.normal(0, 2 * step, n - n // 2)]) + rng.uniform(-2, 2) * turn / (2 * math.pi)
+    return np.array([float(f"{v:.12g}") for v in np.round(x / step) * step])
+
+
+def test_angles_in_degrees_on_an_encoder_grid_are_named_and_radians_never_are(tmp_path):
+    """With no encoder declared, angles whose grid has a whole number of steps per 360 and not
+    per 2π are refused as degrees (they had given parameters off by 50-5000x); over 300 seeded
+    encoders of 500 to 4 million counts, an encoder in radians is never taken for one, and each
+    in degrees is named by its counts; radians printed to a few decimal places are no encoder."""
+    rng = np.random.default_rng(7)
+    from manus.plants.recording import _grid_in_degrees
+
+    for counts in rng.integers(500, 2**22, 300):
+        assert _grid_in_degrees(_walk(rng, 2 * math.pi, counts)) is None, counts
+        assert _grid_in_degrees(_walk(rng, 360.0, counts)) == counts, counts
+    for places in (2, 3, 4):  # radians printed to a few places: a decimal grid, no encoder's
+        assert _grid_in_degrees(np.round(_walk(rng, 2 * math.pi, 2**20), places)) is None
+    q = _walk(rng, 360.0, 131072)
+    t = np.arange(q.size) * 1e-3
+    rows = "\n".join(f"{a:g},{b:.12g},{math.sin(a):.6f}" for a, b in zip(t, q, strict=True))
+    path = tmp_path / "deg.csv"
+    path.write_text("# structure: axis\n# sample_rate_hz: 1000\nt,q1,tau1\n" + rows + "\n")
+    with pytest.raises(RecordingError, match=r"q1 moves on an encoder's grid of 131072 steps per 360.*degrees"):
+        read(path)
+    path.write_text("# structure: axis\n# sample_rate_hz: 1000\n# joints: prismatic\nt,q1,tau1\n" + rows + "\n")
+    assert len(read(path)) == q.size  # (metres on a prismatic axis: no angle, no degrees)
+
+
+def test_an_angle_beyond_exact_trigonometry_is_refused(tmp_path):
+    """Positions offset by 1e9 rad (an internal error from the fit before) are refused, the offset named."""
+    t = np.arange(500) * 1e-3
+    rows = "\n".join(f"{a:g},{1e9 + math.sin(a):.17g},{math.cos(a):.6f}" for a in t)
+    path = tmp_path / "offset.csv"
+    path.write_text("# structure: axis\nt,q1,tau1\n" + rows + "\n")
+    with pytest.raises(RecordingError, match=r"offset.csv:3: q1 is 1e\+09 rad .* an offset"):
+        read(path)

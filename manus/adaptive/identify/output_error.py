@@ -388,6 +388,11 @@ def _window_costs(r: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(c), c, np.inf)
 
 
+def _finite(J: np.ndarray) -> np.ndarray:
+    """A Jacobian with a diverged window's entries (not finite) at 0: that window takes no step."""
+    return np.nan_to_num(J, nan=0.0, posinf=0.0, neginf=0.0)
+
+
 def _velocities(problem: Problem, theta: np.ndarray, qd0: np.ndarray, rounds: int = 5):
     """Each window's initial velocity that best fits its positions at θ, from `qd0` (Gauss–Newton
     per window, a window's step shortened while it does not lower that window's cost); returns
@@ -396,7 +401,7 @@ def _velocities(problem: Problem, theta: np.ndarray, qd0: np.ndarray, rounds: in
     cost = _window_costs(r)
     n = len(problem.v_steps)
     shrink = np.ones(len(qd0))
-    Jv = problem.by_velocity(theta, qd0, r)
+    Jv = _finite(problem.by_velocity(theta, qd0, r))
     for _ in range(rounds):
         D = np.einsum("kip,kiq->kpq", Jv, Jv) + 1e-300 * np.eye(n)
         step = -np.einsum("kpq,kq->kp", np.linalg.pinv(D), np.einsum("kip,ki->kp", Jv, np.nan_to_num(r)))
@@ -410,7 +415,7 @@ def _velocities(problem: Problem, theta: np.ndarray, qd0: np.ndarray, rounds: in
         cost = np.where(better, c2, cost)
         shrink = np.where(better, 1.0, shrink / 4)
         if better.any():
-            Jv = problem.by_velocity(theta, qd0, r)
+            Jv = _finite(problem.by_velocity(theta, qd0, r))
         if fall < VELOCITY_TOLERANCE:
             break
     return qd0, r, Jv
