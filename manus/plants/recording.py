@@ -33,6 +33,7 @@ import numpy as np
 from manus.plants.catalog import structure_named
 from manus.plants.errors import RecordingError, RecordingNote
 from manus.plants.fastmath import EXACT_BELOW
+from manus.plants.files import atomically
 from manus.plants.limits import JUMP
 from manus.plants.reading import npz_arrays, read_csv, regular_file
 from manus.plants.structures import Structure
@@ -621,18 +622,20 @@ def _format(v) -> str:
 
 
 def write(rec: Recording, path: str | os.PathLike) -> Path:
-    """Write `.csv` or `.npz` (by suffix)."""
+    """Write `.csv` or `.npz` (by suffix), whole or not at all (`manus.plants.files.atomically`)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     cols = rec.columns()
     meta = dict(rec.meta)
     if rec.robot is not None:  # relative to where the file goes
         meta["robot"] = os.path.relpath(rec.robot.absolute(), path.parent.absolute())
-    if path.suffix.lower() == ".npz":
-        np.savez(path, **cols, **{k: np.asarray(v) for k, v in meta.items()})  # pyright: ignore[reportArgumentType]
-        return path
-    with RecordingWriter(path, list(cols), meta) as w:
-        w.append(np.stack(list(cols.values()), 1))
+    with atomically(path) as tmp:
+        if path.suffix.lower() == ".npz":
+            with open(tmp, "wb") as f:
+                np.savez(f, **cols, **{k: np.asarray(v) for k, v in meta.items()})  # pyright: ignore[reportArgumentType]
+        else:
+            with RecordingWriter(tmp, list(cols), meta) as w:
+                w.append(np.stack(list(cols.values()), 1))
     return path
 
 

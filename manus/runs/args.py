@@ -4,6 +4,7 @@ text checked, a simulated plant. Every command takes its options from here."""
 from __future__ import annotations
 
 import argparse
+import os
 from pathlib import Path
 
 from manus.plants.errors import ManusError
@@ -18,8 +19,51 @@ def add_common(parser, out: bool = True) -> None:
     parser.add_argument("--json", action="store_true", help="print one JSON object on stdout and nothing else")
     if out:
         parser.add_argument(
-            "--out", type=Path, default=DEFAULT_OUT, metavar="DIR", help=f"where figures go (default {DEFAULT_OUT}/)"
+            "--out",
+            type=output_dir,
+            default=DEFAULT_OUT,
+            metavar="DIR",
+            help=f"where figures go (default {DEFAULT_OUT}/)",
         )
+
+
+def _writable(path: Path) -> None:
+    """`path` can be made: its nearest existing ancestor is a directory this process may write in."""
+    at = path.absolute().parent
+    while not at.exists():
+        at = at.parent
+    if not at.is_dir():
+        raise argparse.ArgumentTypeError(f"{path}: {at} is a file, not a directory")
+    if not os.access(at, os.W_OK | os.X_OK):
+        raise argparse.ArgumentTypeError(f"{path}: no permission to write in {at}")
+
+
+def output_dir(text: str) -> Path:
+    """A directory outputs go to (made when needed), checked when the command line is read, before
+    any work: not a file, somewhere this process may write."""
+    path = Path(text)
+    if path.exists() and not path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text}: a file, not a directory")
+    _writable(path / "x")
+    return path
+
+
+def output_file(*suffixes: str):
+    """An argparse type: a file to write, one of `suffixes`, checked before any work (a run's
+    recording refused after the run would be lost)."""
+
+    def check(text: str) -> Path:
+        path = Path(text)
+        if path.is_dir() or text.endswith(("/", os.sep)):
+            raise argparse.ArgumentTypeError(
+                f"{text}: a directory; give a file name (e.g. {path / ('run' + suffixes[0])})"
+            )
+        if path.suffix.lower() not in suffixes:
+            raise argparse.ArgumentTypeError(f"{text}: expected a {' or '.join(suffixes)} file")
+        _writable(path)
+        return path
+
+    return check
 
 
 # -- a recording and a model ---------------------------------------------------------------------

@@ -125,6 +125,12 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"manus {args.command}: interrupted", file=sys.stderr)
         return 130
+    except OSError as e:  # the system refused a file (a path that cannot be made, a full disk, permissions)
+        if args.debug:
+            raise
+        where = f": {e.filename}" if e.filename else ""
+        print(f"manus {args.command}: {e.strerror or e}{where}", file=sys.stderr)
+        return 2
     except Exception as e:  # an unexpected failure: still one line, the traceback on request
         if args.debug:
             raise

@@ -16,6 +16,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from manus.runs.args import output_dir
 from manus.runs.text import discovery_text, note
 
 NAME = "demo"
@@ -38,7 +39,7 @@ def default_emps() -> Path:
 def add_arguments(p) -> None:
     p.add_argument(
         "--out",
-        type=Path,
+        type=output_dir,
         default=Path("runs/out/demo"),
         metavar="DIR",
         help="where the recording, the figures and the report go (default runs/out/demo/)",

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from manus.runs.args import output_file
 from manus.runs.text import note
 
 NAME = "run-hardware"
@@ -32,7 +33,11 @@ def add_arguments(p) -> None:
     p.add_argument("--reference", choices=("benign", "complex", "hold", "multisine"), default="benign")
     p.add_argument("--seconds", type=float, default=10.0)
     p.add_argument(
-        "--record", type=Path, default=None, metavar="FILE", help="the recording (.csv), written as the run goes"
+        "--record",
+        type=output_file(".csv"),
+        default=None,
+        metavar="FILE",
+        help="the recording (.csv), written as the run goes",
     )
     p.add_argument(
         "--rig",
@@ -71,8 +76,6 @@ def run(args) -> dict:
         raise ManusError("--seconds must be positive")
     if not args.watchdog_ms > 0:
         raise ManusError("--watchdog-ms must be positive")
-    if args.record is not None and args.record.suffix.lower() != ".csv":
-        raise ManusError(f"--record {args.record}: the loop streams a .csv recording")
     import dataclasses
 
     from manus.plants.limits import Limits

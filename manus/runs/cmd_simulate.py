@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from manus.runs.args import add_plant_options, build_plant
+from manus.runs.args import add_plant_options, build_plant, output_file
 from manus.runs.text import note
 
 NAME = "simulate"
@@ -34,7 +34,7 @@ def add_arguments(p) -> None:
     )
     p.add_argument(
         "--out",
-        type=Path,
+        type=output_file(".csv", ".npz"),
         default=Path("runs/out/simulated.csv"),
         metavar="FILE",
         help="the recording to write (.csv or .npz); a figure goes beside it (.png)",

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from manus.plants.files import atomically
 from manus.runs.figures.common import figure_dir
 from manus.runs.text import format_params, limits_line, note, unexplained_line
 
@@ -208,5 +209,6 @@ def write(sections: list[Section], path: Path, title: str = "manus discover") ->
                 f"![compare]({_link(f['compare'], base)})",
                 "",
             ]
-    path.write_text("\n".join(md) + "\n")
+    with atomically(path) as tmp:
+        tmp.write_text("\n".join(md) + "\n")
     return str(path)

@@ -195,3 +195,23 @@ def test_an_angle_beyond_exact_trigonometry_is_refused(tmp_path):
     path.write_text("# structure: axis\nt,q1,tau1\n" + rows + "\n")
     with pytest.raises(RecordingError, match=r"offset.csv:3: q1 is 1e\+09 rad .* an offset"):
         read(path)
+
+
+def test_where_a_command_writes_is_checked_before_it_works(tmp_path, capsys):
+    """An output that cannot be written is refused when the command line is read (a simulation
+    or a run's recording refused after the work would be lost): a directory given for a file,
+    a file for a directory, a suffix no recording has."""
+    rec = tmp_path / "rec.csv"
+    rec.write_text("t,q1,tau1\n0,0,0\n0.001,0,0\n")
+    cases = [
+        (["simulate", "--seconds", "1", "--out", str(tmp_path)], "a directory; give a file name"),
+        (["simulate", "--seconds", "1", "--out", str(tmp_path / "x.txt")], "expected a .csv or .npz file"),
+        (["fit", str(rec), "--model", "rigid", "--out", str(rec)], "a file, not a directory"),
+        (["run-hardware", "--record", str(tmp_path / "r.npz")], "expected a .csv file"),
+        (["simulate", "--out", str(rec / "sub" / "x.csv")], "is a file, not a directory"),
+    ]
+    for argv, words in cases:
+        with pytest.raises(SystemExit) as stop:
+            main(argv)
+        assert stop.value.code == 2
+        assert words in capsys.readouterr().err, argv

@@ -10,6 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
+from manus.plants.files import atomically
+
 DPI = 100
 MARGIN = {"left": 0.8, "right": 0.25, "bottom": 0.55, "top": 0.4}  # inches around the grid of panels
 GAP = (0.85, 0.75)  # inches between panels: (beside: the next panel's tick labels and y label; below: x label, title)
@@ -145,7 +147,8 @@ def save(fig, out: Path, name: str, tight: bool = True, close: bool = True) -> s
     `tight` crops to what is drawn (one more layout pass: figures made by `panels` are already laid
     out). PNG at zlib level 1: a third of the time of the default level for files a little larger."""
     path = figure_dir(out) / name
-    fig.savefig(path, bbox_inches="tight" if tight else None, pil_kwargs={"compress_level": 1})
+    with atomically(path) as tmp:
+        fig.savefig(tmp, bbox_inches="tight" if tight else None, pil_kwargs={"compress_level": 1})
     if close:
         import matplotlib.pyplot as plt
 
@@ -175,6 +178,7 @@ def plot_recording(rec, path: Path, title: str = "") -> str:
     fig.suptitle(title or Path(rec.path).name, fontsize=9)
     fig.tight_layout()
     Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
+    with atomically(path) as tmp:
+        fig.savefig(tmp)
     plt.close(fig)
     return str(path)
