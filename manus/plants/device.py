@@ -29,6 +29,7 @@ from manus.plants.errors import ManusError
 
 SPIN_NS = 1_000_000  # busy-wait from 1 ms before an expected packet (see `UdpDevice.receive`)
 WARM_GAP_NS, WARM_EVERY_NS = 150_000, 60_000  # `idle` calls stop this long before the expected packet
+WARM_BLOCKED_NS = 450_000  # a thread that blocks makes its `idle` calls from this long before it
 
 
 class DeviceError(ManusError):
@@ -51,11 +52,12 @@ class Device(abc.ABC):
         """Open a session -> what the device is. Raises DeviceError when it does not answer."""
 
     @abc.abstractmethod
-    def receive(self, deadline_ns: int, expect_ns: int | None = None, idle=None) -> P.Sensor | None:
+    def receive(self, deadline_ns: int, expect_ns: int | None = None, idle=None, spin: bool = True) -> P.Sensor | None:
         """The next valid, newer SENSOR sample arriving before `deadline_ns` (time.perf_counter_ns),
         or None. `expect_ns`: when it should arrive (the wait may busy-spin shortly before);
         `idle()` is called every `WARM_EVERY_NS` while the sample is still more than
-        `WARM_GAP_NS` away."""
+        `WARM_GAP_NS` away. `spin=False` (a real-time thread, which must not spin): the wait
+        blocks between the `idle()` calls, which start `WARM_BLOCKED_NS` before the sample is due."""
 
     @abc.abstractmethod
     def send(self, ack: int, values, flags: int = 0) -> None:
@@ -151,12 +153,14 @@ class UdpDevice(Device):
             f"(is `manus emulate --port {self.peer[1]}` or the rig running?)"
         )
 
-    def receive(self, deadline_ns: int, expect_ns: int | None = None, idle=None) -> P.Sensor | None:
+    def receive(self, deadline_ns: int, expect_ns: int | None = None, idle=None, spin: bool = True) -> P.Sensor | None:
         sock, clock = self.sock, time.perf_counter_ns
         info = self.info
         assert info is not None, f"{self.url}: receive before connect"
         warm_until = (expect_ns - WARM_GAP_NS) if (idle is not None and expect_ns is not None) else 0
         next_warm = 0
+        if not spin and expect_ns is not None:  # (a real-time thread: blocked until WARM_BLOCKED_NS before)
+            next_warm = expect_ns - WARM_BLOCKED_NS
         while True:
             packet = self._packet()
             if packet is not None:
@@ -176,6 +180,10 @@ class UdpDevice(Device):
             if idle is not None and now < warm_until and now >= next_warm:
                 idle()  # e.g. keep the compiled tick in the caches
                 next_warm = clock() + WARM_EVERY_NS
+                continue
+            if not spin:
+                wake = next_warm if idle is not None and now < next_warm < warm_until else deadline_ns
+                select.select([sock], [], [], max(0, min(wake, deadline_ns) - now) / 1e9)
                 continue
             # Busy-wait from just before the expected arrival to one period after it: on a VM an
             # idle vCPU can take milliseconds to wake from select (measured), a spinning one does not.

@@ -38,6 +38,7 @@ commands:
 
 from __future__ import annotations
 
+import contextlib
 import gc
 import math
 import select
@@ -51,6 +52,7 @@ import numpy as np
 from manus.plants import protocol as P
 from manus.plants.device import WARM_EVERY_NS, WARM_GAP_NS
 from manus.plants.errors import ManusError
+from manus.plants.realtime import PRIORITY, Realtime
 from manus.plants.recording import RecordingWriter
 from manus.plants.simulator import Simulator
 
@@ -76,6 +78,7 @@ class Emulator:
         spin: float = 0.002,
         fault: str | None = None,
         fault_at: float = 1.0,
+        realtime: bool = False,
     ):
         import jax
         import jax.numpy as jnp
@@ -95,7 +98,9 @@ class Emulator:
         self.rng = np.random.default_rng(seed)
         self._next_warm = 0
         self._rows, self._last = [], None
-        self.spin_ns = int(spin * 1e9)
+        self.realtime = realtime  # SCHED_FIFO while serving, waits by blocking (no spin, no warm ticks)
+        self.scheduling = "ordinary (spins before each period)"
+        self.spin_ns = 0 if realtime else int(spin * 1e9)
         self.n = sim.model.n_joints
         self.period_ns = int(round(1e9 / sim.rate_hz))
         act = sim.actuator
@@ -288,7 +293,7 @@ class Emulator:
             if now >= t_ns:
                 return
             wake = min(t_ns, self._pending[0][0]) if self.active and self._pending else t_ns
-            if self.active and wake - now > WARM_GAP_NS and now >= self._next_warm:
+            if self.active and not self.realtime and wake - now > WARM_GAP_NS and now >= self._next_warm:
                 self._tick(self.state, self.tau)  # thrown away: keeps the step in the caches (3x faster)
                 self._next_warm = clock() + WARM_EVERY_NS
                 continue
@@ -368,29 +373,37 @@ class Emulator:
         gc.collect()
         gc.disable()
         try:
-            while end is None or clock() < end:
-                if not self.active:
-                    if self._rows and self._writer is not None:
-                        self._writer.append(np.array(self._rows))
-                        self._rows.clear()
-                        self._writer.flush()
-                    self._wait_until(None) if end is None else self._idle_until(end)
-                    continue
-                self._wait_until(self.next_ns)
-                if not self.active:
-                    continue
-                now = clock()
-                if now - self.next_ns > self.period_ns:  # this process was held up: resynchronize
-                    self.stats["overruns"] += 1
-                    self.next_ns = now
-                self._period(now)
-                self.next_ns += self.period_ns
-                if self.trip_ns is not None and now - self.trip_ns > self.linger * 1e9:
-                    self.active = False
+            with Realtime(PRIORITY - 1) if self.realtime else contextlib.nullcontext() as rt:
+                if rt is not None:
+                    self.scheduling = rt.why
+                self._serve(end)
         finally:
             gc.enable()
             self.close()
         return {"refused": dict(self.refused), **dict(self.stats)}
+
+    def _serve(self, end: int | None) -> None:
+        """The periods until `end` (perf_counter_ns; None: until interrupted)."""
+        clock = time.perf_counter_ns
+        while end is None or clock() < end:
+            if not self.active:
+                if self._rows and self._writer is not None:
+                    self._writer.append(np.array(self._rows))
+                    self._rows.clear()
+                    self._writer.flush()
+                self._wait_until(None) if end is None else self._idle_until(end)
+                continue
+            self._wait_until(self.next_ns)
+            if not self.active:
+                continue
+            now = clock()
+            if now - self.next_ns > self.period_ns:  # this process was held up: resynchronize
+                self.stats["overruns"] += 1
+                self.next_ns = now
+            self._period(now)
+            self.next_ns += self.period_ns
+            if self.trip_ns is not None and now - self.trip_ns > self.linger * 1e9:
+                self.active = False
 
     def _idle_until(self, end: int) -> None:
         self._drain()

@@ -28,6 +28,7 @@ smallest transit seen so far).
 
 from __future__ import annotations
 
+import contextlib
 import gc
 import math
 import signal
@@ -44,6 +45,7 @@ from manus.plants import protocol as P
 from manus.plants.device import Device
 from manus.plants.errors import ManusError
 from manus.plants.limits import LOOP, NONFINITE, Limits, Resolved, check, reason
+from manus.plants.realtime import Realtime
 from manus.plants.recording import RecordingWriter
 from manus.plants.stepper import Controller, Plant, Reference
 
@@ -52,8 +54,7 @@ if TYPE_CHECKING:
 
 STOPS = ("end", "watchdog", "fault", "limit", "user")
 FIRST_SAMPLE_TIMEOUT = 0.5  # s: after HELLO, the device's first sample
-LOG_EVERY = 10  # rows handed to the writer at once ...
-FLUSH_S = 0.01  # ... which writes them to the file at least this often (what a SIGKILL can lose)
+LOG_EVERY = 10  # rows handed to the writer at once, which writes them to the file then: a SIGKILL loses at most this many
 
 
 def realtime_jax() -> None:
@@ -207,6 +208,7 @@ class Result:
     tracking_rms: list = field(default_factory=list)
     max_abs_tau: list = field(default_factory=list)
     recording: str | None = None
+    scheduling: str = "ordinary (waits by spinning near each sample)"
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
@@ -325,10 +327,14 @@ def run_loop(
     watchdog: float = 0.02,
     volts: bool = True,
     meta: dict | None = None,
+    realtime: bool = False,
 ) -> Result:
     """Run `stepper` (a `Tick`: a `CompiledTick`, or any with what it declares)
     against `device` for `seconds`; see the module docstring. Connects the device itself. The
-    stepper's limits (`manus.plants.limits`) are checked again here on what was received and sent."""
+    stepper's limits (`manus.plants.limits`) are checked again here on what was received and sent.
+    `realtime`: the loop's thread under SCHED_FIFO with its memory locked, waiting for each sample
+    by blocking (`manus.plants.realtime`; where refused, as an ordinary process, said in
+    `Result.scheduling`); otherwise it spins from just before each sample is due."""
     if not seconds > 0:
         raise ManusError(f"seconds must be positive, got {seconds}")
     if not watchdog > 0:
@@ -347,7 +353,7 @@ def run_loop(
             "streamed": "true",
             **(meta or {}),
         }
-        writer = RecordingWriter(record, columns(n, stepper.extras), m, flush_seconds=FLUSH_S)
+        writer = RecordingWriter(record, columns(n, stepper.extras), m, flush_seconds=0.0)
     width = 1 + 2 * n + len(stepper.extras) + 8
     rows = np.zeros((LOG_EVERY, width))
     nrow = 0
@@ -364,7 +370,10 @@ def run_loop(
     gc.collect()  # everything is ready before the session starts: the device's watchdog runs from HELLO
     gc.disable()
     try:
-        with _Stop() as stop:
+        with _Stop() as stop, Realtime() if realtime else contextlib.nullcontext() as rt:
+            blocking = rt is not None and rt.active
+            if rt is not None:
+                result.scheduling = rt.why + (" (waits by blocking)" if blocking else "")
             device.connect()
             sample = device.receive(clock() + int(FIRST_SAMPLE_TIMEOUT * 1e9), expect_ns=clock())
             if sample is None:
@@ -456,7 +465,9 @@ def run_loop(
                     break
                 if k >= ticks - 1 or i > ticks:
                     break
-                sample = device.receive(t0 + int(watchdog * 1e9), expect_ns=t0 + period, idle=stepper.keep_warm)
+                sample = device.receive(
+                    t0 + int(watchdog * 1e9), expect_ns=t0 + period, idle=stepper.keep_warm, spin=not blocking
+                )
                 if sample is None:
                     result.stopped_by = "watchdog"
                     result.reason = f"no sample from the device for {watchdog * 1e3:g} ms"

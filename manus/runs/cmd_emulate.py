@@ -39,6 +39,11 @@ def add_arguments(p) -> None:
         default=2.0,
         help="busy-wait this long before each tick instead of sleeping (a sleeping vCPU wakes late; default 2)",
     )
+    p.add_argument(
+        "--realtime",
+        action="store_true",
+        help="serve under SCHED_FIFO with memory locked, waiting by blocking (where allowed: root or CAP_SYS_NICE)",
+    )
     p.add_argument("--seed", type=int, default=0, help="seed of the fault injection")
     p.add_argument(
         "--fault",
@@ -95,6 +100,7 @@ def run(args) -> dict:
         spin=args.spin_ms / 1e3,
         fault=args.fault,
         fault_at=args.fault_at,
+        realtime=args.realtime,
     )
     fault = f", fault {args.fault} at {args.fault_at:g} s into each session" if args.fault else ""
     note(

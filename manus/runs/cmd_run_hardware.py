@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 from pathlib import Path
 
@@ -54,6 +55,14 @@ def add_arguments(p) -> None:
         help="|τ| limit [N·m], instead of the rig file's (never more than the device's D/A reaches)",
     )
     p.add_argument("--torque", action="store_true", help="send torques (default: D/A volts)")
+    p.add_argument(
+        "--realtime",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="the loop under SCHED_FIFO with memory locked, waiting by blocking, where allowed (root or "
+        "CAP_SYS_NICE; else an ordinary process, said); --no-realtime: an ordinary process that spins "
+        "near each sample (default: real-time)",
+    )
     p.add_argument(
         "--watchdog-ms",
         type=float,
@@ -123,6 +132,7 @@ def run(args) -> dict:
             watchdog=args.watchdog_ms / 1e3,
             volts=not args.torque,
             meta=meta,
+            realtime=args.realtime,
         ).as_dict()
     if result["stopped_by"] == "limit" and args.rig is None:
         result["reason"] += " (the thesis arm's default limits: a rig file, --rig FILE.toml, states another rig's)"

@@ -24,7 +24,7 @@ from manus.plants.hardware import realtime_jax
 realtime_jax()
 
 from manus.plants.device import UdpDevice, open_device  # noqa: E402
-from manus.plants.hardware import CompiledTick, run_loop  # noqa: E402
+from manus.plants.hardware import LOG_EVERY, CompiledTick, run_loop  # noqa: E402
 from manus.plants.limits import Limits  # noqa: E402
 from manus.plants.recording import RecordingWriter, read  # noqa: E402
 from manus.plants.stepper import Controller, Plant  # noqa: E402
@@ -149,6 +149,59 @@ def test_a_two_second_run_tracks_its_reference_and_leaves_a_readable_recording(r
     assert np.max(np.abs(applied - rec.tau[:-1][ok])) <= HALF_LSB_TORQUE + 1e-6
     # and the session ended at zero torque
     assert np.all(dev_rec.tau[np.flatnonzero(rows)[-1]] == 0)
+
+
+def test_the_real_time_loop_blocks_instead_of_spinning_and_restores_the_thread(rigs, stepper, tmp_path):
+    """`realtime=True`: the loop's thread under SCHED_FIFO where this machine allows it (else an
+    ordinary process, said), waiting by blocking: the same run, with a few looks at the socket
+    per sample where the spinning loop looks many times; the thread's scheduling is back as it was."""
+    before = os.sched_getscheduler(0)
+    polls = {}
+    for realtime in (False, True):
+        dev = _device(rigs, "clean")
+        looks = 0
+
+        def counted(packet=dev._packet):
+            nonlocal looks
+            looks += 1
+            return packet()
+
+        dev._packet = counted
+        r = run_loop(dev, stepper, 1.0, tmp_path / f"rt{realtime}.csv", watchdog=0.5, realtime=realtime)
+        dev.close()
+        assert r.stopped_by == "end" and r.ticks == 1000, r.reason
+        assert max(r.tracking_rms) < 5e-3
+        polls[realtime] = (looks / r.ticks, r.scheduling)
+    assert os.sched_getscheduler(0) == before
+    (spun, spun_how), (blocked, blocked_how) = polls[False], polls[True]
+    assert "spinning" in spun_how
+    assert "SCHED_FIFO priority 80" in blocked_how or "refused" in blocked_how
+    assert blocked <= 10 < spun, polls
+
+
+def test_a_real_time_emulator_serves_a_real_time_loop(stepper, tmp_path):
+    """`manus emulate --realtime` (SCHED_FIFO where allowed, blocking between its periods) plays
+    the rig for a real-time loop: the run ends at its end, every sample answered."""
+    proc, _, err = _start_emulator(tmp_path, "rt", "--realtime")
+    try:
+        dev = cast(UdpDevice, open_device(f"udp://127.0.0.1:{_port(proc, err)}"))
+        r = run_loop(dev, stepper, 1.0, None, watchdog=0.5, realtime=True)
+        dev.close()
+    finally:
+        _stop(proc)
+    assert r.stopped_by == "end" and r.ticks == 1000 and r.lost_samples == 0, r.reason
+
+
+def test_real_time_refused_is_said_and_changes_nothing(monkeypatch):
+    from manus.plants.realtime import Realtime
+
+    def refuse(*_):
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(os, "sched_setscheduler", refuse)
+    with Realtime() as rt:
+        assert not rt.active and not rt.locked
+        assert rt.why.startswith("SCHED_FIFO refused (Operation not permitted)")
 
 
 def test_the_rig_as_a_plant_steps_like_the_simulator_would(rigs):
@@ -339,6 +392,15 @@ def test_kill_9_of_the_loop_leaves_the_device_at_zero_torque_and_a_readable_reco
     tripped = idx[(dev_rec.extra["flags"][idx].astype(int) & P.STATUS_WATCHDOG) > 0]
     assert tripped.size > 10 and np.all(dev_rec.tau[tripped] == 0)
     assert np.all(dev_rec.tau[idx[idx > tripped[0]]] == 0) and np.any(dev_rec.tau[idx[idx < tripped[0]]] != 0)
+    # what the kill lost: the device held the last command it got (flag LATE) from the sample after
+    # it until its watchdog fired; the recording ends at most LOG_EVERY samples (10 ms) before that,
+    # and a line the kill cut mid-write
+    late = (dev_rec.extra["flags"].astype(int) & P.STATUS_LATE) > 0
+    first = int(np.flatnonzero(idx == tripped[0])[0])
+    while first > 0 and late[idx[first - 1]]:
+        first -= 1
+    last_answered = int(dev_rec.extra["seq"][idx[first]]) - 1
+    assert 0 <= last_answered - int(rec.extra["seq"][-1]) <= LOG_EVERY + 1, (last_answered, rec.extra["seq"][-1])
 
 
 def test_a_streamed_recording_cut_mid_number_drops_its_last_line(tmp_path):

@@ -132,7 +132,7 @@ class Scripted(Device):
         self.info, self.k = INFO, 0
         return INFO
 
-    def receive(self, deadline_ns, expect_ns=None, idle=None):
+    def receive(self, deadline_ns, expect_ns=None, idle=None, spin=True):
         import time
 
         self.k += self.skip(self.k)
