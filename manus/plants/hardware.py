@@ -54,7 +54,7 @@ if TYPE_CHECKING:
 
 STOPS = ("end", "watchdog", "fault", "limit", "user")
 FIRST_SAMPLE_TIMEOUT = 0.5  # s: after HELLO, the device's first sample
-LOG_EVERY = 10  # rows handed to the writer at once, which writes them to the file then: a SIGKILL loses at most this many
+LOG_EVERY = 10  # rows handed to the writer at once (it writes them to the file then): what a SIGKILL can lose
 
 
 def realtime_jax() -> None:
