@@ -215,3 +215,27 @@ def test_where_a_command_writes_is_checked_before_it_works(tmp_path, capsys):
             main(argv)
         assert stop.value.code == 2
         assert words in capsys.readouterr().err, argv
+
+
+def test_a_structure_the_data_contradict_is_said():
+    """The thesis arm's recording stated as two independent axes: least squares leaves a third of
+    the torque, the arm's own structure about 1 %; a note names the contradiction and the structure
+    the data show. Stated as the arm, no note."""
+    import dataclasses
+    import warnings
+
+    from manus.adaptive import fit
+    from manus.experiments import calibration
+    from manus.plants.errors import RecordingNote
+
+    rec = calibration.case(0, None, rates=(1000,), structure="arm").rec
+    for name, contradicted in (("axis", True), ("manus2", False)):
+        stated = dataclasses.replace(rec, meta={**rec.meta, "structure": name})
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            fit(stated, "rigid,viscous,coulomb", method="ls")
+        notes = [
+            str(w.message) for w in caught if issubclass(w.category, RecordingNote) and "contradict" in str(w.message)
+        ]
+        assert bool(notes) == contradicted, notes
+        assert not notes or "the data contradict `structure: axis`: read as manus2" in notes[0], notes

@@ -26,6 +26,7 @@ friction), the closest consistent parameters in the data's metric, the estimate 
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import replace
 
 import numpy as np
@@ -38,7 +39,7 @@ from manus.adaptive.identify.prepare import Data, prepare
 from manus.adaptive.identify.result import Fit, check_motion, check_rows, fit_rows
 from manus.adaptive.identify.search import search_all
 from manus.plants.effects import Model
-from manus.plants.errors import ModelError
+from manus.plants.errors import ManusError, ModelError, RecordingNote
 from manus.plants.recording import Recording
 
 METHODS = ("auto", "ls", "iv", "oe")
@@ -94,6 +95,8 @@ def fit(
     check_motion(data, model)
     model, search = search_all(data, cols, model, fixed)
     ls = fit_rows(data, cols, model, search)
+    if columns is None:  # (a fit on its own, not one of a loop's)
+        _another_structure(data, model, ls)
     start = physical(ls, cols)  # IV's simulations start from a consistent model
     if method == "ls":
         return replace(start, why="least squares (asked for)")
@@ -105,3 +108,39 @@ def fit(
     if chosen.method == "ls":  # least squares kept: its stage is done
         return rescue(data, cols, ls, replace(start, why=chosen.why), noise)
     return physical(chosen, cols)
+
+
+POOR_FIT = 0.1  # a least-squares error from which another reading of the structure is tried
+OTHER_STRUCTURE = {"manus2": "axis", "axis": "manus2"}  # the structures of two joints: each the other's reading
+
+
+def _another_structure(data: Data, model: Model, ls: Fit) -> None:
+    """Where least squares leaves `POOR_FIT` of the torque or more on a two-joint recording, the
+    same model fitted with the other structure two joints can have (the thesis's arm in absolute
+    angles, or two independent axes): if that leaves under half the error, the recording's
+    structure (stated, or the default for two joints) is contradicted by its data, and a note
+    says so."""
+    rec = data.rec
+    other = OTHER_STRUCTURE.get(rec.structure_name)
+    if other is None or rec.n_joints != 2 or not ls.rel_error >= POOR_FIT or "transmission" in rec.meta:
+        return
+    try:
+        alt = replace(rec, meta={**rec.meta, "structure": other})
+        alt_data = prepare(alt, data.cutoff_hz)
+        alt_model = Model(identified(alt.structure), model.spec)
+        alt_ls = fit_rows(alt_data, Columns(alt_data), alt_model, None)
+    except (ManusError, ValueError, np.linalg.LinAlgError):  # (a reading that cannot be fitted contradicts nothing)
+        return
+    if alt_ls.rel_error < 0.5 * ls.rel_error:
+        said = (
+            "`structure: " + rec.structure_name + "`"
+            if "structure" in rec.meta
+            else f"{rec.structure_name} (the default for two joints)"
+        )
+        warnings.warn(
+            f"{rec.path}: the data contradict {said}: read as {other}, {model.spec} leaves "
+            f"{100 * alt_ls.rel_error:.3g} % of the torque, against {100 * ls.rel_error:.3g} % (state the rig's "
+            f"structure: `# structure: {other}`)",
+            RecordingNote,
+            stacklevel=3,
+        )
