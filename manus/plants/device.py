@@ -48,8 +48,9 @@ class Device(abc.ABC):
         self.received = 0
 
     @abc.abstractmethod
-    def connect(self, timeout: float = 2.0) -> P.Info:
-        """Open a session -> what the device is. Raises DeviceError when it does not answer."""
+    def connect(self, timeout: float = 2.0, spin: bool = True) -> P.Info:
+        """Open a session -> what the device is. Raises DeviceError when it does not answer.
+        `spin=False` (a real-time thread): wait for the answer by blocking."""
 
     @abc.abstractmethod
     def receive(self, deadline_ns: int, expect_ns: int | None = None, idle=None, spin: bool = True) -> P.Sensor | None:
@@ -128,7 +129,7 @@ class UdpDevice(Device):
             self.refused[e.reason] += 1
             return None
 
-    def connect(self, timeout: float = 2.0) -> P.Info:
+    def connect(self, timeout: float = 2.0, spin: bool = True) -> P.Info:
         while True:  # forget what an earlier session left in the socket
             try:
                 self.sock.recvfrom(2048)
@@ -139,7 +140,9 @@ class UdpDevice(Device):
             self.seq += 1
             self._send(P.encode_hello(self.seq, time.perf_counter_ns(), 1))
             wait_until = min(end, time.monotonic() + 0.1)
-            while time.monotonic() < wait_until:  # busy: the first samples follow at once
+            while (now := time.monotonic()) < wait_until:  # busy unless asked not to: the first samples follow at once
+                if not spin:
+                    select.select([self.sock], [], [], wait_until - now)
                 packet = self._packet()
                 if isinstance(packet, P.Info):
                     self.info = packet

@@ -374,8 +374,8 @@ def run_loop(
             blocking = rt is not None and rt.active
             if rt is not None:
                 result.scheduling = rt.why + (" (waits by blocking)" if blocking else "")
-            device.connect()
-            sample = device.receive(clock() + int(FIRST_SAMPLE_TIMEOUT * 1e9), expect_ns=clock())
+            device.connect(spin=not blocking)
+            sample = device.receive(clock() + int(FIRST_SAMPLE_TIMEOUT * 1e9), expect_ns=clock(), spin=not blocking)
             if sample is None:
                 result.stopped_by, result.reason = "watchdog", "no first sample from the device"
                 return result

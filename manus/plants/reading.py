@@ -189,9 +189,8 @@ class _Rows:
     def __init__(self, path, header: list[str]):
         self.path, self.header, self.ncol = path, header, len(header)
         self.blocks: list[np.ndarray] = []
-        self.lines: list[
-            tuple[int, int, np.ndarray | None]
-        ] = []  # (first row, first line, each row's line or None: consecutive)
+        # per block: its first row, the line of that row, and each row's line (None: consecutive)
+        self.lines: list[tuple[int, int, np.ndarray | None]] = []
         self.rows = 0
         self.budget = memory_budget()
 

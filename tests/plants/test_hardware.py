@@ -151,32 +151,51 @@ def test_a_two_second_run_tracks_its_reference_and_leaves_a_readable_recording(r
     assert np.all(dev_rec.tau[np.flatnonzero(rows)[-1]] == 0)
 
 
-def test_the_real_time_loop_blocks_instead_of_spinning_and_restores_the_thread(rigs, stepper, tmp_path):
+def test_the_real_time_loop_blocks_instead_of_spinning_and_restores_the_thread(rigs, stepper, tmp_path, monkeypatch):
     """`realtime=True`: the loop's thread under SCHED_FIFO where this machine allows it (else an
-    ordinary process, said), waiting by blocking: the same run, with a few looks at the socket
-    per sample where the spinning loop looks many times; the thread's scheduling is back as it was."""
+    ordinary process, said), waiting by blocking: the same run, and never a look at the socket
+    that finds nothing followed by another look without a blocking wait or a warm call between
+    (a spin), where the ordinary loop spins near every sample; the thread's scheduling is back as
+    it was."""
+    import select as select_module
+
+    from manus.plants import device as device_module
+
+    state = {"missed": False, "spins": 0}
+
+    def waited(*args):
+        state["missed"] = False
+        return select_module.select(*args)
+
+    def warm(keep_warm=stepper.keep_warm):
+        state["missed"] = False
+        keep_warm()
+
+    monkeypatch.setattr(device_module, "select", type("Select", (), {"select": staticmethod(waited)}))
+    monkeypatch.setattr(stepper, "keep_warm", warm)
     before = os.sched_getscheduler(0)
-    polls = {}
+    spins = {}
     for realtime in (False, True):
         dev = _device(rigs, "clean")
-        looks = 0
+        state["spins"] = 0
 
-        def counted(packet=dev._packet):
-            nonlocal looks
-            looks += 1
-            return packet()
+        def looked(packet=dev._packet):
+            state["spins"] += state["missed"]
+            got = packet()
+            state["missed"] = got is None
+            return got
 
-        dev._packet = counted
+        dev._packet = looked
         r = run_loop(dev, stepper, 1.0, tmp_path / f"rt{realtime}.csv", watchdog=0.5, realtime=realtime)
         dev.close()
         assert r.stopped_by == "end" and r.ticks == 1000, r.reason
         assert max(r.tracking_rms) < 5e-3
-        polls[realtime] = (looks / r.ticks, r.scheduling)
+        spins[realtime] = (state["spins"], r.scheduling)
     assert os.sched_getscheduler(0) == before
-    (spun, spun_how), (blocked, blocked_how) = polls[False], polls[True]
+    (spun, spun_how), (blocked, blocked_how) = spins[False], spins[True]
     assert "spinning" in spun_how
     assert "SCHED_FIFO priority 80" in blocked_how or "refused" in blocked_how
-    assert blocked <= 10 < spun, polls
+    assert blocked == 0 < spun, spins
 
 
 def test_a_real_time_emulator_serves_a_real_time_loop(stepper, tmp_path):

@@ -128,7 +128,7 @@ class Scripted(Device):
         self.script, self.k, self.commands = script, 0, []
         self.age, self.skip = age, skip
 
-    def connect(self, timeout: float = 2.0) -> P.Info:
+    def connect(self, timeout: float = 2.0, spin: bool = True) -> P.Info:
         self.info, self.k = INFO, 0
         return INFO
 
