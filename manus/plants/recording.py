@@ -225,7 +225,7 @@ def read(path: str | os.PathLike, robot: str | os.PathLike | None = None) -> Rec
         rec.meta.pop("joints", None)  # the URDF says which joints are prismatic
     if rec.structure_name == "urdf":
         rec.structure  # noqa: B018 (read and checked now: a bad robot is the recording's error)
-        _unwrap(rec, lambda r: f" sample {r}")
+        _angles(rec, lambda r: f" sample {r}")
     elif "transmission" in rec.meta:
         rec.structure  # noqa: B018 (read and checked now: a malformed transmission is the recording's error)
     return _on_its_time_base(rec)
@@ -327,7 +327,7 @@ def _assemble(path, cols: dict, meta: dict, locate) -> Recording:
     extra = {k: v for k, v in cols.items() if k not in core}
     rec = Recording(t, q, tau, qd, meta, extra, str(path))
     if rec.structure_name != "urdf":  # (a serial chain's joint kinds are its URDF's: once read, in `read`)
-        _unwrap(rec, locate)
+        _angles(rec, locate)
     return rec
 
 
@@ -374,14 +374,15 @@ def _where(located: str) -> str:
     return f"line {located[1:]}" if located.startswith(":") else located.strip()
 
 
-def _unwrap(rec: Recording, locate) -> None:
-    """A revolute joint's angle recorded modulo a turn (in [−π, π) or [0, 2π): a pendulum that
-    goes over the top) jumps by about 2π between two samples, which no joint can move in one
-    period: unwrapped, in place, with a note. A jump of more than π that is not a whole number
-    of turns (the neighbouring steps' size off one) is no wrap and no motion: refused, by name. So
-    is an angle beyond `EXACT_BELOW` (about 250 000 turns), where no sine of it is exact: an
-    offset, raw counts or another unit; and, where no encoder grid is declared, angles on an
-    encoder's grid of a whole number of steps per 360 but not per 2π (`_grid_in_degrees`)."""
+def _angles(rec: Recording, locate) -> None:
+    """The revolute joints' angles checked and unwrapped. An angle recorded modulo a turn (in
+    [−π, π) or [0, 2π): a pendulum that goes over the top) jumps by about 2π between two samples,
+    which no joint can move in one period: unwrapped, in place, with a note. A jump of more than
+    π that is not a whole number of turns (the neighbouring steps' size off one) is no wrap and
+    no motion: refused, by name. So is an angle beyond `EXACT_BELOW` (about 250 000 turns), where
+    no sine of it is exact: an offset, raw counts or another unit; and, where no encoder grid is
+    declared, angles on an encoder's grid of a whole number of steps per 360 but not per 2π
+    (`_grid_in_degrees`)."""
     declared = "counts_per_rev" in rec.meta or "position_step" in rec.meta
     for j, prismatic in enumerate(rec.prismatic):
         far = np.flatnonzero(np.abs(rec.q[:, j]) >= EXACT_BELOW) if not prismatic else np.zeros(0, int)
