@@ -1,12 +1,14 @@
 """`manus bench hardware`: the real-time loop at 1 kHz against the rig emulator on loopback.
 
 A `manus emulate` process plays the rig (the thesis plant `rigid,viscous,coulomb,delay`, the
-D/A and the 131072 counts/rev encoder) and the loop of `manus.plants.hardware` runs in this process,
-twice:
+D/A and the 131072 counts/rev encoder) and the loop of `manus.plants.hardware` runs in this process:
 
-- the subject: the constant-velocity Kalman filter + Slotine–Li adaptive controller compiled
-  into one tick (`--seconds`, default 30 s);
-- the baseline, in the same run: the same loop with a plain numpy controller (the thesis's
+- the subject, the constant-velocity Kalman filter + Slotine–Li adaptive controller compiled
+  into one tick (`--seconds` per run, default 20 s), four times: in the ordinary loop (spinning
+  near each sample, against an ordinary emulator) and in the real-time loop (`SCHED_FIFO`,
+  blocking, against an emulator served the same way; `manus.plants.realtime`), each with the
+  machine quiet and with another process keeping one core busy;
+- the baseline, in the same run: the ordinary loop with a plain numpy controller (the thesis's
   filtered first difference and impedance control, about 10 µs of numpy per tick;
   `--baseline-seconds`), which shows what the loop, the sockets and this machine cost without JAX.
 
