@@ -6,9 +6,12 @@ arrives (another program busy on the same cores waits for it), and its memory st
 forced into memory). A real-time thread must wait by blocking (a timed `select` on the device's
 socket), never by spinning: the kernel stops a real-time task that does not sleep for 50 ms of
 each second (`/proc/sys/kernel/sched_rt_runtime_us`), and the device's watchdog fires. The
-scheduling applies to the calling thread only (JAX's worker threads keep theirs); `Realtime`
-restores it when the run ends. Where it is refused (no root, no `CAP_SYS_NICE`, not Linux), the
-loop runs as an ordinary process and says why."""
+scheduling applies to the calling thread only: JAX's worker threads keep theirs, and a thread or
+process started while it runs (a worker JAX starts late) starts as an ordinary one
+(`SCHED_RESET_ON_FORK`): a real-time worker that spins while it waits would hold a core from
+everything else. `Realtime` restores the thread's scheduling when the run ends. Where it is
+refused (no root, no `CAP_SYS_NICE`, not Linux), the loop runs as an ordinary process and says
+why."""
 
 from __future__ import annotations
 
@@ -34,7 +37,8 @@ class Realtime:
             return self
         try:
             self._before = (os.sched_getscheduler(0), os.sched_getparam(0).sched_priority)
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self.priority))
+            # (threads and processes started from it, JAX's workers among them, start as ordinary ones)
+            os.sched_setscheduler(0, os.SCHED_FIFO | os.SCHED_RESET_ON_FORK, os.sched_param(self.priority))
         except OSError as e:
             self.why = (
                 f"SCHED_FIFO refused ({e.strerror}): an ordinary process, which other work on these "
