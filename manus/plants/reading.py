@@ -8,8 +8,8 @@ for a message naming the line and the column). What is held never exceeds the me
 array about the size of their numbers (8 bytes each), so a file is read in memory about 2× its
 size. A UTF-8 byte order mark is skipped, UTF-16 (with its mark) is read as text, a device or a
 pipe is refused, and so is a line longer than `LONGEST_LINE` (a file with no line ends). An
-`.npz`'s arrays are sized from their headers before any is read (a compressed file can unpack
-to far more than its size)."""
+`.npz`'s arrays are sized from their headers, and a MATLAB file's variables from its table of
+contents, before any is read (a compressed file can unpack to far more than its size)."""
 
 from __future__ import annotations
 
@@ -361,3 +361,21 @@ def npz_arrays(path: Path) -> dict[str, np.ndarray]:
         raise
     except Exception as e:  # a zip that is not one, a pickle, a truncated file
         _fail(path, None, f"not a readable .npz recording ({type(e).__name__}: {e})")
+
+
+def mat_variables(path: Path, names: tuple[str, ...]) -> dict[str, np.ndarray]:
+    """The variables `names` of a MATLAB file (those it has), sized from its table of contents
+    before any is read: what would exceed the memory budget is refused unread."""
+    regular_file(path)
+    from scipy.io import loadmat, whosmat
+
+    try:
+        listed = whosmat(path)
+        need = sum(float(np.prod(shape, dtype=float)) * 8 for name, shape, _ in listed if name in names)
+        if need > memory_budget():
+            _over_budget(path, need, "its variables")
+        return loadmat(path, variable_names=[n for n, *_ in listed if n in names])
+    except RecordingError:
+        raise
+    except Exception as e:  # not a MATLAB file, a truncated one, a version scipy cannot read
+        _fail(path, None, f"not a readable MATLAB file ({type(e).__name__}: {e})")

@@ -35,7 +35,7 @@ from manus.plants.errors import RecordingError, RecordingNote
 from manus.plants.fastmath import EXACT_BELOW
 from manus.plants.files import atomically
 from manus.plants.limits import JUMP
-from manus.plants.reading import npz_arrays, read_csv, regular_file
+from manus.plants.reading import mat_variables, npz_arrays, read_csv, regular_file
 from manus.plants.structures import Structure
 from manus.plants.timebase import TimeBase, examine, grid
 
@@ -585,12 +585,7 @@ def _read_npz(path: Path) -> Recording:
 
 def _read_mat(path: Path) -> Recording:
     """An EMPS benchmark file: position qm, force gtau·vir, structure axis."""
-    from scipy.io import loadmat
-
-    try:
-        m = loadmat(path)
-    except Exception as e:
-        _fail(path, None, f"not a readable MATLAB file ({type(e).__name__}: {e})")
+    m = mat_variables(path, ("t", "qm", "qg", "vir", "gtau", "pulses_N", "kp", "kv"))
     for key in ("t", "qm", "vir", "gtau"):
         if key not in m:
             _fail(path, None, f"missing variable {key!r} (an EMPS file has t, qm, qg, vir, gtau)")

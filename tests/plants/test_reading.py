@@ -129,3 +129,18 @@ def test_a_large_csv_is_read_in_less_than_three_times_its_size(tmp_path):
     np.testing.assert_allclose(back.q, rec.q, rtol=1e-11)
     print(f"read in {peak / path.stat().st_size:.2f}x the file")
     assert peak < 3 * path.stat().st_size, f"{peak / path.stat().st_size:.2f}x the file"
+
+
+def test_a_matlab_file_past_the_budget_is_refused_before_it_is_read(tmp_path, monkeypatch):
+    """An EMPS-form `.mat` is read; with a budget smaller than its variables (sized from its table
+    of contents) it is refused, the budget named."""
+    from scipy.io import savemat
+
+    n = 1000
+    t = np.arange(n) * 1e-3
+    path = tmp_path / "emps.mat"
+    savemat(path, {"t": t, "qm": np.sin(t), "qg": np.sin(t), "vir": np.cos(t), "gtau": 35.15})
+    assert len(recording.read(path)) == n
+    monkeypatch.setenv("MANUS_MEMORY_GB", "1e-5")  # 10 kB, under the 32 kB of t, qm, qg and vir
+    with pytest.raises(RecordingError, match=r"emps.mat: its variables would take .* memory budget"):
+        recording.read(path)
