@@ -115,14 +115,16 @@ OTHER_STRUCTURE = {"manus2": "axis", "axis": "manus2"}  # the structures of two 
 
 
 def _another_structure(data: Data, model: Model, ls: Fit) -> None:
-    """Where least squares leaves `POOR_FIT` of the torque or more on a two-joint recording, the
+    """Where least squares leaves `POOR_FIT` of the torque or more on two revolute joints, the
     same model fitted with the other structure two joints can have (the thesis's arm in absolute
     angles, or two independent axes): if that leaves under half the error, the recording's
     structure (stated, or the default for two joints) is contradicted by its data, and a note
     says so."""
     rec = data.rec
     other = OTHER_STRUCTURE.get(rec.structure_name)
-    if other is None or rec.n_joints != 2 or not ls.rel_error >= POOR_FIT or "transmission" in rec.meta:
+    if other is None or rec.n_joints != 2 or any(rec.prismatic) or "transmission" in rec.meta:
+        return  # (a prismatic axis is no arm's joint; a stated transmission is a structure of its own)
+    if not ls.rel_error >= POOR_FIT:
         return
     try:
         alt = replace(rec, meta={**rec.meta, "structure": other})
