@@ -47,13 +47,14 @@ def memory_budget() -> float:
         return 4e9
 
 
-def _fail(path, line, problem) -> NoReturn:
+def fail(path, line, problem) -> NoReturn:
+    """Refuse a recording: a `RecordingError` naming the file, the line (if any) and the problem."""
     where = f"{path}:{line}" if line else f"{path}"
     raise RecordingError(f"{where}: {problem}")
 
 
 def _over_budget(path, need: float, what: str) -> NoReturn:
-    _fail(
+    fail(
         path,
         None,
         f"{what} would take {need / 1e9:.3g} GB, more than the memory budget of "
@@ -64,7 +65,7 @@ def _over_budget(path, need: float, what: str) -> NoReturn:
 def regular_file(path: Path) -> None:
     """A recording is a file: a device (/dev/zero) or a pipe never ends and is refused."""
     if not path.is_file():
-        _fail(path, None, "not a regular file (a device, a pipe or a socket): a recording is a file")
+        fail(path, None, "not a regular file (a device, a pipe or a socket): a recording is a file")
 
 
 def _chunks(path: Path) -> Iterator[bytes]:
@@ -79,13 +80,13 @@ def _chunks(path: Path) -> Iterator[bytes]:
                 while chunk := text.read(BLOCK_BYTES // 2):
                     yield chunk.encode("utf-8")
             except UnicodeDecodeError as e:
-                _fail(path, None, f"UTF-16 text that does not decode ({e.reason}): a corrupted file")
+                fail(path, None, f"UTF-16 text that does not decode ({e.reason}): a corrupted file")
             return
         if b"\x00" in head:
             hint = (
                 " (UTF-16 without a byte order mark? save it as UTF-8)" if head[1::2].count(0) > len(head) // 4 else ""
             )
-            _fail(
+            fail(
                 path,
                 None,
                 f"binary file, not a CSV recording{hint} (expected text: '# key: value' lines, a header, rows)",
@@ -142,7 +143,7 @@ class _Text:
         return out, first, False
 
     def _too_long(self) -> NoReturn:
-        _fail(self.path, self.line + 1, f"a line longer than {LONGEST_LINE} bytes: not a CSV recording")
+        fail(self.path, self.line + 1, f"a line longer than {LONGEST_LINE} bytes: not a CSV recording")
 
 
 def decoded(path, lineno: int, raw: bytes) -> str:
@@ -151,7 +152,7 @@ def decoded(path, lineno: int, raw: bytes) -> str:
     except UnicodeDecodeError as e:
         byte = raw[e.start]
         guess = bytes([byte]).decode("latin-1")
-        _fail(
+        fail(
             path,
             lineno,
             f"not UTF-8 text: byte 0x{byte:02x} at column {e.start + 1} (a Latin-1 or Windows "
@@ -178,9 +179,9 @@ def row_ok(line: str, ncol: int) -> bool:
 def _check_header(path, lineno, header):
     dup = sorted({h for h in header if header.count(h) > 1})
     if dup:
-        _fail(path, lineno, f"column {dup[0]!r} appears twice in the header")
+        fail(path, lineno, f"column {dup[0]!r} appears twice in the header")
     if "" in header:
-        _fail(path, lineno, "empty column name in the header")
+        fail(path, lineno, "empty column name in the header")
 
 
 class _Rows:
@@ -231,10 +232,10 @@ class _Rows:
                 continue
             fields = line.split(",")
             if len(fields) != self.ncol:
-                _fail(self.path, lineno, f"ragged row: {len(fields)} fields where the header has {self.ncol}")
+                fail(self.path, lineno, f"ragged row: {len(fields)} fields where the header has {self.ncol}")
             if not all(is_number(x) for x in fields):
                 bad = next(j for j, x in enumerate(fields) if not is_number(x))
-                _fail(self.path, lineno, f"column {self.header[bad]!r}: {fields[bad].strip()!r} is not a number")
+                fail(self.path, lineno, f"column {self.header[bad]!r}: {fields[bad].strip()!r} is not a number")
             out.append([float(x) for x in fields])
             lines.append(lineno)
         return np.array(out, dtype=float).reshape(-1, self.ncol), np.array(lines, dtype=np.int64)
@@ -282,7 +283,7 @@ def read_csv(path: Path) -> tuple[dict[str, np.ndarray], dict[str, str], Callabl
         header = [h.strip() for h in line.split(",")]
         break
     if header is None:
-        _fail(path, None, "no header row (expected e.g. 't,q1,q2,tau1,tau2')" if anything else "empty file")
+        fail(path, None, "no header row (expected e.g. 't,q1,q2,tau1,tau2')" if anything else "empty file")
     header_line = text.line
     _check_header(path, header_line, header)
     rows = _Rows(path, header)
@@ -316,7 +317,7 @@ def read_csv(path: Path) -> tuple[dict[str, np.ndarray], dict[str, str], Callabl
         if sep:
             meta[key.strip()] = value.strip()
     if not rows.rows:
-        _fail(path, header_line + 1, "no data rows after the header")
+        fail(path, header_line + 1, "no data rows after the header")
     return dict(zip(header, rows.columns(), strict=True)), meta, lambda r: f":{rows.where(r)}", notes
 
 
@@ -329,7 +330,7 @@ def _footer_lines(path, block: bytes, first: int) -> list[tuple[int, str]]:
         if not line.strip():
             continue
         if not line.lstrip().startswith("#"):
-            _fail(
+            fail(
                 path, first + i, "a row after a '#' line: '# key: value' lines go above the header, or after every row"
             )
         out.append((first + i, line))
@@ -360,7 +361,7 @@ def npz_arrays(path: Path) -> dict[str, np.ndarray]:
     except RecordingError:
         raise
     except Exception as e:  # a zip that is not one, a pickle, a truncated file
-        _fail(path, None, f"not a readable .npz recording ({type(e).__name__}: {e})")
+        fail(path, None, f"not a readable .npz recording ({type(e).__name__}: {e})")
 
 
 def mat_variables(path: Path, names: tuple[str, ...]) -> dict[str, np.ndarray]:
@@ -378,4 +379,4 @@ def mat_variables(path: Path, names: tuple[str, ...]) -> dict[str, np.ndarray]:
     except RecordingError:
         raise
     except Exception as e:  # not a MATLAB file, a truncated one, a version scipy cannot read
-        _fail(path, None, f"not a readable MATLAB file ({type(e).__name__}: {e})")
+        fail(path, None, f"not a readable MATLAB file ({type(e).__name__}: {e})")

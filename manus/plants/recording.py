@@ -26,7 +26,6 @@ import re
 import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import NoReturn
 
 import numpy as np
 
@@ -35,6 +34,7 @@ from manus.plants.errors import RecordingError, RecordingNote
 from manus.plants.fastmath import EXACT_BELOW
 from manus.plants.files import atomically
 from manus.plants.limits import JUMP
+from manus.plants.reading import fail as _fail
 from manus.plants.reading import mat_variables, npz_arrays, read_csv, regular_file
 from manus.plants.structures import Structure
 from manus.plants.timebase import TimeBase, examine, grid
@@ -253,11 +253,6 @@ def repair(rec: Recording) -> Recording:
     if tb.held_every > 1 and tb.repaired and "sample_rate_hz" in out.meta:
         out.meta["sample_rate_hz"] = f"{tb.rate_hz:.12g}"
     return replace(out, time_base=tb)
-
-
-def _fail(path, line, problem) -> NoReturn:
-    where = f"{path}:{line}" if line else f"{path}"
-    raise RecordingError(f"{where}: {problem}")
 
 
 def _read_csv(path: Path) -> Recording:

@@ -74,6 +74,17 @@ def test_what_editors_and_shells_write_is_read_or_named(tmp_path):
         recording.read(_write(tmp_path, text.encode("utf-16-le"), "bare16.csv"))
 
 
+def npz_declaring(path, samples: int, names=("t", "q1", "tau1")):
+    """An `.npz` whose arrays' headers declare `samples` float64 each, with no data behind them."""
+    with zipfile.ZipFile(path, "w") as z:
+        for name in names:
+            with z.open(f"{name}.npy", "w") as f:
+                header = np.lib.format.header_data_from_array_1_0(np.zeros(1))
+                header["shape"] = (samples,)
+                np.lib.format.write_array_header_1_0(f, header)
+    return path
+
+
 @pytest.mark.skipif(not os.path.exists("/dev/zero"), reason="no /dev/zero")
 def test_a_file_that_never_ends_is_refused_at_once(tmp_path, monkeypatch):
     link = tmp_path / "zero.csv"
@@ -89,13 +100,7 @@ def test_an_npz_that_unpacks_past_the_budget_is_refused_before_it_is_read(tmp_pa
     """Arrays sized from their headers: 10⁹ samples declared (8 GB) in a file of a few hundred
     bytes are refused naming the budget, without reading a byte of them."""
     monkeypatch.setenv("MANUS_MEMORY_GB", "1")
-    path = tmp_path / "bomb.npz"
-    with zipfile.ZipFile(path, "w") as z:
-        for name in ("t", "q1", "tau1"):
-            with z.open(f"{name}.npy", "w") as f:
-                header = np.lib.format.header_data_from_array_1_0(np.zeros(1))
-                header["shape"] = (10**9,)
-                np.lib.format.write_array_header_1_0(f, header)
+    path = npz_declaring(tmp_path / "bomb.npz", 10**9)
     assert path.stat().st_size < 2000
     with pytest.raises(RecordingError, match=r"bomb.npz: its arrays would take 24 GB, more than .* budget of 1 GB"):
         recording.read(path)

@@ -12,12 +12,12 @@ import json
 import math
 import os
 import signal
-import zipfile
 
 import numpy as np
 import pytest
 
 from manus.runs.cli import main
+from tests.plants.test_reading import npz_declaring
 
 J, B, FC = 0.05, 0.2, 0.1
 RATE, SECONDS, COUNTS = 1000, 4.0, 2**16
@@ -56,15 +56,6 @@ def _with(rows_change) -> str:
     rows = ROWS.copy()
     rows_change(rows)
     return _csv(rows)
-
-
-def _npz_bomb(path):
-    with zipfile.ZipFile(path, "w") as z:
-        for name in ("t", "q1", "tau1"):
-            with z.open(f"{name}.npy", "w") as f:
-                h = np.lib.format.header_data_from_array_1_0(np.zeros(1))
-                h["shape"] = (10**10,)
-                np.lib.format.write_array_header_1_0(f, h)
 
 
 def _set(rows, r, c, v):
@@ -125,7 +116,7 @@ CORPUS = {
     "unknown effect": (_csv(), ["--model", "rigid,wobble"], "wobble"),
     "a directory": (lambda p: p.mkdir(), [], "is a directory"),
     "/dev/zero": (lambda p: p.symlink_to("/dev/zero"), [], "not a regular file"),
-    "npz bomb": (_npz_bomb, [], "more than the memory budget"),
+    "npz bomb": (lambda p: npz_declaring(p, 10**10), [], "more than the memory budget"),
     "missing": (lambda p: None, [], "no such file"),
 }
 
