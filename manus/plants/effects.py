@@ -80,6 +80,32 @@ def per_joint(prefix: str, s: Structure) -> tuple[str, ...]:
     return tuple(f"{prefix}{i + 1}" for i in range(s.n_joints))
 
 
+UNITS = {  # (what a column multiplies its parameter by, prismatic joint): the parameter's unit
+    ("", False): "N·m",
+    ("", True): "N",
+    ("q", False): "N·m/rad",
+    ("q", True): "N/m",
+    ("qd", False): "N·m·s/rad",
+    ("qd", True): "N·s/m",
+    ("qdd", False): "kg·m²",
+    ("qdd", True): "kg",
+}
+
+
+def unit_of(motion: str, prismatic: bool) -> str:
+    """A parameter's unit from what its column multiplies it by and its joint's kind."""
+    return UNITS[motion, prismatic]
+
+
+def _prismatic(s: Structure, name: str, prismatic: tuple[bool, ...] = ()) -> bool:
+    """Whether the joint a parameter's name ends with (1-based) is prismatic (by `prismatic`, else
+    the structure's kinds); False for no number."""
+    m = re.search(r"(\d+)$", name)
+    j = int(m.group(1)) - 1 if m else -1
+    kinds = tuple(prismatic) or tuple(s.prismatic)
+    return bool(kinds[j]) if 0 <= j < len(kinds) else False
+
+
 def stack(p: dict, names: tuple[str, ...]) -> Array:
     return jnp.stack([jnp.asarray(p[k]) for k in names])
 
@@ -121,10 +147,18 @@ class Effect(eqx.Module):
     evidence: ClassVar[str] = "velocity"  # what a residual is plotted against to show it
     apart: ClassVar[str] = ""  # the motion that tells it from an effect it reads as on a recording
     gain: ClassVar[float] = 5.0  # the Slotine–Li adaptation gain of its parameters (thesis: Γ = 5)
+    # What its columns multiply its parameters by: "" (nothing: they are torques), "q", "qd" or "qdd"
+    motion: ClassVar[str] = ""
 
     def names(self, s: Structure) -> tuple[str, ...]:
         """Linear parameter names, in regressor column order."""
         return ()
+
+    def units(self, s: Structure, prismatic: tuple[bool, ...] = ()) -> tuple[str, ...]:
+        """Each linear parameter's unit: its joint's torque (N·m, or N on a prismatic joint: the
+        joint is the name's trailing number, its kind `prismatic`'s, else the structure's) over
+        what its column multiplies it by (`motion`)."""
+        return tuple(unit_of(self.motion, _prismatic(s, k, prismatic)) for k in self.names(s))
 
     def defaults(self, s: Structure) -> tuple[float, ...]:
         return ()
@@ -256,9 +290,21 @@ class Rigid(Effect):
     name: ClassVar[str] = "rigid"
     inertial: ClassVar[bool] = True
     side: ClassVar[str] = "link"
+    motion: ClassVar[str] = "qdd"
 
     def names(self, s):
         return s.rigid_names
+
+    def units(self, s, prismatic=()):
+        """A chain's standard (or base) parameters by their leading symbol (m: kg, mx: kg·m, an
+        inertia or an armature: kg·m²); an inertia of the others' over its joint's acceleration."""
+        if s.combinations is None:
+            return super().units(s, prismatic)
+        lead = lambda k: re.match(r"[A-Za-z]+", k)
+        return tuple(
+            {"m": "kg", "mx": "kg·m", "my": "kg·m", "mz": "kg·m"}.get(m.group(0) if (m := lead(k)) else "", "kg·m²")
+            for k in s.rigid_names
+        )
 
     def defaults(self, s):
         return s.rigid_defaults
@@ -278,6 +324,7 @@ class Viscous(Effect):
     """Viscous friction b_i q̇_i [N·m·s/rad]; thesis §3.5: b = 0.222, 0.181."""
 
     name: ClassVar[str] = "viscous"
+    motion: ClassVar[str] = "qd"
     apart: ClassVar[str] = "motion at several speeds"
 
     def names(self, s):
@@ -455,6 +502,7 @@ class Asymmetry(Effect):
     """
 
     name: ClassVar[str] = "asymmetry"
+    motion: ClassVar[str] = "qd"
     apart: ClassVar[str] = "motion in both directions"
 
     def names(self, s):
@@ -527,6 +575,7 @@ class Spring(Effect):
     back toward its rest position. Illustrative defaults."""
 
     name: ClassVar[str] = "spring"
+    motion: ClassVar[str] = "q"
     apart: ClassVar[str] = "a wider swing"
     side: ClassVar[str] = "link"
     brings: ClassVar[tuple[str, ...]] = ("offset",)
@@ -822,6 +871,10 @@ class Coupling(Effect):
     def names(self, s):
         return ("bc", "Fcc", "Jc")
 
+    def units(self, s, prismatic=()):
+        """bc over the combined velocity, Fcc a torque, Jc an inertia (on revolute joints)."""
+        return (unit_of("qd", False), unit_of("", False), unit_of("qdd", False))
+
     def defaults(self, s):
         return (0.05, 0.05, 0.0)
 
@@ -945,6 +998,14 @@ class Model(eqx.Module):
     @property
     def names(self) -> tuple[str, ...]:
         return tuple(k for e in self.effects for k in e.names(self.structure))
+
+    def units(self, prismatic: tuple[bool, ...] = ()) -> dict[str, str]:
+        """Each linear parameter's unit (`Effect.units`), by name."""
+        return {
+            k: u
+            for e in self.effects
+            for k, u in zip(e.names(self.structure), e.units(self.structure, prismatic), strict=True)
+        }
 
     def defaults(self) -> dict[str, float]:
         s = self.structure

@@ -95,7 +95,7 @@ def test_fit_report_is_the_json_contract(emps_fit):
     r = json.loads(json.dumps(emps_fit.report()))
     assert {"model", "params", "rel_error", "samples"} <= set(r)
     assert r["model"] == ["rigid", "viscous", "coulomb", "offset"]
-    assert set(r["params"]) == set(PUBLISHED) and set(r["params"]["M1"]) == {"value", "std"}
+    assert set(r["params"]) == set(PUBLISHED) and r["params"]["M1"]["unit"] == "kg"
     assert r["samples"] == emps_fit.data.rows.size and r["rel_error"] == emps_fit.rel_error
     assert r["hold"] == "none" and r["method"] == "ls" and "violations" not in r
     assert emps_fit.predicted().shape == emps_fit.residual.shape == (emps_fit.data.rows.size, 1)

@@ -54,7 +54,7 @@ def test_fit_reports_every_parameter_with_std_and_the_compare_figure(capsys, hid
     assert set(r) >= {"model", "params", "rel_error", "samples"}
     assert r["model"] == ["rigid", "viscous", "coulomb", "cogging"]
     assert set(r["params"]) == {"a1", "a2", "a3", "b1", "b2", "Fc1", "Fc2", "A1", "A2", "B1", "B2"}
-    assert all(set(p) == {"value", "std"} and p["std"] > 0 for p in r["params"].values())
+    assert all(set(p) == {"value", "std", "unit"} and p["std"] > 0 for p in r["params"].values())
     assert r["nonlinear"]["order"] == 39  # the cogging order, searched
     # the thesis's inertia parameters (manus.plants.structures defaults) within 2 %
     for k, truth in {"a1": 0.349, "a2": 0.241, "a3": 0.246}.items():

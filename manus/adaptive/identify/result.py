@@ -122,8 +122,9 @@ class Fit:
 
     def report(self) -> dict:
         """The JSON contract of `manus fit` (docs/cli.md)."""
+        units = self.model.units(self.data.rec.prismatic)
         params = {
-            k: {"value": float(v), "std": None if not np.isfinite(s) else float(s)}
+            k: {"value": float(v), "std": None if not np.isfinite(s) else float(s), "unit": units.get(k, "")}
             for k, v, s in zip(self.names, self.theta, self.std, strict=True)
         }
         nonlinear = {k: v for e in self.model.effects for k, v in e.describe().items()}
