@@ -28,18 +28,15 @@ def _pool() -> ProcessPoolExecutor:
 
 
 def _ready() -> None:
-    """The worker's start: JAX as `manus` runs it (a figure may evaluate a model), pyplot and the
-    figure modules imported before the first figure is asked for."""
+    """The worker's start: matplotlib's figure and Agg canvas and the figure modules imported
+    before the first figure is asked for (importing manus sets JAX as `manus` runs it:
+    `manus.config`; a figure may evaluate a model)."""
     import importlib
 
-    from manus.runs.cli import configure_jax
-
-    configure_jax()
+    for module in ("matplotlib.figure", "matplotlib.backends.backend_agg"):
+        importlib.import_module(module)
     for module in ("common", "diagnose", "fit"):
         importlib.import_module(f"manus.runs.figures.{module}")
-    from manus.runs.figures.common import pyplot
-
-    pyplot()
 
 
 def _started() -> None:
