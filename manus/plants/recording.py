@@ -24,6 +24,7 @@ import math
 import os
 import re
 import warnings
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -34,8 +35,7 @@ from manus.plants.errors import RecordingError, RecordingNote
 from manus.plants.fastmath import EXACT_BELOW
 from manus.plants.files import atomically
 from manus.plants.limits import JUMP
-from manus.plants.reading import fail as _fail
-from manus.plants.reading import mat_variables, npz_arrays, read_csv, regular_file
+from manus.plants.reading import fail, mat_variables, npz_arrays, read_csv, regular_file
 from manus.plants.structures import Structure
 from manus.plants.timebase import TimeBase, examine, grid
 
@@ -202,23 +202,51 @@ def _serial_of(rec: Recording) -> Structure:
 # -- reading ------------------------------------------------------------------------------------
 
 
-def read(path: str | os.PathLike, robot: str | os.PathLike | None = None) -> Recording:
-    """Read a recording: `.csv`, `.npz`, or an EMPS `.mat` file. `robot` (a URDF file) makes it a
-    serial chain's recording (`structure: urdf`), whatever its metadata says; a `structure: urdf`
-    recording's URDF is read and its joint count checked here."""
-    path = Path(path)
-    if not path.exists():
-        raise RecordingError(f"{path}: no such file")
-    if path.is_dir():
-        raise RecordingError(f"{path}: is a directory, not a recording")
-    regular_file(path)
-    suffix = path.suffix.lower()
-    if suffix == ".npz":
-        rec = _read_npz(path)
-    elif suffix == ".mat":
-        rec = _read_mat(path)
+def read(
+    source,
+    robot: str | os.PathLike | None = None,
+    *,
+    columns: str | Mapping[str, str] | None = None,
+    meta: Mapping[str, object] | None = None,
+    topic: str | None = None,
+    joints: list[str] | None = None,
+    command_topic: str | None = None,
+) -> Recording:
+    """Read a recording from a file or a table in memory:
+
+    - a manus `.csv` or `.npz`, an EMPS `.mat` file;
+    - any CSV, Parquet, HDF5 (MATLAB v7.3 too), MATLAB v5 or `.npz` table, or a pandas DataFrame,
+      with `columns`, a column map (`manus.plants.tables.ColumnMap`: `t=stamp:ms,q1=pos[0]`)
+      where its names are not the recording's;
+    - a ROS 2 bag (a rosbag2 folder, sqlite3 or MCAP) of `sensor_msgs/msg/JointState`: `topic`
+      (default the only one), `joints` (names, selected and ordered), `command_topic` (the
+      commanded torque, when the states' effort is not it; `manus.plants.bag`).
+
+    `meta` states metadata (`sample_rate_hz`, `counts_per_rev`, `structure`, ...) over the file's
+    own. The kind of file is read from its first bytes, and a name that says another kind is
+    refused. `robot` (a URDF file) makes it a serial chain's recording (`structure: urdf`),
+    whatever its metadata says; a `structure: urdf` recording's URDF is read and its joint count
+    checked here."""
+    from manus.plants import tables
+
+    cmap = None if columns is None else tables.ColumnMap.parse(columns)
+    stated = {str(k): str(v) for k, v in (meta or {}).items()}
+    locate: Callable[[int], str] = lambda r: f" sample {r}"
+    names = ""
+    if tables.is_frame(source):
+        if topic or joints or command_topic:
+            fail("<DataFrame>", None, "topic, joints and command_topic are a ROS 2 bag's")
+        table, file_meta = tables.frame_table(source)
+        path: str | Path = table.path
+        cols, names = tables.columns(table, cmap), table.names()
     else:
-        rec = _read_csv(path)
+        path = Path(source)
+        cols, file_meta, locate, names = _read_file(path, cmap, topic, joints, command_topic)
+    file_meta.update(stated)
+    cols = _timed(path, cols, file_meta, names)
+    if cmap is not None:
+        file_meta["column_map"] = cmap.said()
+    rec = _assemble(path, cols, file_meta, locate)
     if robot is not None:
         rec.meta["structure"] = "urdf"
         rec.meta["robot"] = str(Path(robot).absolute())
@@ -229,6 +257,105 @@ def read(path: str | os.PathLike, robot: str | os.PathLike | None = None) -> Rec
     elif "transmission" in rec.meta:
         rec.structure  # noqa: B018 (read and checked now: a malformed transmission is the recording's error)
     return _on_its_time_base(rec)
+
+
+# what a file's name says it holds, against what its first bytes say (`tables.sniff`)
+SUFFIX_KINDS = {
+    ".parquet": ("parquet",),
+    ".pq": ("parquet",),
+    ".h5": ("hdf5",),
+    ".hdf5": ("hdf5",),
+    ".hdf": ("hdf5",),
+    ".mat": ("mat5", "hdf5"),
+    ".npz": ("npz",),
+}
+KIND_NAMES = {
+    "parquet": "Parquet",
+    "hdf5": "HDF5",
+    "mat5": "MATLAB v5",
+    "npz": ".npz (zip)",
+    "text": "text",
+    "binary": "bytes of no format manus reads",
+}
+
+
+def _read_file(path: Path, cmap, topic, joints, command_topic):
+    """A file's columns (by its names, or by the map), metadata, row locator and names (for a
+    message)."""
+    from manus.plants import tables
+
+    if not path.exists():
+        raise RecordingError(f"{path}: no such file")
+    from manus.plants.bag import is_bag, read_bag
+
+    if is_bag(path):
+        if cmap is not None:
+            fail(path, None, "a ROS 2 bag's columns come from its JointState messages: no column map applies")
+        cols, meta, notes = read_bag(path, topic=topic, joints=joints, command_topic=command_topic)
+        for n in notes:
+            warnings.warn(f"{path}: {n}", RecordingNote, stacklevel=4)
+        return cols, meta, (lambda r: f" sample {r}"), ""
+    if path.is_dir():
+        raise RecordingError(f"{path}: is a directory, not a recording (nor a ROS 2 bag: no metadata.yaml)")
+    if topic or joints or command_topic:
+        fail(path, None, "--topic, --joints and --command-topic are a ROS 2 bag's options")
+    regular_file(path)
+    kind = tables.sniff(path)
+    expected = SUFFIX_KINDS.get(path.suffix.lower())
+    if expected is not None and kind not in expected:
+        fail(
+            path,
+            None,
+            f"not a readable {' or '.join(KIND_NAMES[k] for k in expected)} file: it holds {KIND_NAMES[kind]}"
+            + (" (a CSV table? name it .csv)" if kind == "text" else ""),
+        )
+    sample = lambda r: f" sample {r}"
+    if kind in ("text", "binary"):  # (the CSV reader names what is wrong with a binary file)
+        cols, meta, locate, notes = read_csv(path)
+        for n in notes:
+            warnings.warn(n, RecordingNote, stacklevel=4)
+        table = tables.Table(path, {k: v.shape for k, v in cols.items()}, lambda names: {n: cols[n] for n in names})
+        return (cols if cmap is None else tables.columns(table, cmap)), meta, locate, table.names()
+    if kind == "npz":
+        table, meta = tables.npz_table(path, npz_arrays(path))
+    elif kind == "mat5":
+        table = tables.mat5_table(path)
+        if cmap is None and {"qm", "vir", "gtau"} <= set(table.shapes):
+            rec_cols, meta = _emps(path)
+            return rec_cols, meta, sample, table.names()
+        meta = {}
+    elif kind == "hdf5":
+        table, meta = tables.hdf5_table(path)
+    else:
+        table, meta = tables.parquet_table(path)
+    return tables.columns(table, cmap), meta, sample, table.names()
+
+
+def _timed(path, cols: dict, meta: dict, names: str) -> dict:
+    """The columns with `t`: the table's, else made from a stated `sample_rate_hz` (with a note);
+    a table without the columns a recording needs is refused naming the ones it has."""
+    hint = f" (the file's columns: {names}; map them with --map t=COLUMN,q1=COLUMN,tau1=COLUMN)" if names else ""
+    if not any(re.fullmatch(r"q\d+", k) for k in cols):
+        fail(path, None, f"missing column 'q1' (measured positions q1..qn){hint}")
+    if "t" in cols:
+        return _same_length(path, cols)
+    if "sample_rate_hz" not in meta:
+        fail(path, None, f"missing column 't'{hint}, or state the rate: --set sample_rate_hz=HZ")
+    _positive(path, meta, "sample_rate_hz")
+    n = len(next(v for k, v in cols.items() if re.fullmatch(r"q\d+", k)))
+    warnings.warn(
+        f"{path}: no time column: t made from sample_rate_hz ({meta['sample_rate_hz']} Hz)", RecordingNote, stacklevel=4
+    )
+    return _same_length(path, {"t": np.arange(n) / float(meta["sample_rate_hz"]), **cols})
+
+
+def _same_length(path, cols: dict) -> dict:
+    """The columns, every one as long as `t` (a ragged table refused, naming a column that is not)."""
+    n = len(cols["t"])
+    odd = next((k for k, v in cols.items() if len(v) != n), None)
+    if odd is not None:
+        fail(path, None, f"column {odd!r} has {len(cols[odd])} samples where 't' has {n} (ragged)")
+    return cols
 
 
 def _on_its_time_base(rec: Recording) -> Recording:
@@ -255,13 +382,6 @@ def repair(rec: Recording) -> Recording:
     return replace(out, time_base=tb)
 
 
-def _read_csv(path: Path) -> Recording:
-    cols, meta, locate, notes = read_csv(path)
-    for n in notes:
-        warnings.warn(n, RecordingNote, stacklevel=3)
-    return _assemble(path, cols, meta, locate)
-
-
 def _numbered(cols: dict, prefix: str) -> list[int]:
     return sorted(int(m.group(1)) for k in cols if (m := re.fullmatch(prefix + r"(\d+)", k)))
 
@@ -270,22 +390,22 @@ def _assemble(path, cols: dict, meta: dict, locate) -> Recording:
     """Check the columns against the contract and build the Recording. `locate(r)` says where
     data row r is (":123" for a CSV line, " sample 123" for arrays)."""
     if "t" not in cols:
-        _fail(path, None, "missing column 't'")
+        fail(path, None, "missing column 't'")
     joints = _numbered(cols, "q")
     if not joints:
-        _fail(path, None, "missing column 'q1' (measured positions q1..qn)")
+        fail(path, None, "missing column 'q1' (measured positions q1..qn)")
     n = max(joints)
     for prefix in ("q", "tau"):
         for i in range(1, n + 1):
             if f"{prefix}{i}" not in cols:
-                _fail(path, None, f"missing column '{prefix}{i}' (the file has q1..q{n})")
+                fail(path, None, f"missing column '{prefix}{i}' (the file has q1..q{n})")
     extra_tau = [i for i in _numbered(cols, "tau") if i > n]
     if extra_tau:
-        _fail(path, None, f"column 'tau{extra_tau[0]}' has no matching 'q{extra_tau[0]}'")
+        fail(path, None, f"column 'tau{extra_tau[0]}' has no matching 'q{extra_tau[0]}'")
     qd_cols = _numbered(cols, "qd")
     if qd_cols and qd_cols != list(range(1, n + 1)):
         missing = sorted(set(range(1, n + 1)) - set(qd_cols))
-        _fail(
+        fail(
             path,
             None,
             f"true velocities incomplete: missing column 'qd{missing[0]}'"
@@ -308,7 +428,7 @@ def _assemble(path, cols: dict, meta: dict, locate) -> Recording:
     cols = _drop_missing(path, cols, core[1:], locate)
     t = cols["t"]
     if t.size < 2:
-        _fail(path, None, f"only {t.size} sample: a recording needs at least 2")
+        fail(path, None, f"only {t.size} sample: a recording needs at least 2")
     back = np.flatnonzero(np.diff(t) <= 0)
     if back.size:
         r = back[0] + 1
@@ -424,9 +544,9 @@ def _positive(path, meta, key):
         try:
             v = float(meta[key])
         except ValueError:
-            _fail(path, None, f"metadata {key}: {meta[key]!r} is not a number")
+            fail(path, None, f"metadata {key}: {meta[key]!r} is not a number")
         if not (v > 0 and math.isfinite(v)):
-            _fail(path, None, f"metadata {key}: {meta[key]!r} must be positive")
+            fail(path, None, f"metadata {key}: {meta[key]!r} must be positive")
 
 
 def _check_meta(path, meta, n, t):
@@ -435,20 +555,20 @@ def _check_meta(path, meta, n, t):
     structure = meta.get("structure")
     if structure is not None:
         if structure not in STRUCTURES:
-            _fail(path, None, f"metadata structure: {structure!r} is not one of {', '.join(STRUCTURES)}")
+            fail(path, None, f"metadata structure: {structure!r} is not one of {', '.join(STRUCTURES)}")
         if structure == "manus2" and n != 2:
-            _fail(path, None, f"metadata structure: manus2 has 2 joints, the file has {n}")
+            fail(path, None, f"metadata structure: manus2 has 2 joints, the file has {n}")
     if "joints" in meta:
         kinds = [k.strip().lower() for k in meta["joints"].split(",")]
         if any(k not in ("revolute", "prismatic") for k in kinds) or len(kinds) not in (1, n):
-            _fail(
+            fail(
                 path,
                 None,
                 f"metadata joints: {meta['joints']!r} must be 'revolute' or 'prismatic', one for every "
                 f"joint or one per joint ({n})",
             )
     if "command_hold" in meta and meta["command_hold"].strip().lower() not in ("zoh", "none"):
-        _fail(
+        fail(
             path,
             None,
             f"metadata command_hold: {meta['command_hold']!r} must be 'zoh' (held over the period) "
@@ -466,10 +586,10 @@ def _check_meta(path, meta, n, t):
                 ),
                 "",
             )
-            _fail(path, None, f"t advances by {step:.6g} per sample but sample_rate_hz is {rate:g}{hint}")
+            fail(path, None, f"t advances by {step:.6g} per sample but sample_rate_hz is {rate:g}{hint}")
     elif t.size >= 2 and float(np.median(np.diff(t))) >= 1.0 / MIN_RATE_HZ:
         step = float(np.median(np.diff(t)))
-        _fail(
+        fail(
             path,
             None,
             f"t advances by {step:.6g} per sample: {1 / step:.3g} samples per second, too slow for a robot's "
@@ -546,7 +666,7 @@ def _check_grid(path, meta, q):
     slips = UNIT_SLIPS + (((1 / step), "raw encoder counts, not positions"),)
     for factor, what in slips:
         if abs(grid / (step * factor) - 1) < 0.01:
-            _fail(
+            fail(
                 path,
                 None,
                 f"the positions move in steps of {grid:.6g}, {grid / step:.6g} times the encoder's "
@@ -555,35 +675,12 @@ def _check_grid(path, meta, q):
             )
 
 
-def _read_npz(path: Path) -> Recording:
-    arrays = npz_arrays(path)
-    if not arrays:
-        _fail(path, None, "empty file: the .npz holds no arrays")
-    cols, meta = {}, {}
-    for k, v in arrays.items():
-        if v.ndim == 0:
-            meta[k] = v.item().decode() if isinstance(v.item(), bytes) else str(v.item())
-        elif v.ndim == 1:
-            try:
-                cols[k] = v.astype(float)
-            except (TypeError, ValueError):
-                _fail(path, None, f"array {k!r} is not numeric ({v.dtype})")
-        else:
-            _fail(path, None, f"array {k!r} has shape {v.shape}: expected one column per name (1-D)")
-    lengths = {k: len(v) for k, v in cols.items()}
-    if len(set(lengths.values())) > 1:
-        ref = lengths.get("t", next(iter(lengths.values())))
-        odd = next(k for k, n in lengths.items() if n != ref)
-        _fail(path, None, f"array {odd!r} has {lengths[odd]} samples where 't' has {ref} (ragged)")
-    return _assemble(path, cols, meta, lambda r: f" sample {r}")
-
-
-def _read_mat(path: Path) -> Recording:
-    """An EMPS benchmark file: position qm, force gtau·vir, structure axis."""
+def _emps(path: Path) -> tuple[dict[str, np.ndarray], dict[str, str]]:
+    """An EMPS benchmark file's columns and metadata: position qm, force gtau·vir, structure axis."""
     m = mat_variables(path, ("t", "qm", "qg", "vir", "gtau", "pulses_N", "kp", "kv"))
     for key in ("t", "qm", "vir", "gtau"):
         if key not in m:
-            _fail(path, None, f"missing variable {key!r} (an EMPS file has t, qm, qg, vir, gtau)")
+            fail(path, None, f"missing variable {key!r} (an EMPS file has t, qm, qg, vir, gtau)")
     col = lambda k: np.asarray(m[k], float).ravel()
     cols = {"t": col("t"), "q1": col("qm"), "tau1": float(col("gtau")[0]) * col("vir")}
     for k in ("qg", "vir", "pulses_N"):
@@ -599,10 +696,7 @@ def _read_mat(path: Path) -> Recording:
     for k in ("gtau", "kp", "kv"):
         if k in m:
             meta[k] = repr(float(col(k)[0]))
-    lengths = {k: len(v) for k, v in cols.items()}
-    if len(set(lengths.values())) > 1:
-        _fail(path, None, f"variables of different lengths: {lengths}")
-    return _assemble(path, cols, meta, lambda r: f" sample {r}")
+    return cols, meta
 
 
 # -- writing ------------------------------------------------------------------------------------
