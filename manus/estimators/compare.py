@@ -8,6 +8,16 @@ recording, compiled once. The criterion is the RMS error against the true veloci
 recording has one; without it, the whiteness of the estimator's one-step prediction residual
 (`scoring.whiteness`), which needs no reference at all, rather than the offline estimate, which
 would reward whichever estimator imitates the offline filter's own smoothing.
+
+The model-based estimators (`registry.MODEL_BASED`) run on the model `compare` is handed
+(`EstimatorModel`: the model, every one of its parameters, and where they came from, which the
+report states under "model"). `manus estimators` hands it a model fitted to the recording, or
+one a fit's JSON gives (`manus.runs.cmd_estimators`: identification, `manus.adaptive`, is a
+layer above this one). Where the model says why there is none (`EstimatorModel.refused`: the fit
+was refused; or its parameters break physics), the model-based estimators are left out of the
+ranking, each with that reason (the report's "left_out"), and the others still ranked. Called
+without a model, `compare` runs them on the nominal model's own parameters, and the report says
+that model was not fitted.
 """
 
 from __future__ import annotations
@@ -24,7 +34,8 @@ import numpy as np
 from manus.estimators import offline, scoring
 from manus.estimators.base import run
 from manus.estimators.linear import THESIS_STEP
-from manus.estimators.registry import MODEL_BASED, NAMES, knob_range, make
+from manus.estimators.registry import MODEL_BASED, NAMES, NOMINAL_MODEL, knob_range, make
+from manus.plants.effects import Model
 from manus.plants.errors import ManusError
 from manus.plants.gaps import gaps, on_grid, spoiled
 from manus.plants.recording import Recording, smallest_step
@@ -46,6 +57,68 @@ def encoder_step(rec: Recording) -> tuple[float, str]:
     if not noise > 0:
         return THESIS_STEP, "default"
     return float(math.sqrt(12) * noise), "noise"
+
+
+NOT_FITTED = "the nominal model's own parameters (not fitted to this recording)"
+
+
+@dataclass
+class EstimatorModel:
+    """The model the model-based estimators run on: `model` with every parameter in `params`,
+    and where they came from (`origin`: "fitted on this recording", a fit's JSON file, "--param",
+    or `NOT_FITTED`), with the fit's torque `rel_error` and `method` where there was one, and the
+    names `--param` set by hand (`by_hand`), and the fitted value of each parameter set at its
+    physical bound (`at_bound`: below it by less than two standard deviations). Or, `refused`,
+    why there is none: the model-based estimators are then left out of the ranking with that
+    reason."""
+
+    origin: str
+    spec: str
+    model: Model | None = None
+    params: dict[str, float] = field(default_factory=dict)
+    rel_error: float | None = None
+    method: str | None = None
+    by_hand: tuple[str, ...] = ()
+    at_bound: dict[str, float] = field(default_factory=dict)
+    refused: str | None = None
+
+    @classmethod
+    def nominal(cls, rec: Recording) -> EstimatorModel:
+        """rigid,viscous,coulomb of the recording's structure at its defaults: fitted to nothing."""
+        model = Model(rec.structure, NOMINAL_MODEL)
+        return cls(NOT_FITTED, model.spec, model, model.defaults())
+
+    def why_not(self) -> str | None:
+        """Why the model-based estimators cannot run on this model (None: they can)."""
+        if self.refused or self.model is None:
+            return self.refused or "no model"
+        absent = [k for k in self.model.names if k not in self.params]
+        if absent:
+            return f"the model {self.spec} lacks the parameter(s) {', '.join(absent)}"
+        bad = self.model.violations(self.params)
+        if bad:  # a model that breaks physics predicts nothing an estimator can follow
+            return f"the model's parameters ({self.origin}) break physics: {'; '.join(bad)}"
+        return None
+
+    def knobs(self) -> dict:
+        """What `registry.make` takes for the model-based estimators."""
+        return {"model": self.model, "params": self.params}
+
+    def report(self) -> dict:
+        """The report's "model": where it came from, its spec, parameters and fit (or why there is none)."""
+        out: dict = {"from": self.origin, "spec": self.spec}
+        why = self.why_not()
+        if why:
+            return {**out, "error": why}
+        out["params"] = {k: float(v) for k, v in self.params.items()}
+        out["rel_error"] = self.rel_error
+        if self.method:
+            out["method"] = self.method
+        if self.by_hand:
+            out["set_by_hand"] = list(self.by_hand)
+        if self.at_bound:
+            out["at_bound"] = {k: float(v) for k, v in self.at_bound.items()}
+        return out
 
 
 @dataclass
@@ -145,13 +218,15 @@ def compare(
     names=NAMES,
     tune_knobs: bool = False,
     cutoff_hz: float = 30.0,
-    model_knobs: dict | None = None,
+    model: EstimatorModel | None = None,
     progress=None,
 ) -> tuple[dict, dict]:
-    """Run and score every estimator in `names` on the recording.
+    """Run and score every estimator in `names` on the recording, the model-based ones on `model`
+    (default: `EstimatorModel.nominal`, which the report says was not fitted; where `model` says
+    why there is none, they are left out of the ranking with that reason, under "left_out").
 
     Returns (report, estimates): the report is JSON-ready (docs/cli.md), `estimates[name]` the
-    velocity estimate (T, n), with `estimates["reference"]` the reference.
+    velocity estimate (T, n) of each estimator ranked, with `estimates["reference"]` the reference.
     """
     unknown = [n for n in names if n not in NAMES]
     if unknown:
@@ -165,7 +240,14 @@ def compare(
     reference, truth, start, stop = reference_velocity(rec, cutoff_hz)
     guard = offline.edge(rec.dt, cutoff_hz)
     scored = ~spoiled(filled, np.gradient(reference, rec.dt, axis=0), rec.dt, step, guard)  # recorded samples only
-    setup = Setup(rec.dt, step, rec.n_joints, dict(model_knobs or {}))
+    model_based = [n for n in names if n in MODEL_BASED]
+    if model_based and model is None:
+        model = EstimatorModel.nominal(rec)
+    why = model.why_not() if model_based and model is not None else None
+    if why:  # no model for them: left out of the ranking, the others ranked
+        names = [n for n in names if n not in MODEL_BASED]
+    knobs = model.knobs() if model_based and model is not None and not why else {}
+    setup = Setup(rec.dt, step, rec.n_joints, knobs)
     if stop - start < 50:
         raise ManusError(f"{rec.path}: too short to score after dropping the start-up and filter edges")
     sl = slice(start, stop)
@@ -211,6 +293,8 @@ def compare(
         "still_threshold": scoring.still_threshold(reference[sl]).tolist(),
         "tuned": tune_knobs,
         "estimators": rows,
+        **({"model": model.report()} if model_based and model is not None else {}),
+        **({"left_out": [{"name": n, "reason": why} for n in model_based]} if why else {}),
         **(
             {
                 "gaps": f"{described}: filled for the estimators (positions by a cubic spline); "

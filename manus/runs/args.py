@@ -15,8 +15,8 @@ THESIS_TRUTH = "rigid,viscous,coulomb,delay"  # the thesis's plant: §3.5 fricti
 
 # -- output --------------------------------------------------------------------------------------
 def add_common(parser, out: bool = True) -> None:
-    """--json, and --out DIR where figures go."""
-    parser.add_argument("--json", action="store_true", help="print one JSON object on stdout and nothing else")
+    """--json and --progress (`add_json`), and --out DIR where figures go."""
+    add_json(parser)
     if out:
         parser.add_argument(
             "--out",
@@ -25,6 +25,16 @@ def add_common(parser, out: bool = True) -> None:
             metavar="DIR",
             help=f"where figures go (default {DEFAULT_OUT}/)",
         )
+
+
+def add_json(parser, help: str = "print one JSON object on stdout and nothing else") -> None:
+    """--json, and --progress: notes and progress bars on stderr with it too."""
+    parser.add_argument("--json", action="store_true", help=help)
+    parser.add_argument(
+        "--progress",
+        action="store_true",
+        help="notes and progress bars on stderr even with --json (without --json they are always shown)",
+    )
 
 
 def _writable(path: Path) -> None:
@@ -77,11 +87,66 @@ def add_robot_option(parser) -> None:
     )
 
 
-def add_model_options(p, required: bool = True) -> None:
-    """REC, --robot, --model, --cutoff, --method, --transmission and --hold: shared by fit, diagnose and
-    discover."""
-    p.add_argument("recording", metavar="REC", help="a recording (.csv, .npz, or an EMPS .mat file)")
+def add_source_options(p) -> None:
+    """REC, --robot and how to read a user's own table or bag: --map, --set, --topic, --joints,
+    --command-topic (docs/recording.md)."""
+    p.add_argument(
+        "recording",
+        metavar="REC",
+        help="a recording: a manus .csv or .npz, any CSV, Parquet, HDF5, MATLAB or .npz table (with --map), "
+        "or a ROS 2 bag folder of sensor_msgs/JointState",
+    )
     add_robot_option(p)
+    g = p.add_argument_group("your own recordings")
+    g.add_argument(
+        "--map",
+        metavar="MAP",
+        help="which of the table's columns is each of the recording's, with units where not SI: "
+        "'t=stamp:ms,q1=shoulder_pos:deg,tau1=shoulder_eff', SOURCE[k] for column k of a 2-D array, "
+        "an HDF5 dataset by its path; or a file of NAME=SOURCE lines",
+    )
+    g.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="state a metadata key over the file's own, e.g. --set sample_rate_hz=500 --set counts_per_rev=4096 "
+        "--set structure=manus2 (repeatable)",
+    )
+    g.add_argument("--topic", help="a ROS 2 bag's JointState topic (default: the only one)")
+    g.add_argument(
+        "--joints", type=_names, metavar="NAMES", help="a ROS 2 bag's joints by name, in order: 'shoulder,elbow'"
+    )
+    g.add_argument(
+        "--command-topic",
+        metavar="TOPIC",
+        help="a ROS 2 bag's topic of the commanded torque (JointState effort or Float64MultiArray), when the "
+        "states' effort is not it",
+    )
+
+
+def _names(text: str) -> list[str]:
+    names = [n.strip() for n in text.split(",")]
+    if not all(names) or len(set(names)) != len(names):
+        raise argparse.ArgumentTypeError(f"{text!r}: expected distinct names separated by commas")
+    return names
+
+
+def stated_meta(items: list[str]) -> dict[str, str]:
+    """--set KEY=VALUE items as metadata."""
+    out = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip() or not value.strip():
+            raise ManusError(f"--set {item!r}: expected KEY=VALUE, e.g. --set sample_rate_hz=500")
+        out[key.strip()] = value.strip()
+    return out
+
+
+def add_model_options(p, required: bool = True) -> None:
+    """REC and its source options, --model, --cutoff, --method, --transmission and --hold: shared by
+    fit, diagnose and discover."""
+    add_source_options(p)
     p.add_argument(
         "--model",
         required=required,
@@ -119,10 +184,32 @@ def add_model_options(p, required: bool = True) -> None:
 
 
 def read_recording(args):
-    """The recording `args.recording`, a serial chain's when `--robot` names its URDF."""
+    """The recording `args.recording` as `add_source_options` say to read it, a serial chain's when
+    `--robot` names its URDF."""
     from manus.plants import recording
 
-    return recording.read(args.recording, robot=args.robot)
+    return recording.read(
+        args.recording,
+        robot=args.robot,
+        columns=args.map,
+        meta=stated_meta(args.set),
+        topic=args.topic,
+        joints=args.joints,
+        command_topic=args.command_topic,
+    )
+
+
+def describe(rec) -> str:
+    """One line on what was read: samples, joints, the rate (stated or from the stamps), the
+    structure, the units, where a column map or a bag gave them."""
+    rate = "stated" if "sample_rate_hz" in rec.meta else "from its time stamps"
+    units = "SI units" + (f"; columns {rec.meta['column_map']}" if "column_map" in rec.meta else "")
+    source = f"; {rec.meta['source']}" if "source" in rec.meta and "joint_names" in rec.meta else ""
+    joints = f" ({rec.meta['joint_names']})" if "joint_names" in rec.meta else ""
+    return (
+        f"{rec.path}: {len(rec)} samples of {rec.n_joints} joint(s){joints} at {rec.sample_rate_hz:g} Hz ({rate}), "
+        f"structure {rec.structure_name}, {units}{source}"
+    )
 
 
 def load_recording(args, proposing: bool = False):
@@ -146,9 +233,7 @@ def load_recording(args, proposing: bool = False):
 
         stated(rec.structure, args.transmission, "--transmission")  # a malformed statement: a one-line error
         rec.meta["transmission"] = args.transmission
-    note(
-        f"{rec.path}: {len(rec)} samples of {rec.n_joints} joint(s) at {rec.sample_rate_hz:g} Hz ({rec.structure_name})"
-    )
+    note(describe(rec))
     return rec
 
 

@@ -7,6 +7,8 @@ from __future__ import annotations
 import importlib
 import pkgutil
 
+from manus.runs.args import add_json
+
 NAME = "bench"
 HELP = "benchmarks (sim, estimators, diagnose, converge, stability, hardware, robot, timebase), each beside a baseline"
 
@@ -21,7 +23,7 @@ def add_arguments(p) -> None:
     sub = p.add_subparsers(dest="bench", metavar="NAME", required=True)
     for name, module in sorted(benchmarks().items()):
         sp = sub.add_parser(name, help=module.HELP, description=module.HELP)
-        sp.add_argument("--json", action="store_true", help="print one JSON object on stdout and nothing else")
+        add_json(sp)
         module.add_arguments(sp)
 
 

@@ -16,7 +16,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from manus.runs.args import output_dir
+from manus.runs.args import add_json, output_dir
 from manus.runs.text import discovery_text, note
 
 NAME = "demo"
@@ -53,7 +53,7 @@ def add_arguments(p) -> None:
     )
     p.add_argument("--no-emps", action="store_true", help="part (a) only")
     p.add_argument("--max-steps", type=int, default=6, help="stop each loop after this many additions")
-    p.add_argument("--json", action="store_true", help="print one JSON object on stdout and nothing else")
+    add_json(p)
 
 
 def simulate_hidden(out: Path, seconds: float) -> str:

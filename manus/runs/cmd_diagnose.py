@@ -7,7 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from manus.runs.args import add_common, add_model_options, load_recording
-from manus.runs.text import diagnosis_text, note
+from manus.runs.text import diagnosis_text
 
 NAME = "diagnose"
 HELP = "where the model fails and which physical effect is missing: candidates best first, a verdict, figures"
@@ -20,29 +20,27 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> dict:
-    from manus.adaptive import Columns, diagnose, fit, prepare
     from manus.plants.effects import ORDER, Model
+    from manus.runs.analyses import diagnose_recording
     from manus.runs.figures.diagnose import diagnosis_figures, evidence_panels, resid_figure, resid_panels
     from manus.runs.figures.worker import Painter
 
     rec = load_recording(args, proposing=True)
     model = Model(rec.structure, args.model)  # (its spec checked before any work)
-    note(f"diagnosing {args.model}: fitting it with each missing effect in turn ...")
     stem = f"diagnose_{Path(rec.path).stem}"
     missing = sum(not model.has(name) for name in ORDER)
     n = rec.n_joints
     painter = None if args.no_figures else Painter(resid_panels(n) + missing * evidence_panels(n))
-    data = prepare(rec, args.cutoff)
-    cols = Columns(data)
-    base = fit(data, args.model, columns=cols, method=args.method)
-    # (the residual's figure drawn beside the candidates' judging)
-    resid = None if painter is None else painter.draw(resid_figure, base, args.out, f"{stem}_resid.png")
-    d = diagnose(data, args.model, columns=cols, method=args.method, fitted=base)
-    out = d.report()
-    if rec.time_base:  # repeated rows, jittered stamps or a resampled rate found and repaired as it was read
-        out["time_base"] = rec.time_base.report()
+    resid = []
+
+    def fitted(base) -> None:  # the residual's figure drawn beside the candidates' judging
+        if painter is not None:
+            resid.append(painter.draw(resid_figure, base, args.out, f"{stem}_resid.png"))
+
+    a = diagnose_recording(rec, args.model, cutoff_hz=args.cutoff, method=args.method, fitted=fitted)
+    out = a.report
     if painter is not None:
-        out["figures"] = diagnosis_figures(d, args.out, stem, painter, resid)
+        out["figures"] = diagnosis_figures(a.diagnosis, args.out, stem, painter, resid[0])
     return out
 
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from manus.runs.args import add_common, add_model_options, load_recording
-from manus.runs.text import discovery_text, note
+from manus.runs.text import discovery_text
 
 NAME = "discover"
 HELP = "the loop: diagnose, add the missing effect, refit, until nothing significant is missing; writes a report"
@@ -23,31 +23,25 @@ def add_arguments(p) -> None:
 def run(args) -> dict:
     from manus.plants.errors import ManusError
     from manus.runs import report
+    from manus.runs.analyses import discover_recording
 
     if args.max_steps < 1:
         raise ManusError(f"--max-steps {args.max_steps}: at least 1")
     rec = load_recording(args, proposing=True)
-    stem = Path(rec.path).stem
-    note(f"discovering from {args.model} ...")
-    sec = report.discover_section(
+    a = discover_recording(
         rec,
         args.model,
-        args.out,
-        f"discover_{stem}_",
-        f"{Path(rec.path).name} from `{args.model}`",
         cutoff_hz=args.cutoff,
-        max_steps=args.max_steps,
-        figures=not args.no_figures,
         method=args.method,
+        max_steps=args.max_steps,
+        figures=None if args.no_figures else args.out,
     )
-    r = report.section_result(sec)
-    if rec.time_base:  # repeated rows, jittered stamps or a resampled rate found and repaired as it was read
-        r["time_base"] = rec.time_base.report()
     if not args.no_figures:
-        r["report"] = report.write(
-            [sec], Path(args.out) / f"discover_{stem}.md", f"manus discover: {Path(rec.path).name}"
+        stem = Path(rec.path).stem
+        a.report["report"] = report.write(
+            [a.section], Path(args.out) / f"discover_{stem}.md", f"manus discover: {Path(rec.path).name}"
         )
-    return r
+    return a.report
 
 
 def render(r: dict) -> str:

@@ -6,7 +6,7 @@ import math
 import signal
 from pathlib import Path
 
-from manus.runs.args import add_plant_options, build_plant
+from manus.runs.args import add_json, add_plant_options, build_plant
 from manus.runs.text import note
 
 NAME = "emulate"
@@ -62,7 +62,7 @@ def add_arguments(p) -> None:
         metavar="SECONDS",
         help="when --fault starts, in seconds after each session starts (HELLO) (default 1)",
     )
-    p.add_argument("--json", action="store_true", help="print one JSON object on stdout at exit")
+    add_json(p, "print one JSON object on stdout at exit")
     p.add_argument(
         "--torque-limit",
         type=float,

@@ -6,7 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
-from manus.runs.args import output_file
+from manus.runs.args import add_json, output_file
 from manus.runs.text import note
 
 NAME = "run-hardware"
@@ -70,7 +70,7 @@ def add_arguments(p) -> None:
         help="no sample for this long: stop (default 20: this 2-vCPU VM stalls a process for up to ~20 ms a few "
         "times a minute, measured)",
     )
-    p.add_argument("--json", action="store_true", help="print one JSON object on stdout and nothing else")
+    add_json(p)
 
 
 def run(args) -> dict:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from manus.runs.args import add_plant_options, build_plant, output_file
+from manus.runs.args import add_json, add_plant_options, build_plant, output_file
 from manus.runs.text import note
 
 NAME = "simulate"
@@ -39,7 +39,7 @@ def add_arguments(p) -> None:
         metavar="FILE",
         help="the recording to write (.csv or .npz); a figure goes beside it (.png)",
     )
-    p.add_argument("--json", action="store_true", help="print one JSON object on stdout and nothing else")
+    add_json(p)
     add_plant_options(p, robot=True)
 
 

@@ -105,9 +105,17 @@ def discover_section(
 ) -> Section:
     """Run the loop on `rec` and make its report section (figures drawn into `out`)."""
     from manus.adaptive import discover
+    from manus.runs.text import Bar
 
+    bar = Bar("  candidates judged", "candidate")
     disc = discover(
-        rec, model, cutoff_hz=cutoff_hz, max_steps=max_steps, method=method, progress=lambda line: note("  " + line)
+        rec,
+        model,
+        cutoff_hz=cutoff_hz,
+        max_steps=max_steps,
+        method=method,
+        progress=lambda line: note("  " + line),
+        told=bar,
     )
     section = Section(title, str(rec.path), disc, intro=intro)
     if figures:

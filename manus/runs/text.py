@@ -4,13 +4,60 @@ and a diagnosis and a discovery as text."""
 
 from __future__ import annotations
 
+import contextlib
+import json
+import math
 import sys
+import warnings
 from pathlib import Path
+
+_QUIET = {"on": False}
+
+
+def set_quiet(on: bool) -> None:
+    """Silence the notes and the progress bars (`--json` without `--progress`)."""
+    _QUIET["on"] = on
+
+
+def quiet() -> bool:
+    """Whether notes and progress are silenced."""
+    return _QUIET["on"]
 
 
 def note(*parts) -> None:
-    """A progress note or remark for the person at the terminal: stderr, never stdout."""
-    print(*parts, file=sys.stderr, flush=True)
+    """A progress note or remark for the person at the terminal: stderr, never stdout; nothing
+    when silenced (`set_quiet`)."""
+    if not _QUIET["on"]:
+        print(*parts, file=sys.stderr, flush=True)
+
+
+class Bar:
+    """A `(done, total)` callback that draws a progress bar with its estimate of the time left
+    (tqdm) on stderr, under a stage's name; a new bar where the count starts again. Silent when
+    notes are."""
+
+    def __init__(self, desc: str, unit: str = "step"):
+        self.desc, self.unit = desc, unit
+        self.bar = None
+
+    def __call__(self, done: int, total: int) -> None:
+        if _QUIET["on"] or total < 1:
+            return
+        from tqdm import tqdm
+
+        if self.bar is None or done == 0 or self.bar.total != total:
+            self.close()
+            self.bar = tqdm(
+                total=total, desc=self.desc, unit=self.unit, file=sys.stderr, leave=False, mininterval=0.5, delay=1.0
+            )
+        self.bar.update(done - self.bar.n)
+        if done >= total:
+            self.close()
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+            self.bar = None
 
 
 def table(rows: list[list], header: list[str]) -> str:
@@ -199,3 +246,201 @@ def discovery_text(r: dict) -> str:
     if "report" in r:
         lines.append(f"report: {r['report']}")
     return "\n".join(lines)
+
+
+def fit_text(r: dict) -> str:
+    """A fit's JSON (`manus fit`) as text: the parameters, the fit, the free run, the notes."""
+    rows = []
+    urdf = r.get("urdf_values")  # a serial chain: each rigid base parameter as its URDF has it
+    for k, p in r["params"].items():
+        std = p["std"]
+        rel = f"{100 * std / abs(p['value']):.2f}" if std is not None and p["value"] else "-"
+        rows.append(
+            [k, f"{p['value']:.6g}", "-" if std is None else f"{std:.3g}", rel, p.get("unit", "")]
+            + ([f"{urdf[k]:.6g}" if k in urdf else ""] if urdf else [])
+        )
+    lines = [
+        f"model {r['spec']}: rel_error {100 * r['rel_error']:.2f} % on {r['samples']} rows "
+        f"(torque low-passed at {r['cutoff_hz']:.1f} Hz, {100 * r['standstill_excluded']:.1f} % left out at "
+        "standstill)",
+        f"  method {r['method']}: {r['method_why']}",
+        *([output_error_line(r["output_error"])] if "output_error" in r else []),
+        f"  cut-off: {r['cutoff_note']}; command hold: {r['hold']}",
+        *([f"  gaps: {r['gaps']}"] if r.get("gaps") else []),
+        table(left(rows, (4,)), ["parameter", "value", "std", "std %", "unit"] + (["in the URDF"] if urdf else [])),
+    ]
+    regrouped = {k: v for k, v in r.get("base_parameters", {}).items() if k != v}
+    if regrouped:  # a serial chain: the base parameters that are combinations of standard ones
+        lines.append("  base parameters (identifiable combinations of the standard ones; the others are themselves):")
+        lines += [f"    {k} = {v}" for k, v in regrouped.items()]
+    c = r.get("consistent")
+    if c is not None and "error" in c:
+        lines.append(f"  physically consistent: none found ({c['error']})")
+    elif c is not None:
+        far = {k: v for k, v in c["moved_std"].items() if abs(v) >= 1}
+        lines.append(
+            "  physically consistent (each link's pseudo-inertia positive semidefinite, armatures and friction "
+            "within their bounds): "
+            + (
+                "the estimate is consistent already"
+                if c["already"]
+                else f"the estimate breaks physics (rel_error {100 * c['ls_rel_error']:.2f} %): the parameters "
+                f"above are the closest consistent set, rel_error {100 * c['rel_error']:.2f} %"
+                + (
+                    ", moving " + ", ".join(f"{k} by {v:+.1f} std" for k, v in far.items())
+                    if far
+                    else ", every parameter within one standard deviation"
+                )
+            )
+        )
+        lines.append(
+            "    link masses " + ", ".join(f"{x['mass']:.4g}" for x in c["links"]) + " kg (held near the URDF's)"
+        )
+    for k, v in r.get("nonlinear", {}).items():
+        shown = ", ".join(f"{x:.6g}" for x in v) if isinstance(v, (list, tuple)) else f"{v:.6g}"
+        lines.append(f"  {k} = {shown} (searched or fixed)")
+    for v in r.get("violations", []):
+        lines.append(f"  {'the estimate ' if (c or {}).get('moved') else ''}breaks physics: {v}")
+    if r.get("redundant"):
+        lines.append(f"  redundant (explained by the others, set to 0): {', '.join(r['redundant'])}")
+    fits = r["fit_percent"]
+    lines.append("  torque fit (NRMSE) per joint: " + ", ".join(f"{x:.1f} %" for x in fits["torque"]))
+    if "free_run" in r:
+        fr = r["free_run"]
+        lines.append(f"  free run: {fr['how']}")
+        if "position" in fits:
+            lines.append("    position fit per joint: " + ", ".join(f"{x:.2f} %" for x in fits["position"]))
+        if "tracking_error_fit_percent" in fr:
+            lines.append(
+                "    tracking-error fit per joint: " + ", ".join(f"{x:.1f} %" for x in fr["tracking_error_fit_percent"])
+            )
+    for k, v in r.get("figures", {}).items():
+        lines.append(f"  figure ({k}): {v}")
+    return "\n".join(lines)
+
+
+def output_error_line(oe: dict) -> str:
+    """The output-error fit's positions, beside those of the estimate LS and IV gave."""
+    rms = ", ".join(f"{x:.3g}" for x in oe["position_rms"])
+    before = oe["compared"]
+    was = (
+        f"; {before['method'].upper()}'s parameters {100 * before['position_rel_error']:.2f} %"
+        if before["position_rel_error"] is not None
+        else ""
+    )
+    return (
+        f"  output error: simulated positions off by {100 * oe['position_rel_error']:.2f} % of the windows' motion "
+        f"(RMS {rms} per joint, encoder step {oe['encoder_step']:.3g}){was}; {oe['windows']} windows of "
+        f"{oe['window_s']:.3g} s from the measured state, started from {oe['start']}"
+    )
+
+
+def json_text(result: dict) -> str:
+    """`result` as strict JSON: numpy values as numbers and lists, and a number that is not finite
+    (NaN, ±inf: no JSON number) as null."""
+
+    def finite(x):
+        if isinstance(x, float):
+            return x if math.isfinite(x) else None
+        if isinstance(x, dict):
+            return {k: finite(v) for k, v in x.items()}
+        if isinstance(x, list):
+            return [finite(v) for v in x]
+        return x
+
+    return json.dumps(finite(json.loads(json.dumps(result, default=_jsonable))), allow_nan=False)
+
+
+def _jsonable(x):
+    import numpy as np
+
+    if isinstance(x, np.generic):
+        return x.item()
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    raise TypeError(f"not JSON serializable: {type(x).__name__}")
+
+
+@contextlib.contextmanager
+def notes_as_lines(command: str):
+    """What was done to a recording as it was read (`RecordingNote`: a cut last line dropped, an
+    angle unwrapped) printed as one line; any other warning as Python shows it."""
+    from manus.plants.errors import RecordingNote
+
+    with warnings.catch_warnings():
+        shown = warnings.showwarning
+
+        def show(message, category, *rest, **kw):
+            if issubclass(category, RecordingNote):
+                print(f"manus {command}: note: {message}", file=sys.stderr)
+            else:
+                shown(message, category, *rest, **kw)
+
+        warnings.showwarning = show
+        yield
+
+
+def estimators_text(r: dict) -> str:
+    """An estimators comparison's JSON (`manus estimators`) as text: the table, the best, the model."""
+
+    def f(x, spec=".3g"):
+        return "-" if x is None else format(x, spec)
+
+    def knob(e):
+        k = e.get("knob")
+        return "" if k is None else f"{k['name']}={k['value']:.3g}" + (" (range end)" if k.get("at_limit") else "")
+
+    rows = [
+        [
+            e["name"],
+            knob(e),
+            f(e["rms_error"]),
+            f((e["moving"] or {}).get("rms_error")),
+            f((e["still"] or {}).get("rms_error")),
+            f(e["max_error"]),
+            f(e["lag_ms"], ".2f"),
+            f(e["noise_50hz"]),
+        ]
+        for e in r["estimators"]
+    ]
+    against = "the true velocity" if r["truth"] else f"the {r['reference']} reference"
+    lines = [
+        f"{r['recording']}: {r['samples']} samples, {r['joints']} joint(s); errors against {against}",
+        table(
+            rows,
+            [
+                "estimator",
+                "knob" + (" (tuned)" if r["tuned"] else ""),
+                "RMS",
+                "RMS moving",
+                "RMS still",
+                "max",
+                "lag [ms]",
+                "noise >50 Hz",
+            ],
+        ),
+        f"best: {r['best']}",
+    ]
+    m = r.get("model")
+    if m is not None and "error" not in m:
+        lines.append(model_line(m))
+    reasons: dict[str, list[str]] = {}
+    for x in r.get("left_out", []):
+        reasons.setdefault(x["reason"], []).append(x["name"])
+    for reason, names in reasons.items():
+        lines.append(f"left out of the ranking: {', '.join(names)}: no model ({reason})")
+    if r.get("gaps"):
+        lines.append(f"gaps: {r['gaps']}")
+    for name, path in (r.get("figures") or {}).items():
+        lines.append(f"figure ({name}): {', '.join(path) if isinstance(path, list) else path}")
+    return "\n".join(lines)
+
+
+def model_line(m: dict) -> str:
+    """The model-based estimators' model: its spec, where it came from, the fit's torque error."""
+    how = m["from"] if m["from"] in ("fitted on this recording", "--param") else f"from {m['from']}"
+    fit = [f"rel_error {100 * m['rel_error']:.2f} %"] if m.get("rel_error") is not None else []
+    fit += [f"method {m['method']}"] if m.get("method") else []
+    fit += [f"set by hand: {', '.join(m['set_by_hand'])}"] if m.get("set_by_hand") else []
+    fit += [f"{k} fitted {v:.3g}, within 2 std of its bound: set at it" for k, v in (m.get("at_bound") or {}).items()]
+    return f"model of the model-based estimators: {m['spec']}, {how}" + (f" ({'; '.join(fit)})" if fit else "")

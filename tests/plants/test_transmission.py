@@ -67,13 +67,12 @@ def test_the_three_sources_state_the_same_n(tmp_path):
     np.testing.assert_array_equal(rec.structure.transmission.matrix, expected)
     from manus.runs.args import load_recording
 
-    args = argparse.Namespace(
-        recording=str(_recording_file(tmp_path)),
-        robot=str(EXAMPLE),
-        model="rigid",
-        cutoff=None,
-        hold=None,
-        transmission="3 shoulder + 6 elbow; 0.5*q1 - elbow",
+    args = _options(
+        str(_recording_file(tmp_path)),
+        "--robot",
+        str(EXAMPLE),
+        "--transmission",
+        "3 shoulder + 6 elbow; 0.5*q1 - elbow",
     )
     from_cli = load_recording(args)
     assert from_cli.structure.transmission is not None
@@ -198,12 +197,18 @@ def test_a_simulated_plant_with_an_elbow_motor_on_the_difference_is_fitted_with_
     assert plain_fit.rel_error > 3 * stated_fit.rel_error, (plain_fit.rel_error, stated_fit.rel_error)
 
 
+def _options(*argv: str) -> argparse.Namespace:
+    """The options of `manus fit` (a recording and its model), as its command line reads them."""
+    from manus.runs.args import add_model_options
+
+    p = argparse.ArgumentParser()
+    add_model_options(p)
+    return p.parse_args([*argv, "--model", "rigid"])
+
+
 def test_a_bad_transmission_on_the_command_line_is_a_manus_error(tmp_path):
     from manus.runs.args import load_recording
 
-    args = argparse.Namespace(
-        recording=str(_recording_file(tmp_path)), robot=None, model="rigid", cutoff=None, hold=None, transmission="q1"
-    )
-    args.transmission = "q2; q2"
+    args = _options(str(_recording_file(tmp_path)), "--transmission", "q2; q2")
     with pytest.raises(ManusError, match=r"--transmission: .*singular"):
         load_recording(args)

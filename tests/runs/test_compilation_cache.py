@@ -1,17 +1,17 @@
-"""JAX's persistent compilation cache as the `manus` command sets it up (`cli._compilation_cache`)."""
+"""JAX's persistent compilation cache as importing manus sets it up (`config._compilation_cache`)."""
 
 import os
 import subprocess
 import sys
 from types import SimpleNamespace
 
-from manus.runs import cli
+from manus import config
 
 # a computation whose compilation takes well over `CACHE_MIN_COMPILE_S`: 400 scalar steps unrolled
 PROGRAM = """
 import sys
-from manus.runs.cli import configure_jax
-configure_jax()
+from manus.config import configure
+configure()
 import jax, jax.numpy as jnp
 def f(x):
     for k in range(400):
@@ -30,19 +30,19 @@ def test_the_cache_folder_follows_the_environment(tmp_path, monkeypatch):
     jax, updates = _fake_jax()
     monkeypatch.delenv("MANUS_JAX_CACHE", raising=False)
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
-    cli._compilation_cache(jax)
+    config._compilation_cache(jax)
     assert updates["jax_compilation_cache_dir"] == str(tmp_path / "xdg" / "manus" / "jax")
     assert (tmp_path / "xdg" / "manus" / "jax").is_dir()
     monkeypatch.setenv("MANUS_JAX_CACHE", str(tmp_path / "mine"))
-    cli._compilation_cache(jax)
+    config._compilation_cache(jax)
     assert updates["jax_compilation_cache_dir"] == str(tmp_path / "mine")
     jax, updates = _fake_jax()
     monkeypatch.setenv("MANUS_JAX_CACHE", "off")
-    cli._compilation_cache(jax)
+    config._compilation_cache(jax)
     assert updates == {}
     (tmp_path / "file").write_text("")
     monkeypatch.setenv("MANUS_JAX_CACHE", str(tmp_path / "file" / "jax"))  # cannot be made: no cache, no error
-    cli._compilation_cache(jax)
+    config._compilation_cache(jax)
     assert updates == {}
 
 

@@ -220,7 +220,7 @@ def discover(
     **diagnose_options,
 ) -> Discovery:
     """Run the loop from `model` (text, e.g. "rigid,viscous,coulomb"). `progress` receives a line
-    per step; `diagnose_options` go to `diagnose` (blocks, alpha, min_share)."""
+    per step; `diagnose_options` go to `diagnose` (blocks, alpha, min_share, told)."""
     if max_steps < 1:
         raise ModelError(f"max_steps must be at least 1 (got {max_steps})")
     say = progress or (lambda line: None)

@@ -24,7 +24,7 @@ the model plus the verdict) is tested for structure no effect of the vocabulary 
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -143,13 +143,15 @@ def diagnose(
     method: str = "auto",
     fitted: Fit | None = None,
     per_joint: bool = True,
+    told: Callable[[int, int], None] | None = None,
 ) -> Diagnosis:
     """Fit `model` to the recording, then try every effect it lacks (`manus.adaptive.diagnosis`).
     A loop over one prepared recording can pass its `columns` (a `Columns` of the same data) so
     that each effect's columns are computed once for every step, and the model's fit on that
     data when it has it (`fitted`). Each candidate is judged at `alpha` over the number of
     candidates of the step (Bonferroni). `per_joint=False` judges relevance over all the torque
-    only (a candidate must explain `min_share` of it, or half of the error), as a comparison."""
+    only (a candidate must explain `min_share` of it, or half of the error), as a comparison.
+    `told(done, total)` as each candidate is judged (progress)."""
     structure = (rec.rec if isinstance(rec, Data) else rec).structure
     parsed = Model(structure, model) if isinstance(model, str) else model  # checked before any work
     if not [n for n in ORDER if not parsed.has(n)]:
@@ -183,7 +185,7 @@ def diagnose(
     ctx = Context(data, cols, icols, base, base_sse, starts, folds, span, alpha / max(1, len(tried)), min_share)
     ctx.remember(base.model, base.delay, base_st)
     cands: list[Candidate] = []
-    for c in _judged(ctx, tried):
+    for c in _judged(ctx, tried, told):
         if isinstance(c, str):
             notes.append(f"compliance: the recording cannot show a structural mode: {c}")
             continue
@@ -222,19 +224,28 @@ def _torque_gain(c: Candidate) -> float:
 JUDGES = 2  # candidates judged at once (threads: their statistics and columns spend most of their time outside the GIL)
 
 
-def _judged(ctx: Context, tried: list[Offer]) -> list[Candidate | str]:
+def _judged(ctx: Context, tried: list[Offer], told: Callable[[int, int], None] | None = None) -> list[Candidate | str]:
     """Each offer judged in `ctx`, in their order: an effect by `judge`, a structural mode by
     `compliance` (a sentence where the recording cannot show one). `JUDGES` at a time: each
-    candidate is judged alone from what `ctx` holds, so the results do not depend on the order."""
-    from concurrent.futures import ThreadPoolExecutor
+    candidate is judged alone from what `ctx` holds, so the results do not depend on the order.
+    `told(done, total)` as each is done."""
+    from concurrent.futures import ThreadPoolExecutor, as_completed
+
+    tell = told or (lambda done, total: None)
 
     def one(offer: Offer) -> Candidate | str:
         return compliance(ctx) if offer.effect.modal else judge(ctx, offer)
 
+    tell(0, len(tried))
     if len(tried) < 2:
-        return [one(offer) for offer in tried]
+        out = [one(offer) for offer in tried]
+        tell(len(tried), len(tried))
+        return out
     with ThreadPoolExecutor(JUDGES, thread_name_prefix="manus-judge") as pool:
-        return list(pool.map(one, tried))
+        futures = [pool.submit(one, offer) for offer in tried]
+        for done, _ in enumerate(as_completed(futures), 1):
+            tell(done, len(tried))
+        return [f.result() for f in futures]
 
 
 def _relevant_on_joints(ctx: Context, base_st: lsq.Stats, cands: list[Candidate]) -> None:

@@ -261,8 +261,8 @@ def run_one(
     simulator: str = "manus",
     pooled: bool = True,
 ) -> dict:
-    """`manus.experiments.judging.judge` in a worker: float64 and the environment, as `manus`
-    runs (a spawned worker was not started by it). A chain recording is judged a second time
+    """`manus.experiments.judging.judge` in a worker (float64 and the environment as everywhere:
+    importing manus sets them, `manus.config`). A chain recording is judged a second time
     with relevance over all the torque only where `pooled`. JAX's compiled programs are let go
     after each recording: each recording compiles its own (its length, rate and structure), and
     their code stays mapped until then (a chain recording adds about 1800 maps; the kernel's limit
@@ -270,9 +270,6 @@ def run_one(
     Cannot allocate memory")."""
     import jax
 
-    from manus.runs.cli import configure_jax
-
-    configure_jax()
     from manus.experiments.judging import judge
 
     baseline = pooled and simulator == "chain"
