@@ -75,7 +75,18 @@ def compare_one(path: str | Path) -> dict:
 
 
 def compare(paths) -> dict:
-    runs = [compare_one(p) for p in paths]
+    """Every recording compared, a line on stderr per recording with the time left."""
+    import time
+
+    runs, t0 = [], time.perf_counter()
+    for k, p in enumerate(paths, 1):
+        runs.append(compare_one(p))
+        spent = time.perf_counter() - t0
+        print(
+            f"  [{k}/{len(paths)}] {Path(p).name}: {spent:.0f} s, about {spent / k * (len(paths) - k):.0f} s left",
+            file=sys.stderr,
+            flush=True,
+        )
     names = list(runs[0]["fit"]["params"]) if runs else []
     median = {k: float(np.median([r["fit"]["params"][k] for r in runs])) for k in names}
     gain = (

@@ -8,7 +8,7 @@ import time
 
 from manus.experiments.convergence import TRAJECTORIES
 from manus.runs.args import add_common, add_plant_options, build_plant, parse_pairs
-from manus.runs.text import note, table
+from manus.runs.text import elapsed, note, table
 
 NAME = "converge"
 HELP = "parameter-convergence trials of the Slotine-Li adaptive controller (thesis App. C), vmapped"
@@ -100,10 +100,11 @@ def run(args) -> dict:
         f"model {model.spec}, {args.law} law, {args.estimator} ..."
     )
     start = time.perf_counter()
-    tr = run_trials(
-        plant, controller, reference, args.trials, args.seconds, args.init_spread, args.gain_spread, args.seed
-    )
-    elapsed = time.perf_counter() - start
+    with elapsed("compiling and running the trials"):
+        tr = run_trials(
+            plant, controller, reference, args.trials, args.seconds, args.init_spread, args.gain_spread, args.seed
+        )
+    spent = time.perf_counter() - start
     if tr.stopped.all():
         raise ManusError("every trial stopped itself on a non-finite value: nothing to report")
     result = summarize(tr)
@@ -124,8 +125,8 @@ def run(args) -> dict:
         seconds=float(tr.t[-1] + plant.dt),
         lead_s=float(controller.lead),
         velocity_lag_s=float(controller.velocity_lag),
-        elapsed_s=elapsed,
-        trials_per_s=args.trials / elapsed,
+        elapsed_s=spent,
+        trials_per_s=args.trials / spent,
     )
     return result
 

@@ -60,6 +60,40 @@ class Bar:
             self.bar = None
 
 
+@contextlib.contextmanager
+def elapsed(desc: str, about_s: float | None = None):
+    """A stage whose progress cannot be counted (one compiled computation): a line that counts the
+    seconds on stderr while it runs, against `about_s` where an estimate is known; silent when
+    notes are."""
+    import threading
+    import time
+
+    if _QUIET["on"]:
+        yield
+        return
+    from tqdm import tqdm
+
+    start, done = time.perf_counter(), threading.Event()
+    total = None if about_s is None else max(1, round(about_s))
+    shown = "{desc}: {elapsed} so far" if total is None else "{desc}: {bar} {elapsed} of about {total} s"
+    bar = tqdm(total=total, desc=desc, unit="s", file=sys.stderr, leave=False, delay=1.0, bar_format=shown)
+
+    def tick() -> None:
+        while not done.wait(0.5):
+            bar.n = round(time.perf_counter() - start)
+            bar.refresh()
+
+    thread = threading.Thread(target=tick, daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        done.set()
+        thread.join()
+        bar.close()
+        note(f"{desc}: {time.perf_counter() - start:.1f} s")
+
+
 def table(rows: list[list], header: list[str]) -> str:
     """A plain text table, columns aligned."""
     cells = [[str(h) for h in header]] + [[str(c) for c in r] for r in rows]

@@ -360,8 +360,9 @@ def calibrate(args) -> dict:
                 + (f" (reads as {' or '.join(r['verdict_reads_as'])})" if r.get("verdict_reads_as") else "")
                 + (f": {r['error']}" if "error" in r else "")
             )
-        elif k % 20 == 0:
-            note(f"  [{k}/{len(plan)}] {time.perf_counter() - t0:.0f} s")
+        elif k % 5 == 0 or k == len(plan):
+            spent = time.perf_counter() - t0
+            note(f"  [{k}/{len(plan)}] {spent:.0f} s, about {spent / k * (len(plan) - k):.0f} s left")
     summary = summarize(results)
     wall = time.perf_counter() - t0
     crashes = {}
