@@ -142,8 +142,10 @@ class Table:
         more = f" and {len(keys) - 20} more" if len(keys) > 20 else ""
         return ", ".join(f"{k}{list(self.shapes[k]) if len(self.shapes[k]) > 1 else ''}" for k in shown) + more
 
-    def read(self, names: list[str]) -> dict[str, np.ndarray]:
-        """The columns `names`, their size checked against the memory budget first."""
+    def read(self, names: list[str], numeric_only: bool = False) -> dict[str, np.ndarray]:
+        """The columns `names` as floats, their size checked against the memory budget first; a
+        column that is not numeric is refused, or left out with `numeric_only` (a table's other
+        columns: names, labels)."""
         need = sum(8.0 * float(np.prod(self.shapes[n], dtype=float)) for n in names)
         if need > memory_budget():
             _over_budget(self.path, need, "the columns asked for")
@@ -152,6 +154,8 @@ class Table:
         for n in names:
             a = np.asarray(got[n])
             if a.dtype.kind not in "biuf":
+                if numeric_only:
+                    continue
                 fail(self.path, None, f"column {n!r} is not numeric ({a.dtype})")
             out[n] = a.astype(float)
         return out
@@ -172,7 +176,7 @@ def columns(table: Table, cmap: ColumnMap | None) -> dict[str, np.ndarray]:
     path = table.path
     if cmap is None:
         wanted = [n for n, s in table.shapes.items() if len(s) == 1 or (len(s) == 2 and n in SPLIT)]
-        got = table.read(wanted)
+        got = table.read(wanted, numeric_only=True)
         samples = len(got["t"]) if "t" in got and got["t"].ndim == 1 else None
         out = {}
         for n, a in got.items():

@@ -179,6 +179,8 @@ def test_what_cannot_be_a_recording_is_refused_in_one_line(tmp_path):
     np.savez(tmp_path / "ragged.npz", t=t, q1=q[:, 0], tau1=tau[:-5, 0])
     _refused("column 'tau1' has 2995 samples where 't' has 3000", tmp_path / "ragged.npz")
     words = ragged.assign(tau1=["x"] * N)
-    _refused("column 'tau1' is not numeric", words)
+    _refused("column 'tau1' is not numeric", words, columns="t=t,q1=q1,tau1=tau1")
+    labelled = pd.DataFrame({"t": t, "q1": q[:, 0], "tau1": tau[:, 0], "joint": ["shoulder"] * N})
+    assert "joint" not in recording.read(labelled).extra  # a column of words, not asked for: left out
     _refused("a ROS 2 bag's", ragged, topic="/joint_states")
     _refused("--topic, --joints and --command-topic are a ROS 2 bag's options", tmp_path / "log.csv", topic="/js")
