@@ -1,6 +1,7 @@
-"""Text for the person at the terminal: notes on stderr, plain tables, the lines several
-commands' reports share (a model's parameters, the detection limits, what is left unexplained),
-and a diagnosis and a discovery as text."""
+"""What the commands and the Python API say: notes and progress on stderr (silenced by
+`set_quiet`), plain tables, the lines several reports share (a model's parameters, the detection
+limits, what is left unexplained), a fit, a diagnosis, a discovery and an estimators comparison
+as text, and any report as strict JSON (`json_text`)."""
 
 from __future__ import annotations
 
