@@ -42,7 +42,7 @@ from manus.plants.timebase import TimeBase, examine, grid
 STRUCTURES = ("manus2", "axis", "urdf")
 
 
-@dataclass
+@dataclass(repr=False)
 class Recording:
     t: np.ndarray  # (T,) seconds, strictly increasing
     q: np.ndarray  # (T, n) measured positions
@@ -55,6 +55,16 @@ class Recording:
     serial: Structure | None = field(default=None, repr=False, compare=False)
     # what the stamps and positions said about the true sample grid, where `read` repaired it
     time_base: TimeBase | None = field(default=None, repr=False, compare=False)
+
+    def __repr__(self) -> str:
+        """One line (the arrays are for code, not for a notebook's output)."""
+        truth = ", true velocities" if self.qd is not None else ""
+        extra = f", extra columns {', '.join(self.extra)}" if self.extra else ""
+        rate = f" at {self.sample_rate_hz:.6g} Hz" if len(self) >= 2 else ""
+        return (
+            f"<Recording {self.path}: {len(self)} samples of {self.n_joints} joint(s){rate}, "
+            f"structure {self.structure_name}{truth}{extra}>"
+        )
 
     @property
     def n_joints(self) -> int:
