@@ -60,6 +60,7 @@ def fit_recording(rec: Recording, model: str, cutoff_hz: float | None = None, me
     from manus.adaptive import fit
     from manus.experiments.freerun import nrmse_fit
 
+    note(f"fitting {model} ...")
     f = fit(rec, model, cutoff_hz=cutoff_hz, method=method)
     out = f.report()
     out["fit_percent"] = {"torque": nrmse_fit(f.data.tau(f.delay), f.predicted()).tolist()}
