@@ -13,6 +13,7 @@ JAX computes in float64 (`manus.config`, set when manus is imported).
 
 from __future__ import annotations
 
+import abc
 import html
 import os
 from collections.abc import Callable, Mapping
@@ -52,8 +53,9 @@ def read(
     )
 
 
-class Result:
-    """A command's result: its JSON (`report`), its text, its HTML, its figures."""
+class Result(abc.ABC):
+    """A command's result: its JSON (`report`), its text, its HTML, its figures. A kind of result
+    says its text (`_text`), which figures it draws (`kinds`) and draws one (`_draw`)."""
 
     command: ClassVar[str] = ""
 
@@ -64,8 +66,8 @@ class Result:
         """The command's JSON (`manus CMD --json --no-figures`): strict, NaN written as null."""
         return text.json_text(self.report)
 
-    def _text(self) -> str:
-        raise NotImplementedError
+    @abc.abstractmethod
+    def _text(self) -> str: ...
 
     def __str__(self) -> str:
         return self._text()
@@ -77,9 +79,9 @@ class Result:
     def _repr_html_(self) -> str:
         return f"<pre>{html.escape(self._text())}</pre>"
 
+    @abc.abstractmethod
     def kinds(self) -> list[str]:
         """The figures `figure` draws."""
-        return []
 
     def figure(self, kind: str | None = None) -> Figure:
         """One figure (`kinds()`; the first when `kind` is not given) as a matplotlib Figure."""
@@ -91,8 +93,8 @@ class Result:
             raise ManusError(f"{self.command}: no figure {kind!r}; the figures are {', '.join(kinds)}")
         return self._draw(kind)
 
-    def _draw(self, kind: str) -> Figure:
-        raise NotImplementedError
+    @abc.abstractmethod
+    def _draw(self, kind: str) -> Figure: ...
 
     def save_figures(self, out: str | os.PathLike, prefix: str = "") -> dict[str, str]:
         """Every figure written into `out` as PNG (atomically), by kind."""
