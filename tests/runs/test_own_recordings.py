@@ -1,5 +1,5 @@
 """A user's own recording, as issue 34's checks state them: a simulated two-link recording with a
-hidden 0.3 N·m offset (`tests.adaptive.hidden`), read back from a ROS 2 bag, from a CSV of other
+hidden offset (`tests.adaptive.hidden`), read back from a ROS 2 bag, from a CSV of other
 column names with `--map`, and from a DataFrame through `manus.diagnose`; each diagnosis names the
 offset as the manus CSV's does, and `manus.diagnose` from a fresh interpreter prints the command's
 JSON to 1e-9."""
