@@ -83,7 +83,7 @@ class Step:
         return out
 
 
-@dataclass
+@dataclass(repr=False)
 class Discovery:
     """The loop's run: the starting fit, its steps, the last diagnosis and why it stopped."""
 
@@ -94,6 +94,10 @@ class Discovery:
     # | "compliance (not refitted)" | "every effect in the model"
     stopped: str
     notes: list[str] = field(default_factory=list)
+
+    def __repr__(self) -> str:
+        """One line (`report()` holds the steps)."""
+        return f"<Discovery {self.model}: {len(self.steps)} steps, stopped: {self.stopped}>"
 
     @property
     def unexplained(self) -> dict:

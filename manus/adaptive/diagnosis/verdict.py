@@ -63,7 +63,7 @@ MIN_SHARE = 0.005  # a candidate must explain at least this share of the recorde
 MIN_ROWS_PER_BLOCK = 10
 
 
-@dataclass
+@dataclass(repr=False)
 class Diagnosis:
     """One diagnosis step: the model fitted, its candidates judged, the verdict (None: nothing
     significant is missing) and what is left in the residual."""
@@ -77,6 +77,11 @@ class Diagnosis:
     alpha: float = ALPHA
     context: Context | None = None  # what the step judged in (its blocks: a loop measures its steps on them)
     judged: PositionJudging | None = None  # where the candidates were judged by output error's positions
+
+    def __repr__(self) -> str:
+        """One line (`report()` holds the candidates)."""
+        verdict = self.verdict.spec if self.verdict else "nothing significant missing"
+        return f"<Diagnosis of {self.base.model.spec}: {len(self.candidates)} candidates, verdict {verdict}>"
 
     def report(self) -> dict:
         """The JSON contract of `manus diagnose` (docs/cli.md)."""

@@ -26,7 +26,7 @@ from manus.plants.recording import Recording
 from manus.plants.serial import SerialBase
 
 
-@dataclass
+@dataclass(repr=False)
 class Fit:
     """A model's parameters identified from a prepared recording, with what its report needs."""
 
@@ -48,6 +48,13 @@ class Fit:
     # and the stage's report (or why it has none)
     unconstrained: Fit | None = None
     consistency: dict | None = None
+
+    def __repr__(self) -> str:
+        """One line (its arrays are for code; `report()` holds the numbers)."""
+        return (
+            f"<Fit {self.model.spec}: rel_error {100 * self.rel_error:.2f} % ({self.method}), "
+            f"{len(self.names)} parameters>"
+        )
 
     @property
     def params(self) -> dict[str, float]:
