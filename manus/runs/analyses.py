@@ -42,12 +42,14 @@ class FitAnalysis:
 
         note("free run of the fitted model in the simulator ...")
         self.run = free_run_or_reason(self.fit, open_loop)
-        self.skip_run(None)
+        self._report_run()
 
-    def skip_run(self, why: str | None) -> None:
-        """Report the free run: `why` none was made, or (None) the one `simulate` made."""
-        if why is not None:
-            self.run = why
+    def skip_run(self, why: str) -> None:
+        """No free run, and why, in the report."""
+        self.run = why
+        self._report_run()
+
+    def _report_run(self) -> None:
         if isinstance(self.run, str):
             self.report["free_run"] = {"mode": None, "how": self.run}
         else:
