@@ -171,9 +171,10 @@ def is_number(x: str) -> bool:
         return False
 
 
-def row_ok(line: str, ncol: int) -> bool:
+def row_ok(line: str, ncol: int, use: list[int] | None = None) -> bool:
+    """A row of `ncol` fields, numbers in the columns `use` (default all)."""
     fields = line.split(",")
-    return len(fields) == ncol and all(is_number(x) for x in fields)
+    return len(fields) == ncol and all(is_number(fields[j]) for j in (range(ncol) if use is None else use))
 
 
 def _check_header(path, lineno, header):
@@ -185,10 +186,10 @@ def _check_header(path, lineno, header):
 
 
 class _Rows:
-    """Parsed blocks of rows and where each row is in the file."""
+    """Parsed blocks of rows (the columns `use` of each) and where each row is in the file."""
 
-    def __init__(self, path, header: list[str]):
-        self.path, self.header, self.ncol = path, header, len(header)
+    def __init__(self, path, header: list[str], use: list[int]):
+        self.path, self.header, self.ncol, self.use = path, header, len(header), use
         self.blocks: list[np.ndarray] = []
         # per block: its first row, the line of that row, and each row's line (None: consecutive)
         self.lines: list[tuple[int, int, np.ndarray | None]] = []
@@ -200,8 +201,16 @@ class _Rows:
         if not block.strip():
             return
         try:
-            a = np.loadtxt(io.BytesIO(block), delimiter=",", ndmin=2, comments=None, dtype=float)
-            if a.shape[1] != self.ncol:
+            some = len(self.use) < self.ncol
+            a = np.loadtxt(
+                io.BytesIO(block),
+                delimiter=",",
+                ndmin=2,
+                comments=None,
+                dtype=float,
+                usecols=self.use if some else None,
+            )
+            if a.shape[1] != len(self.use) or (some and block[: block.find(b"\n")].count(b",") != self.ncol - 1):
                 raise ValueError("ragged")
             lines = (
                 None
@@ -215,8 +224,8 @@ class _Rows:
         self.lines.append((self.rows, first_line, lines))
         self.blocks.append(a)
         self.rows += len(a)
-        if 8.0 * self.rows * self.ncol > self.budget:
-            _over_budget(self.path, 8.0 * self.rows * self.ncol, f"its rows (more than {self.rows} read so far)")
+        if 8.0 * self.rows * len(self.use) > self.budget:
+            _over_budget(self.path, 8.0 * self.rows * len(self.use), f"its rows (more than {self.rows} read so far)")
 
     @staticmethod
     def _line_numbers(block: bytes, first_line: int) -> np.ndarray:
@@ -233,17 +242,17 @@ class _Rows:
             fields = line.split(",")
             if len(fields) != self.ncol:
                 fail(self.path, lineno, f"ragged row: {len(fields)} fields where the header has {self.ncol}")
-            if not all(is_number(x) for x in fields):
-                bad = next(j for j, x in enumerate(fields) if not is_number(x))
+            bad = next((j for j in self.use if not is_number(fields[j])), None)
+            if bad is not None:
                 fail(self.path, lineno, f"column {self.header[bad]!r}: {fields[bad].strip()!r} is not a number")
-            out.append([float(x) for x in fields])
+            out.append([float(fields[j]) for j in self.use])
             lines.append(lineno)
-        return np.array(out, dtype=float).reshape(-1, self.ncol), np.array(lines, dtype=np.int64)
+        return np.array(out, dtype=float).reshape(-1, len(self.use)), np.array(lines, dtype=np.int64)
 
     def columns(self) -> list[np.ndarray]:
         """The rows as one array per column, each block released as it is copied (the numbers
         held at most once and a block)."""
-        cols = [np.empty(self.rows) for _ in range(self.ncol)]
+        cols = [np.empty(self.rows) for _ in self.use]
         at = 0
         while self.blocks:
             a = self.blocks.pop(0)
@@ -260,10 +269,13 @@ class _Rows:
         return 0
 
 
-def read_csv(path: Path) -> tuple[dict[str, np.ndarray], dict[str, str], Callable[[int], str], list[str]]:
-    """A CSV recording's columns, its metadata (the `# key: value` lines above the header and
-    after the rows), where a data row is (`locate(r)`: ":LINE") and notes on what was repaired
-    as it was read (an incomplete last line dropped)."""
+def read_csv(
+    path: Path, wanted: set[str] | None = None
+) -> tuple[dict[str, np.ndarray], dict[str, str], Callable[[int], str], list[str]]:
+    """A CSV recording's columns (those named in `wanted` where given: the others, words or
+    dates, are not parsed), its metadata (the `# key: value` lines above the header and after
+    the rows), where a data row is (`locate(r)`: ":LINE") and notes on what was repaired as it
+    was read (an incomplete last line dropped)."""
     regular_file(path)
     text = _Text(path)
     meta: dict[str, str] = {}
@@ -286,7 +298,15 @@ def read_csv(path: Path) -> tuple[dict[str, np.ndarray], dict[str, str], Callabl
         fail(path, None, "no header row (expected e.g. 't,q1,q2,tau1,tau2')" if anything else "empty file")
     header_line = text.line
     _check_header(path, header_line, header)
-    rows = _Rows(path, header)
+    absent = sorted((wanted or set()) - set(header))
+    if absent:
+        fail(
+            path,
+            None,
+            f"the column map names {absent[0]!r}, which the file does not have (it has: {', '.join(header)})",
+        )
+    use = [j for j, h in enumerate(header) if wanted is None or h in wanted]
+    rows = _Rows(path, header, use)
     notes: list[str] = []
     footer: list[tuple[int, str]] = []
     while True:
@@ -308,7 +328,7 @@ def read_csv(path: Path) -> tuple[dict[str, np.ndarray], dict[str, str], Callabl
         # the file's last line, with no line end after it: a run killed mid-write
         tail = decoded(path, first, block)
         if tail.strip():
-            if not row_ok(tail, len(header)) or meta.get("streamed", "").lower() == "true":
+            if not row_ok(tail, len(header), use) or meta.get("streamed", "").lower() == "true":
                 notes.append(f"{path}:{first}: incomplete last line dropped (the file was cut mid-write)")
             else:
                 rows.add(block + b"\n", first)
@@ -318,7 +338,8 @@ def read_csv(path: Path) -> tuple[dict[str, np.ndarray], dict[str, str], Callabl
             meta[key.strip()] = value.strip()
     if not rows.rows:
         fail(path, header_line + 1, "no data rows after the header")
-    return dict(zip(header, rows.columns(), strict=True)), meta, lambda r: f":{rows.where(r)}", notes
+    names = [header[j] for j in use]
+    return dict(zip(names, rows.columns(), strict=True)), meta, lambda r: f":{rows.where(r)}", notes
 
 
 def _footer_lines(path, block: bytes, first: int) -> list[tuple[int, str]]:

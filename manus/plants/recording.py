@@ -321,7 +321,8 @@ def _read_file(path: Path, cmap, topic, joints, command_topic):
         )
     sample = lambda r: f" sample {r}"
     if kind in ("text", "binary"):  # (the CSV reader names what is wrong with a binary file)
-        cols, meta, locate, notes = read_csv(path)
+        wanted = None if cmap is None else {e.source for e in cmap.entries.values()}
+        cols, meta, locate, notes = read_csv(path, wanted)  # (with a map, only its columns parsed)
         for n in notes:
             warnings.warn(n, RecordingNote, stacklevel=4)
         table = tables.Table(path, {k: v.shape for k, v in cols.items()}, lambda names: {n: cols[n] for n in names})

@@ -106,6 +106,19 @@ def test_a_csv_of_other_names_with_a_map_equals_the_known_samples(tmp_path):
     assert rec.meta["column_map"].startswith("t=stamp_ms in ms")
 
 
+def test_a_csv_s_columns_of_words_and_dates_are_not_parsed_when_a_map_leaves_them_out(tmp_path):
+    frame = _frame().assign(joint="shoulder", logged_at="2026-11-27T12:00:00.000")
+    path = tmp_path / "log.csv"
+    frame.to_csv(path, index=False)
+    _same(recording.read(path, columns=MAP))
+    _refused("column 'joint': 'shoulder' is not a number", path)  # without a map every column is the recording's
+    _refused(
+        "names 'nope', which the file does not have \\(it has: stamp_ms, .*, joint, logged_at\\)",
+        path,
+        columns="t=stamp_ms,q1=nope",
+    )
+
+
 def test_parquet_hdf5_mat_npz_and_a_frame_read_the_same_samples(tmp_path):
     frame = _frame()
     frame.to_parquet(tmp_path / "log.parquet")
