@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from manus.plants.errors import RecordingError
-from manus.plants.reading import fail
+from manus.plants.reading import _over_budget, fail, memory_budget
 
 JOINT_STATE = "sensor_msgs/msg/JointState"
 FLOAT_ARRAY = "std_msgs/msg/Float64MultiArray"
@@ -129,8 +129,15 @@ def _read(path: Path, reader: Any, store: Any, topic, joints, command_topic, not
             fail(path, None, "no joints chosen")
 
     s = _States(path, topic, joints)
-    for conn, received, raw in reader.messages(connections=[c for c in reader.connections if c.topic == topic]):
-        s.add(store.deserialize_cdr(raw, conn.msgtype), received)
+    chosen = [c for c in reader.connections if c.topic == topic]
+    count = sum(int(c.msgcount) for c in chosen)
+    for k, (conn, received, raw) in enumerate(reader.messages(connections=chosen)):
+        msg = store.deserialize_cdr(raw, conn.msgtype)
+        if k == 0:  # the rows' size known from the first message: what would exceed the budget is refused unread
+            need = 8.0 * count * (3 * max(len(joints or msg.name), 1) + 2)
+            if need > memory_budget():
+                _over_budget(path, need, f"its {count} messages on {topic}")
+        s.add(msg, received)
     names, values, stamps, flags = s.result(notes)
     n = len(names)
     if command_topic is None:

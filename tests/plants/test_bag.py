@@ -313,3 +313,10 @@ def test_without_rosbags_the_extra_is_named(tmp_path, monkeypatch):
     for module in [m for m in sys.modules if m == "rosbags" or m.startswith("rosbags.")]:
         monkeypatch.setitem(sys.modules, module, None)
     assert _refused(r"b: reading a ROS 2 bag needs the formats extra", bag).endswith(NEEDS_EXTRA)
+
+
+def test_a_bag_beyond_the_memory_budget_is_refused_unread(tmp_path, monkeypatch):
+    stamps, q, v, e = _source()
+    bag = _write(tmp_path / "big", "mcap", {"/joint_states": (JointState.__msgtype__, _states(stamps, q, v, e))})
+    monkeypatch.setenv("MANUS_MEMORY_GB", str(8.0 * 2000 * 4 / 1e9))  # room for 2000 rows of 4 numbers, not 8
+    _refused("2000 messages on /joint_states", bag)
