@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from manus.plants.errors import RecordingError
-from manus.plants.reading import _over_budget, fail, memory_budget
+from manus.plants.reading import fail, memory_budget, over_budget
 
 JOINT_STATE = "sensor_msgs/msg/JointState"
 FLOAT_ARRAY = "std_msgs/msg/Float64MultiArray"
@@ -136,7 +136,7 @@ def _read(path: Path, reader: Any, store: Any, topic, joints, command_topic, not
         if k == 0:  # the rows' size known from the first message: what would exceed the budget is refused unread
             need = 8.0 * count * (3 * max(len(joints or msg.name), 1) + 2)
             if need > memory_budget():
-                _over_budget(path, need, f"its {count} messages on {topic}")
+                over_budget(path, need, f"its {count} messages on {topic}")
         s.add(msg, received)
     names, values, stamps, flags = s.result(notes)
     n = len(names)

@@ -53,7 +53,8 @@ def fail(path, line, problem) -> NoReturn:
     raise RecordingError(f"{where}: {problem}")
 
 
-def _over_budget(path, need: float, what: str) -> NoReturn:
+def over_budget(path, need: float, what: str) -> NoReturn:
+    """Refuse what would take `need` bytes, more than the memory budget (`memory_budget`)."""
     fail(
         path,
         None,
@@ -225,7 +226,7 @@ class _Rows:
         self.blocks.append(a)
         self.rows += len(a)
         if 8.0 * self.rows * len(self.use) > self.budget:
-            _over_budget(self.path, 8.0 * self.rows * len(self.use), f"its rows (more than {self.rows} read so far)")
+            over_budget(self.path, 8.0 * self.rows * len(self.use), f"its rows (more than {self.rows} read so far)")
 
     @staticmethod
     def _line_numbers(block: bytes, first_line: int) -> np.ndarray:
@@ -376,7 +377,7 @@ def npz_arrays(path: Path) -> dict[str, np.ndarray]:
                     shape, _, dtype = read_header(f)
                     need += float(np.prod(shape, dtype=float)) * max(dtype.itemsize, 8)
         if need > memory_budget():
-            _over_budget(path, need, "its arrays")
+            over_budget(path, need, "its arrays")
         with np.load(path, allow_pickle=False) as z:
             return {k: np.asarray(z[k]) for k in z.files}
     except RecordingError:
@@ -395,7 +396,7 @@ def mat_variables(path: Path, names: tuple[str, ...]) -> dict[str, np.ndarray]:
         listed = whosmat(path)
         need = sum(float(np.prod(shape, dtype=float)) * 8 for name, shape, _ in listed if name in names)
         if need > memory_budget():
-            _over_budget(path, need, "its variables")
+            over_budget(path, need, "its variables")
         return loadmat(path, variable_names=[n for n, *_ in listed if n in names])
     except RecordingError:
         raise

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from manus.plants.reading import _over_budget, fail, memory_budget, regular_file
+from manus.plants.reading import fail, memory_budget, over_budget, regular_file
 
 # a unit's factor to SI, by the kind of quantity it measures
 UNITS: dict[str, dict[str, float]] = {
@@ -148,7 +148,7 @@ class Table:
         columns: names, labels)."""
         need = sum(8.0 * float(np.prod(self.shapes[n], dtype=float)) for n in names)
         if need > memory_budget():
-            _over_budget(self.path, need, "the columns asked for")
+            over_budget(self.path, need, "the columns asked for")
         got = self._load(names)
         out = {}
         for n in names:
