@@ -59,6 +59,7 @@ def encoder_step(rec: Recording) -> tuple[float, str]:
     return float(math.sqrt(12) * noise), "noise"
 
 
+FITTED = "fitted on this recording"
 NOT_FITTED = "the nominal model's own parameters (not fitted to this recording)"
 
 

@@ -35,7 +35,7 @@ from manus.plants.errors import RecordingError, RecordingNote
 from manus.plants.fastmath import EXACT_BELOW
 from manus.plants.files import atomically
 from manus.plants.limits import JUMP
-from manus.plants.reading import fail, mat_variables, npz_arrays, read_csv, regular_file
+from manus.plants.reading import fail
 from manus.plants.structures import Structure
 from manus.plants.timebase import TimeBase, examine, grid
 
@@ -237,7 +237,7 @@ def read(
     refused. `robot` (a URDF file) makes it a serial chain's recording (`structure: urdf`),
     whatever its metadata says; a `structure: urdf` recording's URDF is read and its joint count
     checked here."""
-    from manus.plants import tables
+    from manus.plants import sources, tables
 
     cmap = None if columns is None else tables.ColumnMap.parse(columns)
     stated = {str(k): str(v) for k, v in (meta or {}).items()}
@@ -251,7 +251,7 @@ def read(
         cols, names = tables.columns(table, cmap), table.names()
     else:
         path = Path(source)
-        cols, file_meta, locate, names = _read_file(path, cmap, topic, joints, command_topic)
+        cols, file_meta, locate, names = sources.read_file(path, cmap, topic, joints, command_topic)
     file_meta.update(stated)
     cols = _timed(path, cols, file_meta, names)
     if cmap is not None:
@@ -267,79 +267,6 @@ def read(
     elif "transmission" in rec.meta:
         rec.structure  # noqa: B018 (read and checked now: a malformed transmission is the recording's error)
     return _on_its_time_base(rec)
-
-
-# what a file's name says it holds, against what its first bytes say (`tables.sniff`)
-SUFFIX_KINDS = {
-    ".parquet": ("parquet",),
-    ".pq": ("parquet",),
-    ".h5": ("hdf5",),
-    ".hdf5": ("hdf5",),
-    ".hdf": ("hdf5",),
-    ".mat": ("mat5", "hdf5"),
-    ".npz": ("npz",),
-}
-KIND_NAMES = {
-    "parquet": "Parquet",
-    "hdf5": "HDF5",
-    "mat5": "MATLAB v5",
-    "npz": ".npz (zip)",
-    "text": "text",
-    "binary": "bytes of no format manus reads",
-}
-
-
-def _read_file(path: Path, cmap, topic, joints, command_topic):
-    """A file's columns (by its names, or by the map), metadata, row locator and names (for a
-    message)."""
-    from manus.plants import tables
-
-    if not path.exists():
-        raise RecordingError(f"{path}: no such file")
-    from manus.plants.bag import is_bag, read_bag
-
-    if is_bag(path):
-        if cmap is not None:
-            fail(path, None, "a ROS 2 bag's columns come from its JointState messages: no column map applies")
-        cols, meta, notes = read_bag(path, topic=topic, joints=joints, command_topic=command_topic)
-        for n in notes:
-            warnings.warn(f"{path}: {n}", RecordingNote, stacklevel=4)
-        return cols, meta, (lambda r: f" sample {r}"), ""
-    if path.is_dir():
-        raise RecordingError(f"{path}: is a directory, not a recording (nor a ROS 2 bag: no metadata.yaml)")
-    if topic or joints or command_topic:
-        fail(path, None, "--topic, --joints and --command-topic are a ROS 2 bag's options")
-    regular_file(path)
-    kind = tables.sniff(path)
-    expected = SUFFIX_KINDS.get(path.suffix.lower())
-    if expected is not None and kind not in expected:
-        fail(
-            path,
-            None,
-            f"not a readable {' or '.join(KIND_NAMES[k] for k in expected)} file: it holds {KIND_NAMES[kind]}"
-            + (" (a CSV table? name it .csv)" if kind == "text" else ""),
-        )
-    sample = lambda r: f" sample {r}"
-    if kind in ("text", "binary"):  # (the CSV reader names what is wrong with a binary file)
-        wanted = None if cmap is None else {e.source for e in cmap.entries.values()}
-        cols, meta, locate, notes = read_csv(path, wanted)  # (with a map, only its columns parsed)
-        for n in notes:
-            warnings.warn(n, RecordingNote, stacklevel=4)
-        table = tables.Table(path, {k: v.shape for k, v in cols.items()}, lambda names: {n: cols[n] for n in names})
-        return (cols if cmap is None else tables.columns(table, cmap)), meta, locate, table.names()
-    if kind == "npz":
-        table, meta = tables.npz_table(path, npz_arrays(path))
-    elif kind == "mat5":
-        table = tables.mat5_table(path)
-        if cmap is None and {"qm", "vir", "gtau"} <= set(table.shapes):
-            rec_cols, meta = _emps(path)
-            return rec_cols, meta, sample, table.names()
-        meta = {}
-    elif kind == "hdf5":
-        table, meta = tables.hdf5_table(path)
-    else:
-        table, meta = tables.parquet_table(path)
-    return tables.columns(table, cmap), meta, sample, table.names()
 
 
 def _timed(path, cols: dict, meta: dict, names: str) -> dict:
@@ -684,30 +611,6 @@ def _check_grid(path, meta, q):
                 f"declared step ({step:.6g}, from {key}: {meta[key]}): {what}? manus reads positions in "
                 "radians (metres on a prismatic axis)",
             )
-
-
-def _emps(path: Path) -> tuple[dict[str, np.ndarray], dict[str, str]]:
-    """An EMPS benchmark file's columns and metadata: position qm, force gtau·vir, structure axis."""
-    m = mat_variables(path, ("t", "qm", "qg", "vir", "gtau", "pulses_N", "kp", "kv"))
-    for key in ("t", "qm", "vir", "gtau"):
-        if key not in m:
-            fail(path, None, f"missing variable {key!r} (an EMPS file has t, qm, qg, vir, gtau)")
-    col = lambda k: np.asarray(m[k], float).ravel()
-    cols = {"t": col("t"), "q1": col("qm"), "tau1": float(col("gtau")[0]) * col("vir")}
-    for k in ("qg", "vir", "pulses_N"):
-        if k in m:
-            cols[k] = col(k)
-    # the reference identification (and the benchmark's own simulator) read vir(k) as acting at t_k
-    meta = {
-        "structure": "axis",
-        "joints": "prismatic",
-        "command_hold": "none",
-        "source": "EMPS benchmark (Janot, Gautier, Brunot 2019)",
-    }
-    for k in ("gtau", "kp", "kv"):
-        if k in m:
-            meta[k] = repr(float(col(k)[0]))
-    return cols, meta
 
 
 # -- writing ------------------------------------------------------------------------------------

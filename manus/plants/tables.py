@@ -1,7 +1,7 @@
 """A user's own tables as recordings: a column map (which of the table's columns is `t`, `q1`,
 `tau1`, ... and in which unit), 2-D arrays split into one column per joint, and the sources that
 hold tables: Parquet, HDF5 (MATLAB v7.3 files too), MATLAB v5 files by variable name, `.npz`, and
-a pandas DataFrame.
+a pandas DataFrame (their files checked and chosen by `manus.plants.sources`).
 
 A column map is text, `t=stamp:ms,q1=shoulder_pos,tau1=shoulder_eff`, or a file of such
 `NAME=SOURCE` lines (or a JSON object of them). SOURCE is the table's name for the column (an
@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from manus.plants.reading import fail, memory_budget, over_budget, regular_file
+from manus.plants.reading import fail, memory_budget, over_budget
 
 # a unit's factor to SI, by the kind of quantity it measures
 UNITS: dict[str, dict[str, float]] = {
@@ -212,27 +212,6 @@ def columns(table: Table, cmap: ColumnMap | None) -> dict[str, np.ndarray]:
 
 
 # -- sources ------------------------------------------------------------------------------------
-PARQUET, HDF5, MATLAB = b"PAR1", b"\x89HDF\r\n\x1a\n", b"MATLAB "
-
-
-def sniff(path: Path) -> str:
-    """What a file holds, by its first bytes: 'parquet', 'hdf5' (MATLAB v7.3 too), 'mat5', 'npz',
-    'text', or 'binary' (bytes of no format manus reads: a NUL among the first kilobytes)."""
-    with open(path, "rb") as f:
-        head = f.read(8)
-        if head.startswith(PARQUET):
-            return "parquet"
-        if head.startswith(HDF5):
-            return "hdf5"
-        if head.startswith(MATLAB):  # v5, or v7.3: HDF5 behind a 512-byte header
-            f.seek(512)
-            return "hdf5" if f.read(8) == HDF5 else "mat5"
-        if head.startswith(b"PK\x03\x04"):
-            return "npz"
-        f.seek(0)
-        return "binary" if b"\x00" in f.read(4096) else "text"
-
-
 def _needs(extra: str, module: str, what: str):
     """Import `module`, or refuse naming the extra that brings it."""
     import importlib
@@ -245,7 +224,6 @@ def _needs(extra: str, module: str, what: str):
 
 def parquet_table(path: Path) -> tuple[Table, dict[str, str]]:
     """A Parquet file's columns, and its key-value metadata (pandas' own left out)."""
-    regular_file(path)
     pq = _needs("formats", "pyarrow.parquet", str(path))
     try:
         f = pq.ParquetFile(path)
@@ -267,7 +245,6 @@ def hdf5_table(path: Path) -> tuple[Table, dict[str, str]]:
     """An HDF5 file's numeric datasets of one or two dimensions, by path (`/group/name`; a
     top-level one by its bare name too, as MATLAB v7.3 variables are), and the root's attributes
     as metadata."""
-    regular_file(path)
     h5py = _needs("formats", "h5py", str(path))
     try:
         f = h5py.File(path, "r")
@@ -306,7 +283,6 @@ def mat5_table(path: Path) -> Table:
     contents."""
     from scipy.io import loadmat, whosmat
 
-    regular_file(path)
     try:
         listed = whosmat(path)
     except Exception as e:

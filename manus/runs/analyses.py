@@ -11,7 +11,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from manus.runs.text import Bar, note
+from manus.estimators.compare import FITTED
+from manus.runs.text import Bar, describe, note
 
 if TYPE_CHECKING:
     from manus.adaptive import Diagnosis, Discovery, Fit
@@ -143,9 +144,6 @@ def discover_recording(
     return DiscoveryAnalysis(sec, _time_base(rec, report.section_result(sec)))
 
 
-FITTED = "fitted on this recording"
-
-
 @dataclass
 class EstimatorsAnalysis:
     """`manus estimators`' JSON and each estimator's estimates (for the figures)."""
@@ -170,8 +168,9 @@ def estimators_recording(
     from manus.estimators.compare import compare
 
     note(
-        f"{rec.path}: {len(rec)} samples of {rec.n_joints} joint(s) at {rec.sample_rate_hz:g} Hz, "
-        f"{'with' if rec.has_truth else 'without'} a true velocity" + (", tuning each knob" if tune else "")
+        describe(rec)
+        + f", {'with' if rec.has_truth else 'without'} a true velocity"
+        + (", tuning each knob" if tune else "")
     )
     model = None
     if any(n in MODEL_BASED for n in names):

@@ -16,7 +16,7 @@ from __future__ import annotations
 import abc
 import html
 import os
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
 
@@ -28,29 +28,18 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
 
-def read(
-    source,
-    *,
-    robot: str | os.PathLike | None = None,
-    columns: str | Mapping[str, str] | None = None,
-    meta: Mapping[str, object] | None = None,
-    topic: str | None = None,
-    joints: list[str] | None = None,
-    command_topic: str | None = None,
-) -> Recording:
-    """A recording from a file, a ROS 2 bag or a DataFrame (`manus.plants.recording.read`:
-    `columns` maps a table's names to the recording's, `t=stamp:ms,q1=pos`; `meta` states
-    metadata such as `sample_rate_hz`, `counts_per_rev`, `structure`; `topic`, `joints` and
-    `command_topic` select a bag's JointState data). A `Recording` is returned as it is."""
+def read(source, **options) -> Recording:
+    """A recording from a file, a ROS 2 bag or a DataFrame, `options` as
+    `manus.plants.recording.read` takes them (`columns`, a column map `t=stamp:ms,q1=pos`;
+    `meta`, metadata such as `sample_rate_hz`; a bag's `topic`, `joints`, `command_topic`;
+    `robot`). A `Recording` is returned as it is."""
     from manus.plants import recording
 
     if isinstance(source, Recording):
-        if any(x is not None for x in (robot, columns, meta, topic, joints, command_topic)):
+        if options:
             raise ManusError("read: a Recording is read already: give the file or the DataFrame to apply options")
         return source
-    return recording.read(
-        source, robot, columns=columns, meta=meta, topic=topic, joints=joints, command_topic=command_topic
-    )
+    return recording.read(source, **options)
 
 
 class Result(abc.ABC):
@@ -109,15 +98,6 @@ def _table_html(rows: list[list], header: list[str]) -> str:
     return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
 
-def _param_rows(params: dict) -> list[list]:
-    rows = []
-    for k, p in params.items():
-        std = p.get("std")
-        rel = f"{100 * std / abs(p['value']):.2f}" if std is not None and p["value"] else "-"
-        rows.append([k, f"{p['value']:.6g}", "-" if std is None else f"{std:.3g}", rel, p.get("unit", "")])
-    return rows
-
-
 class FitResult(Result):
     """`manus fit`'s result: the fitted model (`fit`, a `manus.adaptive.Fit`) and its report.
     `parameters` gives the values by name; `figure("compare")` runs the model free in the
@@ -148,7 +128,7 @@ class FitResult(Result):
         fits = ", ".join(f"{x:.1f} %" for x in r["fit_percent"]["torque"])
         return (
             head
-            + _table_html(_param_rows(r["params"]), ["parameter", "value", "std", "std %", "unit"])
+            + _table_html(text.param_rows(r["params"]), text.PARAM_HEADER)
             + f"<p>torque fit (NRMSE) per joint: {fits}</p>"
             + "".join(f"<p>{html.escape(n)}</p>" for n in notes)
         )
@@ -238,13 +218,9 @@ class DiscoveryResult(Result):
 
     def _repr_html_(self) -> str:
         r = self.report
-        rows = [[0, f"(start) {r['start']['model']}", "", f"{100 * r['start']['rel_error']:.2f}"]]
-        rows += [
-            [s["step"], s["spec"], text.format_params(s["params"]), f"{100 * s['rel_error']:.2f}"] for s in r["steps"]
-        ]
         return (
             "<p><b>manus discover</b></p>"
-            + _table_html(rows, ["step", "effect added", "parameters (value±std)", "rel_error %"])
+            + _table_html(text.step_rows(r), text.STEP_HEADER)
             + f"<p>stopped: {html.escape(r['stopped'])}; final model <b>{html.escape(r['model'])}</b>, rel_error "
             f"{100 * r['rel_error']:.2f} %</p>"
             + f"<p>{html.escape(text.unexplained_line(r.get('unexplained') or {}))}</p>"
@@ -320,10 +296,6 @@ class EstimatorsResult(Result):
         return estimator_figure(self.recording, self.report, self.estimates, kind)
 
 
-def _recording(source, read_options: dict) -> Recording:
-    return read(source, **read_options)
-
-
 R = TypeVar("R", bound=Result)
 
 
@@ -339,7 +311,7 @@ def fit(source, model: str, *, cutoff_hz: float | None = None, method: str = "au
     recording (`source` and `read_options` as `read` takes them)."""
 
     def work() -> FitResult:
-        rec = _recording(source, read_options)
+        rec = read(source, **read_options)
         return FitResult(analyses.fit_recording(rec, model, cutoff_hz=cutoff_hz, method=method))
 
     return _guarded("fit", work)
@@ -351,7 +323,7 @@ def diagnose(
     """`manus diagnose`: where `model` fails on a recording and which physical effect is missing."""
 
     def work() -> DiagnosisResult:
-        rec = _recording(source, read_options)
+        rec = read(source, **read_options)
         return DiagnosisResult(analyses.diagnose_recording(rec, model, cutoff_hz=cutoff_hz, method=method))
 
     return _guarded("diagnose", work)
@@ -366,7 +338,7 @@ def discover(
         raise ManusError(f"max_steps {max_steps}: at least 1")
 
     def work() -> DiscoveryResult:
-        rec = _recording(source, read_options)
+        rec = read(source, **read_options)
         a = analyses.discover_recording(rec, model, cutoff_hz=cutoff_hz, method=method, max_steps=max_steps)
         return DiscoveryResult(a)
 
@@ -396,7 +368,7 @@ def estimators(
         raise ManusError("cutoff_hz must be positive")
 
     def work() -> EstimatorsResult:
-        rec = _recording(source, read_options)
+        rec = read(source, **read_options)
         fit_json = None if model_from is None else str(model_from)
         return EstimatorsResult(analyses.estimators_recording(rec, names, tune, cutoff_hz, model, fit_json), rec)
 

@@ -199,24 +199,11 @@ def read_recording(args):
     )
 
 
-def describe(rec) -> str:
-    """One line on what was read: samples, joints, the rate (stated or from the stamps), the
-    structure, the units, where a column map or a bag gave them."""
-    rate = "stated" if "sample_rate_hz" in rec.meta else "from its time stamps"
-    units = "SI units" + (f"; columns {rec.meta['column_map']}" if "column_map" in rec.meta else "")
-    source = f"; {rec.meta['source']}" if "source" in rec.meta and "joint_names" in rec.meta else ""
-    joints = f" ({rec.meta['joint_names']})" if "joint_names" in rec.meta else ""
-    return (
-        f"{rec.path}: {len(rec)} samples of {rec.n_joints} joint(s){joints} at {rec.sample_rate_hz:g} Hz ({rate}), "
-        f"structure {rec.structure_name}, {units}{source}"
-    )
-
-
 def load_recording(args, proposing: bool = False):
     """The recording and the model text of `add_model_options`, checked: a one-line error for bad
     input. `proposing` (diagnose, discover): a model holding every effect leaves nothing to propose."""
     from manus.plants.effects import ORDER, parse_effects
-    from manus.runs.text import note
+    from manus.runs.text import describe, note
 
     if args.cutoff is not None and args.cutoff <= 0:
         raise ManusError(f"--cutoff {args.cutoff:g}: must be positive")

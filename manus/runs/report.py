@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 from manus.plants.files import atomically
 from manus.runs.figures.common import figure_dir
-from manus.runs.text import format_params, limits_line, note, unexplained_line
+from manus.runs.text import STEP_HEADER, limits_line, note, step_rows, unexplained_line
 
 if TYPE_CHECKING:
     from manus.adaptive import Discovery
@@ -27,14 +27,6 @@ class Section:
     figures: dict = field(default_factory=dict)  # "waterfall", "steps" [(spec, path)], "resid", "compare"
     intro: str = ""
     free_run: str = ""  # one line: what drove the free run (or why there is none)
-
-
-def step_rows(discovery) -> list[list]:
-    """The table of `manus discover`: step, effect added, its parameters, rel_error."""
-    rows = [[0, f"(start) {discovery.start.model.spec}", "", f"{100 * discovery.start.rel_error:.2f}"]]
-    for s in discovery.steps:
-        rows.append([s.index, s.spec, format_params(s.params), f"{100 * s.rel_error:.2f}"])
-    return rows
 
 
 def make_figures(section: Section, out: Path, prefix: str, free_run: bool = True) -> None:
@@ -166,7 +158,7 @@ def write(sections: list[Section], path: Path, title: str = "manus discover") ->
             f"rel_error **{100 * disc.rel_error:.2f} %** (from {100 * disc.start.rel_error:.2f} %).",
             "",
         ]
-        md += [_md_table(step_rows(disc), ["step", "effect added", "parameters (value±std)", "rel_error %"]), ""]
+        md += [_md_table(step_rows(disc.report()), STEP_HEADER), ""]
         for n in disc.notes:
             md += [f"- {n}"]
         f = sec.figures

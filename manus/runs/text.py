@@ -95,6 +95,19 @@ def elapsed(desc: str, about_s: float | None = None):
         note(f"{desc}: {time.perf_counter() - start:.1f} s")
 
 
+def describe(rec) -> str:
+    """One line on what was read: samples, joints, the rate (stated or from the stamps), the
+    structure, the units, where a column map or a bag gave them."""
+    rate = "stated" if "sample_rate_hz" in rec.meta else "from its time stamps"
+    units = "SI units" + (f"; columns {rec.meta['column_map']}" if "column_map" in rec.meta else "")
+    source = f"; {rec.meta['source']}" if "source" in rec.meta and "joint_names" in rec.meta else ""
+    joints = f" ({rec.meta['joint_names']})" if "joint_names" in rec.meta else ""
+    return (
+        f"{rec.path}: {len(rec)} samples of {rec.n_joints} joint(s){joints} at {rec.sample_rate_hz:g} Hz ({rate}), "
+        f"structure {rec.structure_name}, {units}{source}"
+    )
+
+
 def table(rows: list[list], header: list[str]) -> str:
     """A plain text table, columns aligned."""
     cells = [[str(h) for h in header]] + [[str(c) for c in r] for r in rows]
@@ -259,12 +272,21 @@ def diagnosis_text(r: dict) -> str:
     return "\n".join(line.rstrip() for text in lines for line in text.splitlines())
 
 
+STEP_HEADER = ["step", "effect added", "parameters (value±std)", "rel_error %"]
+
+
+def step_rows(r: dict) -> list[list]:
+    """A discovery's JSON (`manus discover`) as the rows of its table of steps (`STEP_HEADER`)."""
+    rows = [[0, f"(start) {r['start']['model']}", "", f"{100 * r['start']['rel_error']:.2f}"]]
+    return rows + [
+        [s["step"], s["spec"], format_params(s["params"]), f"{100 * s['rel_error']:.2f}"] for s in r["steps"]
+    ]
+
+
 def discovery_text(r: dict) -> str:
     """A discovery's JSON (`manus discover`) as text: the table of steps, why it stopped, what is left."""
-    rows = [[0, f"(start) {r['start']['model']}", "", f"{100 * r['start']['rel_error']:.2f}"]]
-    rows += [[s["step"], s["spec"], format_params(s["params"]), f"{100 * s['rel_error']:.2f}"] for s in r["steps"]]
     lines = [
-        table(left(rows, (1, 2)), ["step", "effect added", "parameters (value±std)", "rel_error %"]),
+        table(left(step_rows(r), (1, 2)), STEP_HEADER),
         f"stopped: {r['stopped']}; final model {r['model']}, rel_error {100 * r['rel_error']:.2f} %",
         *consistency_lines(r),
     ]
@@ -283,17 +305,26 @@ def discovery_text(r: dict) -> str:
     return "\n".join(lines)
 
 
-def fit_text(r: dict) -> str:
-    """A fit's JSON (`manus fit`) as text: the parameters, the fit, the free run, the notes."""
+PARAM_HEADER = ["parameter", "value", "std", "std %", "unit"]
+
+
+def param_rows(params: dict) -> list[list]:
+    """A fit's parameters (its JSON's `params`) as table rows (`PARAM_HEADER`)."""
     rows = []
-    urdf = r.get("urdf_values")  # a serial chain: each rigid base parameter as its URDF has it
-    for k, p in r["params"].items():
+    for k, p in params.items():
         std = p["std"]
         rel = f"{100 * std / abs(p['value']):.2f}" if std is not None and p["value"] else "-"
-        rows.append(
-            [k, f"{p['value']:.6g}", "-" if std is None else f"{std:.3g}", rel, p.get("unit", "")]
-            + ([f"{urdf[k]:.6g}" if k in urdf else ""] if urdf else [])
-        )
+        rows.append([k, f"{p['value']:.6g}", "-" if std is None else f"{std:.3g}", rel, p.get("unit", "")])
+    return rows
+
+
+def fit_text(r: dict) -> str:
+    """A fit's JSON (`manus fit`) as text: the parameters, the fit, the free run, the notes."""
+    urdf = r.get("urdf_values")  # a serial chain: each rigid base parameter as its URDF has it
+    rows = [
+        row + ([f"{urdf[k]:.6g}" if k in urdf else ""] if urdf else [])
+        for k, row in zip(r["params"], param_rows(r["params"]), strict=True)
+    ]
     lines = [
         f"model {r['spec']}: rel_error {100 * r['rel_error']:.2f} % on {r['samples']} rows "
         f"(torque low-passed at {r['cutoff_hz']:.1f} Hz, {100 * r['standstill_excluded']:.1f} % left out at "
@@ -302,7 +333,7 @@ def fit_text(r: dict) -> str:
         *([output_error_line(r["output_error"])] if "output_error" in r else []),
         f"  cut-off: {r['cutoff_note']}; command hold: {r['hold']}",
         *([f"  gaps: {r['gaps']}"] if r.get("gaps") else []),
-        table(left(rows, (4,)), ["parameter", "value", "std", "std %", "unit"] + (["in the URDF"] if urdf else [])),
+        table(left(rows, (4,)), PARAM_HEADER + (["in the URDF"] if urdf else [])),
     ]
     regrouped = {k: v for k, v in r.get("base_parameters", {}).items() if k != v}
     if regrouped:  # a serial chain: the base parameters that are combinations of standard ones
@@ -473,7 +504,9 @@ def estimators_text(r: dict) -> str:
 
 def model_line(m: dict) -> str:
     """The model-based estimators' model: its spec, where it came from, the fit's torque error."""
-    how = m["from"] if m["from"] in ("fitted on this recording", "--param") else f"from {m['from']}"
+    from manus.estimators.compare import FITTED
+
+    how = m["from"] if m["from"] in (FITTED, "--param") else f"from {m['from']}"
     fit = [f"rel_error {100 * m['rel_error']:.2f} %"] if m.get("rel_error") is not None else []
     fit += [f"method {m['method']}"] if m.get("method") else []
     fit += [f"set by hand: {', '.join(m['set_by_hand'])}"] if m.get("set_by_hand") else []
