@@ -12,7 +12,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from manus.estimators.compare import FITTED
-from manus.runs.text import Bar, describe, note
+from manus.runs.progress import Bar, note
+from manus.runs.text import describe
 
 if TYPE_CHECKING:
     from manus.adaptive import Diagnosis, Discovery, Fit

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
 
 from manus.plants.errors import ManusError
 from manus.plants.recording import Recording
-from manus.runs import analyses, text
+from manus.runs import analyses, progress, text
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -302,7 +302,7 @@ R = TypeVar("R", bound=Result)
 def _guarded(command: str, work: Callable[[], R]) -> R:
     """`work` with what the recording's reading noted shown as the command shows it (a line on
     stderr)."""
-    with text.notes_as_lines(command):
+    with progress.notes_as_lines(command):
         return work()
 
 

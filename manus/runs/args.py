@@ -203,7 +203,8 @@ def load_recording(args, proposing: bool = False):
     """The recording and the model text of `add_model_options`, checked: a one-line error for bad
     input. `proposing` (diagnose, discover): a model holding every effect leaves nothing to propose."""
     from manus.plants.effects import ORDER, parse_effects
-    from manus.runs.text import describe, note
+    from manus.runs.progress import note
+    from manus.runs.text import describe
 
     if args.cutoff is not None and args.cutoff <= 0:
         raise ManusError(f"--cutoff {args.cutoff:g}: must be positive")

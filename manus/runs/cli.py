@@ -20,7 +20,8 @@ import sys
 from types import ModuleType
 
 from manus import runs
-from manus.runs.text import json_text, notes_as_lines, set_quiet
+from manus.runs.progress import notes_as_lines, set_quiet
+from manus.runs.text import json_text
 
 
 def commands() -> dict[str, ModuleType]:

@@ -8,7 +8,8 @@ import time
 
 from manus.experiments.convergence import TRAJECTORIES
 from manus.runs.args import add_common, add_plant_options, build_plant, parse_pairs
-from manus.runs.text import elapsed, note, table
+from manus.runs.progress import elapsed, note
+from manus.runs.text import table
 
 NAME = "converge"
 HELP = "parameter-convergence trials of the Slotine-Li adaptive controller (thesis App. C), vmapped"

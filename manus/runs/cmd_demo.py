@@ -17,7 +17,8 @@ import os
 from pathlib import Path
 
 from manus.runs.args import add_json, output_dir
-from manus.runs.text import discovery_text, note
+from manus.runs.progress import note
+from manus.runs.text import discovery_text
 
 NAME = "demo"
 HELP = "the main job: discover a hidden effect in a simulated arm, then the same loop on the real EMPS data; a report"

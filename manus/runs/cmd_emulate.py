@@ -7,7 +7,7 @@ import signal
 from pathlib import Path
 
 from manus.runs.args import add_json, add_plant_options, build_plant
-from manus.runs.text import note
+from manus.runs.progress import note
 
 NAME = "emulate"
 HELP = "play the rig: the simulator in real time behind the UDP device protocol (for run-hardware)"

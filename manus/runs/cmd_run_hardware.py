@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 
 from manus.runs.args import add_json, output_file
-from manus.runs.text import note
+from manus.runs.progress import note
 
 NAME = "run-hardware"
 HELP = "run an adaptive controller and velocity estimator against a rig at its rate, with safety and a recording"

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from manus.runs.args import add_json, add_plant_options, build_plant, output_file
-from manus.runs.text import note
+from manus.runs.progress import note
 
 NAME = "simulate"
 HELP = (

@@ -16,7 +16,8 @@ import numpy as np
 
 from manus.plants.errors import ManusError
 from manus.runs.args import add_common
-from manus.runs.text import note, table
+from manus.runs.progress import note
+from manus.runs.text import table
 
 NAME = "stability"
 HELP = "impedance limits: Type 1/Type 2 stability map, negative damping, 100 Hz, sensitivity (thesis ch. 4, App. D)"

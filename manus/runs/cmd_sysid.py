@@ -7,7 +7,8 @@ from __future__ import annotations
 
 from manus.plants.errors import ManusError
 from manus.runs.args import add_common
-from manus.runs.text import note, table
+from manus.runs.progress import note
+from manus.runs.text import table
 
 NAME = "sysid"
 HELP = "system identification of thesis §3.5 (locked-joint oscillations) and the Cartesian ellipses of §3.6"

@@ -13,7 +13,8 @@ from typing import TYPE_CHECKING
 
 from manus.plants.files import atomically
 from manus.runs.figures.common import figure_dir
-from manus.runs.text import STEP_HEADER, limits_line, note, step_rows, unexplained_line
+from manus.runs.progress import note
+from manus.runs.text import STEP_HEADER, limits_line, step_rows, unexplained_line
 
 if TYPE_CHECKING:
     from manus.adaptive import Discovery
@@ -97,7 +98,7 @@ def discover_section(
 ) -> Section:
     """Run the loop on `rec` and make its report section (figures drawn into `out`)."""
     from manus.adaptive import discover
-    from manus.runs.text import Bar
+    from manus.runs.progress import Bar
 
     bar = Bar("  candidates judged", "candidate")
     disc = discover(

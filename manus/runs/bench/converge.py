@@ -109,7 +109,7 @@ def run(args) -> dict:
     from manus.plants.errors import ManusError
     from manus.plants.references import Complex
     from manus.plants.structures import Manus2
-    from manus.runs.text import note
+    from manus.runs.progress import note
 
     if args.trials < 1 or args.sample < 1 or args.repeats < 1 or args.seconds <= 0 or args.tick_sample <= 0:
         raise ManusError("need --trials, --sample, --repeats >= 1 and positive --seconds, --tick-sample")

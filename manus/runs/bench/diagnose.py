@@ -178,7 +178,7 @@ def run(args) -> dict:
     from manus.plants.recording import from_trajectory
     from manus.plants.references import MultiSine
     from manus.plants.simulator import workspace_centre
-    from manus.runs.text import note
+    from manus.runs.progress import note
 
     if args.seconds < 5 or args.repeats < 0:
         raise ManusError("--seconds must be at least 5 and --repeats not negative")
@@ -284,7 +284,7 @@ def calibrate(args) -> dict:
     from manus.experiments import calibration
     from manus.experiments.judging import case_seed, summarize
     from manus.plants.errors import ManusError
-    from manus.runs.text import note
+    from manus.runs.progress import note
 
     n = args.recordings
     if n < 1:

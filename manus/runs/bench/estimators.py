@@ -100,7 +100,7 @@ def run(args) -> dict:
     from manus.estimators import run as scan_run
     from manus.estimators.linear import quantization_variance
     from manus.plants.errors import ManusError
-    from manus.runs.text import note
+    from manus.runs.progress import note
 
     if args.calls < 300 or args.samples < 1000 or args.joints < 1:
         raise ManusError("--calls must be at least 300, --samples at least 1000, --joints at least 1")

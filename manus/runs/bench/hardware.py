@@ -185,7 +185,7 @@ def run(args) -> dict:
     realtime_jax()  # before JAX computes anything
     from manus.adaptive.controllers import compiled_tick
     from manus.plants.device import open_device
-    from manus.runs.text import note
+    from manus.runs.progress import note
 
     if not (args.seconds > 0 and args.baseline_seconds > 0):
         raise ManusError("--seconds and --baseline-seconds must be positive")

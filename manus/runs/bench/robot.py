@@ -71,7 +71,7 @@ def run(args) -> dict:
 
     from manus.plants.errors import ManusError
     from manus.plants.serial import Serial
-    from manus.runs.text import note
+    from manus.runs.progress import note
 
     if args.states < 1 or args.pinocchio_states < 1 or args.repeats < 1 or args.trials < 1 or args.batch_seconds <= 0:
         raise ManusError("--states, --pinocchio-states, --repeats, --trials and --batch-seconds must be positive")

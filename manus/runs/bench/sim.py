@@ -118,7 +118,7 @@ def run(args) -> dict:
     from manus.plants.closed_loop import simulate, simulate_batch
     from manus.plants.errors import ManusError
     from manus.plants.references import Complex
-    from manus.runs.text import note
+    from manus.runs.progress import note
 
     load = os.getloadavg()[0]
     if args.trials < 1 or args.seconds <= 0 or args.numpy_seconds <= 0 or args.every < 1 or args.repeats < 1:

@@ -26,7 +26,7 @@ def run(args) -> dict:
     from manus.experiments.stability import sweep
     from manus.experiments.stability.steptest import StepTest
     from manus.plants.errors import ManusError
-    from manus.runs.text import note
+    from manus.runs.progress import note
 
     if args.points < 1 or args.loop_points < 1 or args.repeats < 1:
         raise ManusError("--points, --loop-points and --repeats must be positive")

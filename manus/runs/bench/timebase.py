@@ -78,7 +78,7 @@ def run(args) -> dict:
     from manus.plants.errors import ManusError
     from manus.plants.recording import repair
     from manus.plants.timebase import examine
-    from manus.runs.text import note
+    from manus.runs.progress import note
 
     try:
         rates = check_rates(tuple(float(r) for r in str(args.rates).split(",") if r.strip()))
