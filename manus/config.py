@@ -5,6 +5,7 @@ library's numerics are float64 throughout: a verdict computed in float32 can dif
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 # Measured on this CPU (docs/performance.md): compile a whole scan body as one
 # function, and expose both cores as devices for sharded batches.
@@ -39,22 +40,28 @@ def configure() -> None:
 CACHE_MIN_COMPILE_S = 0.1  # compilations shorter than this are not worth a file
 
 
-def _compilation_cache(jax) -> None:
-    """JAX's persistent compilation cache in `MANUS_JAX_CACHE` (default `$XDG_CACHE_HOME/manus/jax`,
-    else `~/.cache/manus/jax`; `0` or `off`: none), so that a new process finds what an earlier
-    one compiled. JAX keys each entry by the computation, its compile options, the XLA flags, the
-    device and JAX's version: a hit is the same executable. An entry it cannot read (cut short by
-    a concurrent writer) is a warning and a compilation, never a wrong result. A folder that
-    cannot be made leaves the cache off."""
-    from pathlib import Path
-
+def cache_folder() -> Path | None:
+    """The compilation cache's folder: `MANUS_JAX_CACHE` (default `$XDG_CACHE_HOME/manus/jax`, else
+    `~/.cache/manus/jax`; `0` or `off`: none); None where it is off or cannot be made."""
     where = os.environ.get("MANUS_JAX_CACHE", "")
     if where.lower() in ("0", "off"):
-        return
+        return None
     path = Path(where or os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / ("" if where else "manus/jax")
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError:
+        return None
+    return path
+
+
+def _compilation_cache(jax) -> None:
+    """JAX's persistent compilation cache in `cache_folder()`, so that a new process finds what an
+    earlier one compiled (and `manus.stored` what it traced). JAX keys each entry by the
+    computation, its compile options, the XLA flags, the device and JAX's version: a hit is the same
+    executable. An entry it cannot read (cut short by a concurrent writer) is a warning and a
+    compilation, never a wrong result. A folder that cannot be made leaves the cache off."""
+    path = cache_folder()
+    if path is None:
         return
     jax.config.update("jax_compilation_cache_dir", str(path))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", CACHE_MIN_COMPILE_S)

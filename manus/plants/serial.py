@@ -67,6 +67,7 @@ from manus.plants.pseudo_inertia import ENTRIES, OFF_DIAGONAL, entries_of, stand
 from manus.plants.serial_friction import Dense
 from manus.plants.structures import Admissible, Structure
 from manus.plants.transmission import of_urdf as urdf_transmission
+from manus.stored import stored_jit
 
 LINK_PARAMETERS = ("m", "mx", "my", "mz", "Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz")
 GRAVITY = (0.0, 0.0, -9.81)  # m/s², the world's z axis up
@@ -138,7 +139,13 @@ class Motion(NamedTuple):
     o0: Array
 
 
-@eqx.filter_jit
+@stored_jit
+def _regressors(serial, q, qd, qdd):
+    """The chain's regressor at each sample of q, q̇, q̈ (m, n)."""
+    return jax.vmap(serial.regressor)(q, qd, qdd)
+
+
+@stored_jit
 def _mass_matrices(serial, q, theta):
     """H(q) at each configuration of q (m, n): compiled once per chain, not once per call."""
     return jax.vmap(lambda x: serial.mass_matrix(x, theta))(q)
@@ -591,7 +598,7 @@ def base_parameters(serial: Serial, samples: int = 200, seed: int = 0, tol: floa
     q = rng.uniform(-span, span, (samples, n))
     qd, qdd = rng.standard_normal((2, samples, n))
     with jax.enable_x64(True):  # the numerical rank needs float64
-        Y = np.asarray(jax.jit(jax.vmap(serial.regressor))(q, qd, qdd)).reshape(samples * n, -1)
+        Y = np.asarray(_regressors(serial, q, qd, qdd)).reshape(samples * n, -1)
     _, R, perm = scipy.linalg.qr(Y, mode="economic", pivoting=True)  # pyright: ignore[reportAssignmentType]
     diagonal = np.abs(np.diag(R))
     r = int(np.sum(diagonal > tol * diagonal[0]))

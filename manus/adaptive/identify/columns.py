@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import functools
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -19,6 +18,7 @@ import numpy as np
 from manus.adaptive.identify.prepare import PREFETCH_BYTES, Data
 from manus.estimators.offline import lowpass
 from manus.plants.effects import Effect, Model
+from manus.stored import stored_jit
 
 
 def identified(structure):
@@ -56,10 +56,10 @@ def _columns_of(effect: Effect, structure, q, qd, qdd, dt):
     return total / SUBSAMPLES
 
 
-effect_columns = eqx.filter_jit(_columns_of)
+effect_columns = stored_jit(_columns_of)
 
 
-@eqx.filter_jit
+@stored_jit
 def _batch_columns(effects: Effect, structure, q, qd, qdd, dt):
     """`effect_columns` of a stack of one effect's values (array fields with a leading axis)."""
     return jax.vmap(lambda e: _columns_of(e, structure, q, qd, qdd, dt))(effects)

@@ -27,7 +27,6 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -37,6 +36,7 @@ from manus.adaptive.identify.prepare import Data
 from manus.adaptive.identify.result import Fit, fit_rows
 from manus.plants.effects import Model
 from manus.plants.simulator import Simulator
+from manus.stored import stored_jit
 
 ITERATIONS = 3  # at most
 CONVERGED = 0.1  # the iterations stop once no parameter moves by more than this share of its std
@@ -75,7 +75,7 @@ def window_size(data: Data) -> int:
 _last: list = []  # the last simulation: [data, model, clipped parameters, its (q, q̇) or None]
 
 
-@eqx.filter_jit
+@stored_jit
 def _windows(sim: Simulator, q0, qd0, history, taus):
     def one(q0, qd0, history, tau):
         state, _ = sim.reset(None, q0, qd0)

@@ -46,7 +46,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -58,6 +57,7 @@ from manus.estimators.offline import differentiate, edge, lowpass
 from manus.plants.effects import Model
 from manus.plants.errors import ModelError
 from manus.plants.simulator import Simulator
+from manus.stored import stored_jit
 
 MIN_WINDOW = 20  # samples: fewer carry too little of the inertia's effect on the positions
 MAX_WINDOW_S = 0.5  # longer windows let an unstable model (a pendulum balanced upright) leave the data
@@ -182,7 +182,7 @@ def quantization(data: Data, cols: Columns, f: Fit) -> Quantization | None:
     return Quantization(names, inertial, G, X.T @ tau, NN, scale)
 
 
-@eqx.filter_jit
+@stored_jit
 def _unit_responses(model: Model, q):
     """(joint j, rows, n, p): the model's columns' response to a unit q̈ on joint j at rest at q."""
     zero = jnp.zeros_like(q)
@@ -302,7 +302,7 @@ def _params(names: tuple, free: tuple, theta, fixed) -> dict:
     return {k: theta[free.index(k)] if k in free else fixed[j] for j, k in enumerate(names)}
 
 
-@eqx.filter_jit
+@stored_jit
 def _residuals(model, rate, substeps, free, fixed, theta, qd0, arrays):
     """q_sim − q of every window (K, W, n) (`arrays`: `Windows.arrays`)."""
 
