@@ -63,3 +63,35 @@ def test_few_panels_are_drawn_at_once_here():
     assert not painter.remote
     job = painter.draw(os.getpid)
     assert job.result() == os.getpid()  # drawn in this process, before `draw` returned
+
+
+FORKED = """
+import sys
+import numpy as np
+from matplotlib.image import imread
+from manus.runs.figures import worker
+from manus.runs.figures.worker import WORKER_PANELS, Painter
+painter = Painter(WORKER_PANELS)  # (as a command asks: before JAX runs anything)
+assert worker._pool()._mp_context.get_start_method() == "fork"
+from manus.adaptive import diagnose
+from manus.experiments import calibration
+from manus.runs.figures.diagnose import diagnosis_figures
+c = calibration.case(0, "offset", rates=(200,))
+d = diagnose(c.rec, c.start)
+there = diagnosis_figures(d, sys.argv[1] + "/there", "d", painter)
+here = diagnosis_figures(d, sys.argv[1] + "/here", "d", Painter(0))
+assert len(here["evidence"]) >= 6
+for a, b in zip([here["resid"], *here["evidence"].values()], [there["resid"], *there["evidence"].values()]):
+    assert "/there/" in b
+    np.testing.assert_array_equal(imread(a), imread(b))
+print("same")
+"""
+
+
+def test_a_worker_forked_before_jax_runs_draws_what_this_process_draws(tmp_path):
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-c", FORKED, str(tmp_path)], capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip() == "same"

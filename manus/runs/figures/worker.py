@@ -3,11 +3,12 @@
 A 6–7-joint diagnosis draws about a hundred panels: seconds of matplotlib, all of it Python
 holding one core, while the statistics leave the other core mostly idle. A `Painter` with a
 worker hands it figure functions (`draw(fn, *args)`: the function and its arguments pickled, the
-results of the analysis it draws) and keeps going; each `Job.result()` waits for its figure. Figures few
-enough that starting the worker (a Python with matplotlib and JAX: about 2 s of the other core)
-would cost more than drawing them are drawn at once, here: `Painter(panels)` decides from the
-number of panels the caller expects. The worker is started once per process and kept for the
-next command (the test suite runs many); a worker that dies leaves its figures drawn here."""
+results of the analysis it draws) and keeps going; each `Job.result()` waits for its figure.
+Figures few enough that starting the worker (forked, or where it cannot be, a Python with matplotlib and
+JAX: about 2 s of the other core; `_start_method`) would cost more than drawing them are drawn at
+once, here: `Painter(panels)` decides from the number of panels the caller expects. The worker is
+started once per process and kept for the next command (the test suite runs many); a worker that
+dies leaves its figures drawn here."""
 
 from __future__ import annotations
 
@@ -22,9 +23,25 @@ WORKER_PANELS = 40  # panels from which a worker is worth starting (about what 2
 
 @functools.lru_cache(maxsize=1)
 def _pool() -> ProcessPoolExecutor:
-    import multiprocessing
+    return ProcessPoolExecutor(1, mp_context=_start_method(), initializer=_ready)
 
-    return ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"), initializer=_ready)
+
+def _start_method():
+    """How the worker starts: forked where this process runs one thread and JAX has started no
+    runtime yet (as a command runs when it asks for figures: the worker then has every module this
+    process imported, and starts in milliseconds instead of seconds of imports); spawned, a new
+    Python, anywhere else (a fork of a process with threads or a running XLA can deadlock)."""
+    import multiprocessing
+    import threading
+
+    try:
+        from jax._src.xla_bridge import backends_are_initialized
+
+        running = backends_are_initialized()
+    except ImportError:  # (JAX no longer says: spawn)
+        running = True
+    quiet = threading.active_count() == 1 and not running and "fork" in multiprocessing.get_all_start_methods()
+    return multiprocessing.get_context("fork" if quiet else "spawn")
 
 
 def _ready() -> None:
