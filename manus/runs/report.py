@@ -98,8 +98,12 @@ def discover_section(
 ) -> Section:
     """Run the loop on `rec` and make its report section (figures drawn into `out`)."""
     from manus.adaptive import discover
+    from manus.runs.figures.diagnose import evidence_panels, resid_panels
+    from manus.runs.figures.worker import expect
     from manus.runs.progress import Bar
 
+    if figures:  # (its figures: at least one step's evidence and the final residual)
+        expect(evidence_panels(rec.n_joints) + resid_panels(rec.n_joints))
     bar = Bar("  candidates judged", "candidate")
     disc = discover(
         rec,

@@ -79,13 +79,20 @@ class Job:
         return self._value
 
 
+def expect(panels: int) -> None:
+    """Figures of about `panels` panels will be asked for later: where that is worth a worker,
+    start it now, while this process may still be quiet enough to fork it (`_start_method`)."""
+    if panels >= WORKER_PANELS:
+        Painter(panels)
+
+
 class Painter:
     """Figure functions run beside the analysis (in the worker) or at once (here)."""
 
     def __init__(self, panels: int):
         self.remote = panels >= WORKER_PANELS
         if self.remote:
-            self._submit(_started)  # the worker starts importing now, while the caller works
+            self._submit(_started)  # the worker starts now, while the caller works
 
     def _submit(self, fn: Callable, *args) -> Future | None:
         try:
