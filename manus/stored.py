@@ -100,7 +100,7 @@ class Stored:
         except Exception:  # (none yet, cut short, or written by another version)
             return None
         takes = [(a.shape, a.dtype) for a in program.in_avals]
-        return jax.jit(program.call) if takes == [(x.shape, x.dtype) for x in leaves] else None
+        return _callable(program) if takes == [(x.shape, x.dtype) for x in leaves] else None
 
     def _export(self, path: Path, static, tree, leaves):
         """The program traced and lowered now, written to `path`; `_REFUSED` where it cannot be."""
@@ -119,7 +119,19 @@ class Stored:
             return _REFUSED
         with self._lock:
             _write(path, bytes(blob))
+        return _callable(program)
+
+
+def _callable(program):
+    """The exported `program` compiled to call: on as many devices as a `shard_map` inside it
+    splits its work over, its arguments given whole to each."""
+    if program.nr_devices == 1:
         return jax.jit(program.call)
+    import numpy as np
+
+    mesh = jax.sharding.Mesh(np.array(jax.devices()[: program.nr_devices]), ("devices",))
+    whole = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec())  # (the program splits them itself)
+    return jax.jit(program.call, in_shardings=tuple(whole for _ in program.in_avals))
 
 
 def _write(path: Path, blob: bytes) -> None:

@@ -110,6 +110,27 @@ def test_the_folder_is_kept_under_its_limit_oldest_first(cache, chain, monkeypat
     assert len(list(cache.iterdir())) == 2
 
 
+def _split(x):
+    """sin(x)² of x (B, n), the rows split over two devices (`shard_map`)."""
+    TRACES.append("split")
+    P = jax.sharding.PartitionSpec
+    mesh = jax.sharding.Mesh(np.array(jax.devices()[:2]), ("rows",))
+    return jax.shard_map(lambda y: jnp.sin(y) ** 2, mesh=mesh, in_specs=P("rows"), out_specs=P("rows"))(x)
+
+
+def test_a_program_split_over_devices_is_read_back_and_run_on_them(cache):
+    if len(jax.devices()) < 2:
+        pytest.skip("one device: nothing to split over")
+    x = np.linspace(0.0, 3.0, 12).reshape(6, 2)
+    first = stored.stored_jit(_split)(x)
+    assert len(list(cache.iterdir())) == 1
+    TRACES.clear()
+    again = stored.stored_jit(_split)(x)
+    assert TRACES == [] and again.sharding.num_devices == 2  # read back, not traced; run on both devices
+    np.testing.assert_array_equal(np.asarray(again), np.asarray(first))
+    np.testing.assert_allclose(np.asarray(first), np.sin(x) ** 2, rtol=1e-15)
+
+
 PROGRAM = """
 import numpy as np
 import manus

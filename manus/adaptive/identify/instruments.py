@@ -27,6 +27,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -77,7 +78,11 @@ _last: list = []  # the last simulation: [data, model, clipped parameters, its (
 
 @stored_jit
 def _windows(sim: Simulator, q0, qd0, history, taus):
-    def one(q0, qd0, history, tau):
+    """(q, q̇) of each window (its first axis), split over the devices where they divide the count
+    (`shard_map`: one device per CPU core, `manus.config`; each window is simulated alone, so the
+    split changes no number)."""
+
+    def one(sim, q0, qd0, history, tau):
         state, _ = sim.reset(None, q0, qd0)
         state = state._replace(commands=history)
 
@@ -88,7 +93,20 @@ def _windows(sim: Simulator, q0, qd0, history, taus):
 
         return jax.lax.scan(tick, state, tau)[1]
 
-    return jax.vmap(one)(q0, qd0, history, taus)
+    each = jax.vmap(one, in_axes=(None, 0, 0, 0, 0))
+    devices = jax.devices()
+    if len(devices) < 2 or q0.shape[0] % len(devices):
+        return each(sim, q0, qd0, history, taus)
+    P = jax.sharding.PartitionSpec
+    arrays, rest = eqx.partition(sim, eqx.is_array)
+    local = jax.shard_map(
+        lambda arrays, *xs: each(eqx.combine(arrays, rest), *xs),
+        mesh=jax.sharding.Mesh(np.array(devices), ("windows",)),
+        in_specs=(P(), P("windows"), P("windows"), P("windows"), P("windows")),
+        out_specs=(P("windows"), P("windows")),
+        check_vma=False,
+    )
+    return local(arrays, q0, qd0, history, taus)
 
 
 def windows(data: Data, model: Model, params: dict) -> tuple[np.ndarray, np.ndarray] | None:
@@ -108,8 +126,9 @@ def windows(data: Data, model: Model, params: dict) -> tuple[np.ndarray, np.ndar
         return _last[3]  # the free run of the parameters IV's last instruments came from
     dt, T, n, W = data.dt, len(data.rec), data.n_joints, window_size(data)
     count = int(np.ceil(T / W))
+    count += -count % len(jax.devices())  # (windows after the end, dropped: one count per device)
     tau = np.asarray(data.rec.tau, float)
-    starts = np.arange(count) * W
+    starts = np.minimum(np.arange(count) * W, T - 1)
     taus = np.concatenate([tau, np.repeat(tau[-1:], count * W - T, 0)]).reshape(count, W, n)
     run = None
     for step in dict.fromkeys((substeps(dt), substeps(dt, FINE_SUBSTEP_S))):
