@@ -68,11 +68,11 @@ class Stored:
         functools.update_wrapper(self, fn)
 
     def __call__(self, *args):
-        where = folder()
         dynamic, static = eqx.partition(args, eqx.is_array)
         leaves, tree = jax.tree.flatten(dynamic)
+        where = None if any(isinstance(x, Tracer) for x in leaves) else folder()  # (inside another trace: plain)
         key = None if where is None else self._key(static, tree, leaves)
-        if where is None or key is None or any(isinstance(x, Tracer) for x in leaves):
+        if where is None or key is None:
             return self.jit(*args)
         call = self._calls.get(key)
         if call is None:
@@ -81,6 +81,8 @@ class Stored:
         return self.jit(*args) if call is _REFUSED else call(*leaves)
 
     def _key(self, static, tree, leaves) -> str | None:
+        """The file name of this call's program (see the module); None where the static arguments
+        do not pickle."""
         try:
             blob = pickle.dumps((static, str(tree)), protocol=5)
         except Exception:  # (a lambda or a lock among the static arguments: not a key)
