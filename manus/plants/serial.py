@@ -53,6 +53,7 @@ The URDF file itself is read by `manus.plants.urdf`.
 from __future__ import annotations
 
 import abc
+import os
 from typing import TYPE_CHECKING, ClassVar, NamedTuple
 
 import equinox as eqx
@@ -191,7 +192,7 @@ class Serial(_Configuration):
     axis: np.ndarray
     gravity: np.ndarray
     defaults: np.ndarray
-    source: str = eqx.field(default="", static=True)  # the URDF file it was read from
+    source: str = eqx.field(default="", static=True)  # the URDF file it was read from (absolute)
     # the joints' <dynamics damping friction>: the nominal viscous and Coulomb friction (0: none given)
     damping: tuple[float, ...] = eqx.field(default=(), static=True)
     friction: tuple[float, ...] = eqx.field(default=(), static=True)
@@ -314,7 +315,7 @@ class Serial(_Configuration):
             axis=np.stack([j.axis for j in chain]),
             gravity=np.asarray(gravity, dtype=float),
             defaults=np.concatenate([*inertials, arm]),
-            source=str(path),
+            source=os.path.abspath(path),  # (one file, one name: however a recording reaches it)
             damping=tuple(j.damping for j in chain),
             friction=tuple(j.friction for j in chain),
             transmission=urdf_transmission(path, tuple(j.name for j in chain)),
