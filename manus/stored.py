@@ -5,10 +5,10 @@ process still traces each Python function and lowers it to StableHLO before it c
 executable up: on a 7-joint arm, about 1.5 s of a `manus diagnose`, spent holding the GIL.
 `stored_jit(f)` is `equinox.filter_jit(f)` that also keeps the lowered program (`jax.export`,
 serialized) in a folder beside the compilation cache, one file per key. The key is everything the
-trace depends on: the manus sources, JAX's version and float64 setting, the function, its static
-arguments (pickled) and the shapes and dtypes of its arrays. A new process with the same key reads
-the program and calls it; its executable comes from the compilation cache. The result is the same
-to the last bit (the same program compiled the same way).
+trace depends on: the manus sources, JAX's version and float64 setting, the devices, the
+function, its static arguments (pickled) and the shapes and dtypes of its arrays. A new process
+with the same key reads the program and calls it; its executable comes from the compilation
+cache. The result is the same to the last bit (the same program compiled the same way).
 
 Where any of that cannot be done (no cache folder, static arguments that do not pickle, a program
 `jax.export` refuses, a file that cannot be read or written, a call under another transformation)
@@ -88,7 +88,9 @@ class Stored:
         except Exception:  # (a lambda or a lock among the static arguments: not a key)
             return None
         h = hashlib.sha256(_sources())
+        devices = jax.devices()  # (a trace may split its work over them)
         h.update(f"{self.fn.__module__}.{self.fn.__qualname__} x64={jax.config.read('jax_enable_x64')}".encode())
+        h.update(f"{devices[0].platform} x{len(devices)}".encode())
         h.update(blob)
         h.update(repr([(x.shape, str(x.dtype), bool(getattr(x, "weak_type", False))) for x in leaves]).encode())
         return h.hexdigest()

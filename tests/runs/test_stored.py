@@ -151,3 +151,30 @@ def test_a_new_process_reads_what_an_earlier_one_traced(tmp_path):
     second = run()
     assert "Finished tracing _columns_of" not in second.stderr  # read, not traced
     assert second.stdout.split()[0] == first.stdout.split()[0]
+
+
+ON_DEVICES = """
+import numpy as np
+import manus
+import jax, jax.numpy as jnp
+from manus.stored import stored_jit
+def split(x):
+    d = jax.devices()
+    if len(d) < 2:
+        return jnp.sin(x) ** 2
+    P = jax.sharding.PartitionSpec
+    mesh = jax.sharding.Mesh(np.array(d[:2]), ("rows",))
+    return jax.shard_map(lambda y: jnp.sin(y) ** 2, mesh=mesh, in_specs=P("rows"), out_specs=P("rows"))(x)
+print(len(jax.devices()), repr(float(stored_jit(split)(np.linspace(0.0, 3.0, 12).reshape(6, 2)).sum())))
+"""
+
+
+def test_a_process_with_other_devices_traces_its_own_program(tmp_path):
+    env = {**os.environ, "MANUS_JAX_CACHE": str(tmp_path / "jax")}
+    run = lambda **extra: subprocess.run(
+        [sys.executable, "-c", ON_DEVICES], env={**env, **extra}, capture_output=True, text=True, check=True
+    ).stdout.split()
+    two = run(XLA_FLAGS="--xla_force_host_platform_device_count=2")
+    one = run(XLA_FLAGS="--xla_force_host_platform_device_count=1")  # (the two-device program is not its own)
+    assert two[0] == "2" and one[0] == "1" and float(one[1]) == pytest.approx(float(two[1]), rel=1e-14)
+    assert len(list((tmp_path / "jax-exported").iterdir())) == 2
