@@ -29,9 +29,11 @@ def _pool() -> ProcessPoolExecutor:
 def _start_method():
     """How the worker starts: forked where this process runs one thread and JAX has started no
     runtime yet (as a command runs when it asks for figures: the worker then has every module this
-    process imported, and starts in milliseconds instead of seconds of imports); spawned, a new
-    Python, anywhere else (a fork of a process with threads or a running XLA can deadlock)."""
+    process imported, and starts in milliseconds instead of seconds of imports), on Linux; spawned,
+    a new Python, anywhere else (a fork of a process with threads or a running XLA can deadlock;
+    macOS's system libraries are not safe to fork at all)."""
     import multiprocessing
+    import sys
     import threading
 
     try:
@@ -40,7 +42,7 @@ def _start_method():
         running = backends_are_initialized()
     except ImportError:  # (JAX no longer says: spawn)
         running = True
-    quiet = threading.active_count() == 1 and not running and "fork" in multiprocessing.get_all_start_methods()
+    quiet = threading.active_count() == 1 and not running and sys.platform.startswith("linux")
     return multiprocessing.get_context("fork" if quiet else "spawn")
 
 
