@@ -59,12 +59,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
+from jax.sharding import PartitionSpec
 
 from manus import estimators
 from manus.adaptive.composite import Composite, CompositeState, symmetric, upper_triangle
 from manus.adaptive.projection import Projection
 from manus.adaptive.regressors import DEFAULT_BOUNDARY, Regressor
 from manus.estimators.base import Estimator, run
+from manus.plants.devices import BATCH, split
 from manus.plants.effects import Model
 from manus.plants.errors import ManusError
 from manus.plants.stepper import Controller, Plant, Reference, RefSample
@@ -655,27 +657,15 @@ def _batch(plant, controller, reference, per_trial, keys, truth, steps: int, eve
         carry, rows, grams = _scan_ticks(flat_tick, carry, steps, every, record, lambda c: _rebuild(c, spec)[3])
         return _outputs(_rebuild(carry, spec), rows, grams, steps)
 
-    devices = jax.devices()
-    if len(devices) < 2 or keys.shape[0] % len(devices):
-        return run(plant, controller, reference, per_trial, keys, truth)
-    Ps = jax.sharding.PartitionSpec
-    arrays, rest = eqx.partition((plant, controller, reference), eqx.is_array)
-    rows, last = Ps(None, None, "trials"), Ps(None, "trials")
-    out = (rows, rows, rows, Ps("trials"), Ps(None, None, None, "trials"), last, last, last, last)
-
-    # no collectives inside: every device runs its own trials
-    def on_device(arrays, per_trial, keys, truth):
-        plant, controller, reference = eqx.combine(arrays, rest)
-        return run(plant, controller, reference, per_trial, keys, truth)
-
-    local = jax.shard_map(
-        on_device,
-        mesh=jax.sharding.Mesh(np.array(devices), ("trials",)),
-        in_specs=(Ps(), Ps("trials"), Ps("trials"), Ps()),
-        out_specs=out,
-        check_vma=False,
+    # every device runs its own trials
+    rows, last = PartitionSpec(None, None, BATCH), PartitionSpec(None, BATCH)
+    out = (rows, rows, rows, PartitionSpec(BATCH), PartitionSpec(None, None, None, BATCH), last, last, last, last)
+    return split(
+        lambda whole, parts: run(whole[0], whole[1], whole[2], parts[0], parts[1], whole[3]),
+        (plant, controller, reference, truth),
+        (per_trial, keys),
+        out,
     )
-    return local(arrays, per_trial, keys, truth)
 
 
 def replay(controller: Controller, q: Array, refs: RefSample) -> tuple[Any, Array]:

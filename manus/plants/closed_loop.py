@@ -16,7 +16,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
+from jax.sharding import PartitionSpec
 
+from manus.plants.devices import BATCH, split
 from manus.plants.errors import ModelError
 from manus.plants.stepper import Controller, Plant, Reference
 
@@ -174,20 +176,12 @@ def _batch(plant, controller, reference, keys, steps: int, batched: tuple[str, .
         carry = eqx.filter_vmap(start, in_axes=(*axes, 0))(plant, controller, reference, keys)
         return jax.lax.scan(chunk, carry, jnp.arange(0, steps, every))[1]
 
-    devices = jax.devices()
-    if len(devices) < 2 or keys.shape[0] % len(devices):
-        return run(plant, controller, reference, keys)
-    P = jax.sharding.PartitionSpec
-    specs = tuple(P("trials") if name in batched else P() for name in parts) + (P("trials"),)
-    out = Trajectory(P(None, "trials"), *[P(None, None, "trials")] * 5)
-    arrays, rest = eqx.partition((plant, controller, reference, keys), eqx.is_array)
-    # no collectives inside: every device runs its own trials (check_vma would object to the
-    # sub-step loop's carry starting shared and ending per trial)
-    local = jax.shard_map(
-        lambda arrays: run(*eqx.combine(arrays, rest)),
-        mesh=jax.sharding.Mesh(np.array(devices), ("trials",)),
-        in_specs=(specs,),
-        out_specs=out,
-        check_vma=False,
-    )
-    return local(arrays)
+    named = {"plant": plant, "controller": controller, "reference": reference}
+    whole = {k: v for k, v in named.items() if k not in batched}
+    parts = ({k: v for k, v in named.items() if k in batched}, keys)
+
+    def on(whole, parts):  # (every device runs its own trials)
+        given = {**whole, **parts[0]}
+        return run(given["plant"], given["controller"], given["reference"], parts[1])
+
+    return split(on, whole, parts, Trajectory(PartitionSpec(None, BATCH), *[PartitionSpec(None, None, BATCH)] * 5))

@@ -27,7 +27,6 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -35,6 +34,7 @@ import numpy as np
 from manus.adaptive.identify.columns import Columns
 from manus.adaptive.identify.prepare import Data
 from manus.adaptive.identify.result import Fit, fit_rows
+from manus.plants.devices import BATCH, split
 from manus.plants.effects import Model
 from manus.plants.simulator import Simulator
 from manus.stored import stored_jit
@@ -78,9 +78,8 @@ _last: list = []  # the last simulation: [data, model, clipped parameters, its (
 
 @stored_jit
 def _windows(sim: Simulator, q0, qd0, history, taus):
-    """(q, q̇) of each window (its first axis), split over the devices where they divide the count
-    (`shard_map`: one device per CPU core, `manus.config`; each window is simulated alone, so the
-    split changes no number)."""
+    """(q, q̇) of each window (its first axis), the windows split over the devices
+    (`manus.plants.devices.split`)."""
 
     def one(sim, q0, qd0, history, tau):
         state, _ = sim.reset(None, q0, qd0)
@@ -94,19 +93,8 @@ def _windows(sim: Simulator, q0, qd0, history, taus):
         return jax.lax.scan(tick, state, tau)[1]
 
     each = jax.vmap(one, in_axes=(None, 0, 0, 0, 0))
-    devices = jax.devices()
-    if len(devices) < 2 or q0.shape[0] % len(devices):
-        return each(sim, q0, qd0, history, taus)
-    P = jax.sharding.PartitionSpec
-    arrays, rest = eqx.partition(sim, eqx.is_array)
-    local = jax.shard_map(
-        lambda arrays, *xs: each(eqx.combine(arrays, rest), *xs),
-        mesh=jax.sharding.Mesh(np.array(devices), ("windows",)),
-        in_specs=(P(), P("windows"), P("windows"), P("windows"), P("windows")),
-        out_specs=(P("windows"), P("windows")),
-        check_vma=False,
-    )
-    return local(arrays, q0, qd0, history, taus)
+    batch = jax.sharding.PartitionSpec(BATCH)
+    return split(lambda sim, xs: each(sim, *xs), sim, (q0, qd0, history, taus), (batch, batch))
 
 
 def windows(data: Data, model: Model, params: dict) -> tuple[np.ndarray, np.ndarray] | None:
