@@ -117,3 +117,35 @@ def test_a_dead_link_is_a_one_line_error(tmp_path):
         "manus run-hardware: udp://127.0.0.1:9: no answer from the device within 2 s "
         "(is `manus emulate --port 9` or the rig running?)"
     ]
+
+
+def test_the_executable_ends_as_any_exit_would(tmp_path):
+    """`entry` leaves without the interpreter's teardown, but its output is whole, its threads
+    finish, its exit handlers run and its exit code is main's."""
+    code = f"""
+import atexit, sys, threading, time
+from manus.runs import cli
+atexit.register(lambda: open({str(tmp_path / "atexit")!r}, "w").write("ran"))
+threading.Thread(target=lambda: (time.sleep(0.5), open({str(tmp_path / "thread")!r}, "w").write("done"))).start()
+sys.argv = ["manus"] + sys.argv[1:]
+cli.entry()
+"""
+    rec = tmp_path / "r.csv"
+    ok = subprocess.run(
+        [sys.executable, "-c", code, "simulate", "--seconds", "0.5", "--out", str(rec), "--json"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert ok.returncode == 0, ok.stderr[-2000:]
+    assert json.loads(ok.stdout)["samples"] == 500
+    assert (tmp_path / "atexit").read_text() == "ran" and (tmp_path / "thread").read_text() == "done"
+    bad = subprocess.run(
+        [sys.executable, "-c", code, "fit", str(tmp_path / "none.csv"), "--model", "rigid"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert bad.returncode == 2 and bad.stderr.strip().endswith("none.csv: no such file")
