@@ -111,20 +111,35 @@ def residual_structure(ctx: Context, f: Fit, alpha: float) -> dict:
     for train, test in folds:
         theta = st.theta(st.coef(train))
         resid.append((tau - Y @ theta, train[seg_of_row], test[seg_of_row]))
-    tests: list[Tested] = []
     torque = float(np.sum(tau**2)) or 1.0
     bases = _bases(data, f.predicted())
     t = data.rec.t[data.rows]
-    for j in range(data.n_joints):
-        for (what, i), B in [*bases.items(), (("frequency", None), None)]:
-            with_, without = np.zeros(len(folds)), np.zeros(len(folds))
-            for k, (r, tr, te) in enumerate(resid):
-                Bk = B if B is not None else _sinusoid(t, r[tr, j], tr)
-                if Bk is None:
-                    continue
-                c = np.linalg.lstsq(Bk[tr], r[tr, j], rcond=1e-10)[0]
-                e = r[te, j] - Bk[te] @ c
-                with_[k], without[k] = e @ e, r[te, j] @ r[te, j]
+    n, k = data.n_joints, len(folds)
+    # each basis's held-out squared errors on every joint's residual at once (one least-squares
+    # solve per basis and block, a right-hand side per joint); the sinusoid's basis is each joint's own
+    errors = {}
+    for key, B in bases.items():
+        with_, without = np.zeros((k, n)), np.zeros((k, n))
+        for b, (r, tr, te) in enumerate(resid):
+            c = np.linalg.lstsq(B[tr], r[tr], rcond=1e-10)[0]
+            e = r[te] - B[te] @ c
+            for j in range(n):
+                with_[b, j], without[b, j] = e[:, j] @ e[:, j], r[te, j] @ r[te, j]
+        errors[key] = (with_, without)
+    tests: list[Tested] = []
+    for j in range(n):
+        for what, i in [*bases, ("frequency", None)]:
+            if what != "frequency":
+                with_, without = (x[:, j] for x in errors[(what, i)])
+            else:
+                with_, without = np.zeros(k), np.zeros(k)
+                for b, (r, tr, te) in enumerate(resid):
+                    Bk = _sinusoid(t, r[tr, j], tr)
+                    if Bk is None:
+                        continue
+                    c = np.linalg.lstsq(Bk[tr], r[tr, j], rcond=1e-10)[0]
+                    e = r[te, j] - Bk[te] @ c
+                    with_[b], without[b] = e @ e, r[te, j] @ r[te, j]
             if not without.sum() > 0:
                 continue
             frac = 1 - float(np.sqrt(with_.sum() / without.sum()))

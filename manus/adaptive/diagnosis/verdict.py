@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -66,17 +67,26 @@ MIN_ROWS_PER_BLOCK = 10
 @dataclass(repr=False)
 class Diagnosis:
     """One diagnosis step: the model fitted, its candidates judged, the verdict (None: nothing
-    significant is missing) and what is left in the residual."""
+    significant is missing) and what is left in the residual (`unexplained`)."""
 
     base: Fit
     candidates: list[Candidate]
     verdict: Candidate | None
     base_cv_sse: np.ndarray
     notes: list[str] = field(default_factory=list)
-    unexplained: dict = field(default_factory=dict)
     alpha: float = ALPHA
     context: Context | None = None  # what the step judged in (its blocks: a loop measures its steps on them)
     judged: PositionJudging | None = None  # where the candidates were judged by output error's positions
+
+    @cached_property
+    def unexplained(self) -> dict:
+        """Structure left in the residual of the verdict's fit (the model's, without a verdict)
+        that no effect of the vocabulary explains (`manus.adaptive.diagnosis.leftover`), computed
+        when first asked: a loop asks it of its last diagnosis only."""
+        if self.context is None:
+            return {}
+        after = self.verdict.fit if self.verdict is not None and self.verdict.fit is not None else self.base
+        return residual_structure(self.context, after, self.alpha)
 
     def __repr__(self) -> str:
         """One line (`report()` holds the candidates)."""
@@ -215,9 +225,7 @@ def diagnose(
         else:
             overlaps(ctx, judged, verdict, cands)
         cands.sort(key=lambda c: (c is not verdict, c.overlaps is not None, -_torque_gain(c)))
-    after = verdict.fit if verdict is not None and verdict.fit is not None else base
-    unexplained = residual_structure(ctx, after, alpha)
-    return Diagnosis(base, cands, verdict, base_sse, notes, unexplained, alpha, ctx, judged)
+    return Diagnosis(base, cands, verdict, base_sse, notes, alpha, ctx, judged)
 
 
 def _torque_gain(c: Candidate) -> float:
