@@ -93,10 +93,12 @@ def diagnose_recording(
     """`manus diagnose`'s analysis: the model fitted (`fitted` is told, to start its figure), then
     each effect it lacks judged, a progress bar counting them."""
     from manus.adaptive import Columns, diagnose, fit, prepare
+    from manus.adaptive.diagnosis.candidates import columns_ahead
 
     note(f"diagnosing {model}: fitting it, then with each missing effect in turn ...")
     data = prepare(rec, cutoff_hz)
     cols = Columns(data)
+    columns_ahead(cols, model)  # (the candidates' columns, beside the fit)
     base = fit(data, model, columns=cols, method=method)
     if fitted is not None:
         fitted(base)

@@ -107,3 +107,16 @@ def test_scores_of_appended_columns_are_the_whole_statistics_scores():
             got, ref = block_scores(every.one(v), test, masks), block_scores(whole, test, masks)
             np.testing.assert_allclose(got.s, ref.s, rtol=1e-9, atol=1e-9 * np.abs(ref.s).max())
             np.testing.assert_allclose(got.Q, ref.Q, rtol=1e-9, atol=1e-9 * np.abs(ref.Q).max())
+
+
+def test_a_fit_asked_for_again_is_the_same_and_a_callers_change_does_not_reach_it():
+    X, E, tau, starts, masks = _problem(4)
+    every = lsq.Stats.of(X, tau, starts).extend(E)
+    lower = np.r_[np.full(X.shape[2], -np.inf), np.zeros(E.shape[3])]
+    first = every.coefs(masks, lower)
+    first[...] = np.nan  # (a caller writing into what it was given)
+    again, free = every.coefs(masks, lower), every.coefs(masks)
+    fresh = lsq.Stats.of(X, tau, starts).extend(E)
+    np.testing.assert_array_equal(again, fresh.coefs(masks, lower))
+    np.testing.assert_array_equal(free, fresh.coefs(masks))
+    assert not np.array_equal(again, free)  # (the bounds are part of what is asked)

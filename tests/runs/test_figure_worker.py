@@ -59,6 +59,9 @@ def test_a_dead_worker_leaves_its_figures_drawn_here(diagnosis, tmp_path):
 
 
 def test_few_panels_are_drawn_at_once_here():
+    if worker._pool.cache_info().currsize:  # (no worker up: an earlier test's stopped)
+        worker._pool().shutdown()
+        worker._pool.cache_clear()
     painter = Painter(WORKER_PANELS - 1)
     assert not painter.remote
     job = painter.draw(os.getpid)
@@ -95,3 +98,10 @@ def test_a_worker_forked_before_jax_runs_draws_what_this_process_draws(tmp_path)
     out = subprocess.run([sys.executable, "-c", FORKED, str(tmp_path)], capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.strip() == "same"
+
+
+def test_a_worker_already_up_draws_few_panels_too():
+    Painter(WORKER_PANELS).draw(int, "1").result()  # (as `expect` starts it)
+    painter = Painter(1)
+    assert painter.remote
+    assert painter.draw(os.getpid).result() != os.getpid()

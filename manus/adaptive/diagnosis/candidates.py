@@ -31,6 +31,7 @@ from manus.adaptive.diagnosis.context import Context
 from manus.adaptive.diagnosis.scores import block_scores, detectable, score_p
 from manus.adaptive.diagnosis.significance import SIGNIFICANCE, combined, one_sided_p, score_blocks
 from manus.adaptive.identify.columns import Columns
+from manus.adaptive.identify.fit import model_from
 from manus.adaptive.identify.prepare import align
 from manus.adaptive.identify.result import Fit
 from manus.adaptive.identify.search import Grid, delay_of, grid
@@ -236,6 +237,16 @@ def offered(model: Model, span: Span, prismatic) -> tuple[list[Offer], list[str]
         replaced = tuple(r for r in e0.replaces if model.has(r) and not any(r in e.requires for e in model.effects))
         out.append(Offer(e0, tuple(values), brought, replaced))
     return out, notes
+
+
+def columns_ahead(cols: Columns, model: Model | str) -> None:
+    """Start computing the columns `judge` will search on top of `model` (every linear effect it
+    lacks, each with the values of its space, in the order they are judged) while the caller fits
+    the model (`Columns.ahead`). An effect the model holds that can grow is left to its step: its
+    values follow the fit."""
+    m, _ = model_from(model, cols.data.rec.structure)
+    offers, _ = offered(m, cols.data.span(), cols.data.rec.prismatic)
+    cols.ahead([list(o.values) for o in offers if o.effect.linear and not m.has(o.effect.name)])
 
 
 def judge(ctx: Context, offer: Offer) -> Candidate:

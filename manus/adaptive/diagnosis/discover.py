@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from manus.adaptive.diagnosis.candidates import MOST, Candidate
+from manus.adaptive.diagnosis.candidates import MOST, Candidate, columns_ahead
 from manus.adaptive.diagnosis.significance import held_out_per_joint, on_joints
 from manus.adaptive.diagnosis.verdict import Diagnosis, diagnose
 from manus.adaptive.identify.columns import Columns
@@ -230,6 +230,7 @@ def discover(
     say = progress or (lambda line: None)
     data = rec if isinstance(rec, Data) else prepare(rec, cutoff_hz)
     cols = Columns(data)
+    columns_ahead(cols, model)  # (the first diagnosis's candidates' columns, beside the fit)
     start = fit(data, model, columns=cols, method=method)
     given = model_from(model, data.rec.structure)[1]  # values the user wrote stay as written
     current = start

@@ -30,7 +30,7 @@ from functools import cached_property
 
 import numpy as np
 
-from manus.adaptive.diagnosis.candidates import Candidate, Offer, compliance, judge, offered
+from manus.adaptive.diagnosis.candidates import Candidate, Offer, columns_ahead, compliance, judge, offered
 from manus.adaptive.diagnosis.context import Context
 from manus.adaptive.diagnosis.leftover import residual_structure
 from manus.adaptive.diagnosis.oe_judging import POSITION, TORQUE, PositionJudging, judging, overlaps, rejudge
@@ -181,6 +181,8 @@ def diagnose(
     if fitted is not None and fitted.data is data and fitted.model.spec == parsed.spec:
         base = fitted
     else:
+        if columns is None:
+            columns_ahead(cols, parsed)
         base = fit(data, model, columns=cols, method=method)
     icols = base.instruments if base.method == "iv" else None
     k = _blocks_for(data, blocks)

@@ -10,6 +10,8 @@ columns on the simulated motion (`Columns(data, kinematics=...)`).
 from __future__ import annotations
 
 import functools
+import threading
+from collections.abc import Sequence
 
 import jax
 import jax.numpy as jnp
@@ -81,6 +83,8 @@ class Columns:
         q, qd, qdd = kinematics if kinematics is not None else (data.q, data.qd, data.qdd)
         self._kin = (np.asarray(q), np.asarray(qd), np.asarray(qdd))
         self._args = (jnp.asarray(q), jnp.asarray(qd), jnp.asarray(qdd))
+        self._lists: dict[tuple[str, ...], threading.Lock] = {}  # one per list of effects `prefetch` is given
+        self._guard = threading.Lock()
 
     def effect(self, e: Effect) -> np.ndarray:
         """(rows, n, p) columns of one linear effect, low-passed like the torque."""
@@ -99,11 +103,37 @@ class Columns:
             out[:, :, on] = np.moveaxis(low, 1, 0)
         return out if self.mask is None else out * self.mask
 
-    def prefetch(self, effects, batch: int = 32) -> None:
+    def prefetch(self, effects: Sequence[Effect], batch: int = 32) -> None:
         """The columns of many values of one effect (a search's grid: the same effect with other
         non-linear parameters, array fields) computed together: one compiled call and one
         filter pass per `batch` of them, fewer on a long recording (their full-rate columns held
-        at once stay under `PREFETCH_BYTES`: a 20-minute recording is no reason to run out of memory)."""
+        at once stay under `PREFETCH_BYTES`: a 20-minute recording is no reason to run out of memory).
+        The same list asked for twice at once (`ahead`) is computed once, in the same batches."""
+        with self._guard:
+            lock = self._lists.setdefault(tuple(e.spec for e in effects), threading.Lock())
+        with lock:
+            self._prefetch(effects, batch)
+
+    def ahead(self, lists: Sequence[Sequence[Effect]]) -> None:
+        """`prefetch` each of `lists` in turn on a thread of its own, while the caller goes on (a
+        diagnosis's candidates' columns while its model is fitted, on the core the fit leaves
+        idle). A later `prefetch` of the same list finds its columns computed, or waits for
+        them: the columns are those it would have computed itself, bit for bit."""
+
+        def work() -> None:
+            for effects in lists:
+                try:
+                    self.prefetch(effects)
+                except Exception:  # (the same prefetch asked for later meets the failure again and says it)
+                    return
+
+        import os
+
+        if os.environ.get("NOAHEAD"):
+            return
+        threading.Thread(target=work, name="manus-ahead", daemon=True).start()
+
+    def _prefetch(self, effects: Sequence[Effect], batch: int) -> None:
         todo = list({e.spec: e for e in effects if e.spec not in self._cache}.values())
         if todo:
             per_value = len(self.data.q) * self.data.n_joints * max(len(todo[0].names(self.structure)), 1) * 8

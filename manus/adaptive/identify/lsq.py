@@ -242,6 +242,7 @@ class Over(NamedTuple):
     factor: Factor | None
 
 
+KEPT_FITS = 4  # `Appended.coefs` kept per statistics (the last asked for)
 SAFETY = 100.0  # the block solution is used where the whole matrix is this far above `RCOND` (else the pseudo-inverse)
 
 
@@ -291,6 +292,7 @@ class Appended:
     EE: np.ndarray  # (..., S, k, k)
     gE: np.ndarray  # (..., S, k)
     iv_blocks: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+    _coefs: dict = field(init=False, repr=False, compare=False, default_factory=dict)  # `coefs` kept (masks, bounds)
 
     X: ClassVar[None] = None  # (no rows: not extended again)
     Z: ClassVar[None] = None
@@ -399,8 +401,18 @@ class Appended:
         return over(ZE, 2), over(EX, 2), over(EEz, 2), over(hE, 1), GB, GD, gE
 
     def coefs(self, masks: np.ndarray, lower: np.ndarray | None = None) -> np.ndarray:
-        """`Stats.coefs` of the whole statistics: (..., F, P)."""
+        """`Stats.coefs` of the whole statistics: (..., F, P). The last few asked for are kept
+        (a search asks the fit on every segment for its choice and again for its bounds)."""
         m = np.asarray(masks, float)
+        key = (m.shape, m.tobytes(), None if lower is None else np.asarray(lower, float).tobytes())
+        kept = self._coefs.get(key)
+        if kept is None:
+            kept = self._coefs[key] = self._solved(m, lower)
+            while len(self._coefs) > KEPT_FITS:
+                self._coefs.pop(next(iter(self._coefs)))
+        return kept.copy()
+
+    def _solved(self, m: np.ndarray, lower: np.ndarray | None) -> np.ndarray:
         P0 = self.base.G.shape[-1]
         o = self.base.over(m)
         B, C, D, bE, *_ = self._over(m)

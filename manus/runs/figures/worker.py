@@ -6,9 +6,10 @@ worker hands it figure functions (`draw(fn, *args)`: the function and its argume
 results of the analysis it draws) and keeps going; each `Job.result()` waits for its figure.
 Figures few enough that starting the worker (forked, or where it cannot be, a Python with matplotlib and
 JAX: about 2 s of the other core; `_start_method`) would cost more than drawing them are drawn at
-once, here: `Painter(panels)` decides from the number of panels the caller expects. The worker is
-started once per process and kept for the next command (the test suite runs many); a worker that
-dies leaves its figures drawn here."""
+once, here: `Painter(panels)` decides from the number of panels the caller expects; a worker
+already started (`expect`) draws whatever it is given. The worker is started once per process and
+kept for the next command (the test suite runs many); a worker that dies leaves its figures drawn
+here."""
 
 from __future__ import annotations
 
@@ -92,7 +93,7 @@ class Painter:
     """Figure functions run beside the analysis (in the worker) or at once (here)."""
 
     def __init__(self, panels: int):
-        self.remote = panels >= WORKER_PANELS
+        self.remote = panels >= WORKER_PANELS or _pool.cache_info().currsize > 0  # (or the worker is up already)
         if self.remote:
             self._submit(_started)  # the worker starts now, while the caller works
 

@@ -1,0 +1,39 @@
+"""Columns computed ahead (`Columns.ahead`, a diagnosis's candidates' columns beside its model's
+fit) are, bit for bit, those the search computes itself: the same list of values in the same
+batches (a Stribeck grid's columns differ in the last bits between a batch of many values and
+one value alone)."""
+
+import numpy as np
+import pytest
+
+from manus.adaptive import Columns, prepare
+from manus.adaptive.diagnosis.candidates import columns_ahead, offered
+from manus.adaptive.identify.fit import model_from
+from manus.experiments import calibration
+
+
+@pytest.fixture(scope="module")
+def data():
+    c = calibration.case(0, "stribeck", rates=(200,))
+    return prepare(c.rec), c.start
+
+
+def test_columns_computed_ahead_are_those_computed_in_place(data):
+    d, start = data
+    model, _ = model_from(start, d.rec.structure)
+    offers, _ = offered(model, d.span(), d.rec.prismatic)
+    lists = [list(o.values) for o in offers if o.effect.linear and not model.has(o.effect.name)]
+    assert any(o.effect.name == "stribeck" and len(o.values) > 1 for o in offers)
+    ahead, here = Columns(d), Columns(d)
+    columns_ahead(ahead, start)
+    for values in lists:
+        ahead.prefetch(values)  # (computed by the thread, or waited for)
+        here.prefetch(values)
+        for v in values:
+            np.testing.assert_array_equal(ahead.effect(v), here.effect(v))
+    # another batching of the Stribeck grid (what a race without the list's lock could give) is not the same
+    stribeck = next(list(o.values) for o in offers if o.effect.name == "stribeck")
+    alone = Columns(d)
+    for v in stribeck:
+        alone.effect(v)
+    assert max(float(np.max(np.abs(alone.effect(v) - here.effect(v)))) for v in stribeck) < 1e-9
