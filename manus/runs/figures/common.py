@@ -36,6 +36,9 @@ STYLE: dict[Any, Any] = {  # (rcParams: keys matplotlib's typing spells as liter
     "axes.labelsize": 9,
     "legend.fontsize": 7,
     "axes.titley": 1.0,  # titles at the top (`tidy` moves what could be under them)
+    # glyphs drawn without running each font's hinting program: as legible at 100 dpi, and a fifth
+    # less time for a figure set of a 7-joint arm (4.5 -> 3.7 CPU s for diagnose's)
+    "text.hinting": "no_hinting",
 }
 MARGIN = {"left": 0.8, "right": 0.25, "bottom": 0.55, "top": 0.4}  # inches around the grid of panels
 GAP = (0.85, 0.75)  # inches between panels: (beside: the next panel's tick labels and y label; below: x label, title)
