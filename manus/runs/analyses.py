@@ -89,9 +89,11 @@ def diagnose_recording(
     cutoff_hz: float | None = None,
     method: str = "auto",
     fitted: Callable[[Fit], None] | None = None,
+    judged: Callable[[Diagnosis], None] | None = None,
 ) -> DiagnosisAnalysis:
     """`manus diagnose`'s analysis: the model fitted (`fitted` is told, to start its figure), then
-    each effect it lacks judged, a progress bar counting them."""
+    each effect it lacks judged, a progress bar counting them (`judged` is told the diagnosis
+    then, before what is left unexplained is looked at)."""
     from manus.adaptive import Columns, diagnose, fit, prepare
     from manus.adaptive.diagnosis.candidates import columns_ahead
 
@@ -104,6 +106,8 @@ def diagnose_recording(
         fitted(base)
     bar = Bar("candidates judged", "candidate")
     d = diagnose(data, model, columns=cols, method=method, fitted=base, told=bar)
+    if judged is not None:
+        judged(d)
     return DiagnosisAnalysis(base, d, _time_base(rec, d.report()))
 
 

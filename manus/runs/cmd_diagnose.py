@@ -22,7 +22,13 @@ def add_arguments(p) -> None:
 def run(args) -> dict:
     from manus.plants.effects import ORDER, Model
     from manus.runs.analyses import diagnose_recording
-    from manus.runs.figures.diagnose import diagnosis_figures, evidence_panels, resid_figure, resid_panels
+    from manus.runs.figures.diagnose import (
+        diagnosis_figures,
+        evidence_panels,
+        evidence_there,
+        resid_figure,
+        resid_panels,
+    )
     from manus.runs.figures.worker import Painter
 
     rec = load_recording(args, proposing=True)
@@ -37,10 +43,16 @@ def run(args) -> dict:
         if painter is not None:
             resid.append(painter.draw(resid_figure, base, args.out, f"{stem}_resid.png"))
 
-    a = diagnose_recording(rec, args.model, cutoff_hz=args.cutoff, method=args.method, fitted=fitted)
+    there = []
+
+    def judged(d) -> None:  # the worker's evidence figures started while what is left is looked at
+        if painter is not None:
+            there.append(evidence_there(d, args.out, stem, painter))
+
+    a = diagnose_recording(rec, args.model, cutoff_hz=args.cutoff, method=args.method, fitted=fitted, judged=judged)
     out = a.report
     if painter is not None:
-        out["figures"] = diagnosis_figures(a.diagnosis, args.out, stem, painter, resid[0])
+        out["figures"] = diagnosis_figures(a.diagnosis, args.out, stem, painter, resid[0], there[0])
     return out
 
 

@@ -489,15 +489,30 @@ def unexplained_figure(d, out: Path, name: str, title: str = "") -> str | None:
     return None if fig is None else save(fig, out, name)
 
 
-def diagnosis_figures(d, out: Path, stem: str, painter: Painter | None = None, resid: Job | None = None) -> dict:
+def evidence_there(d, out: Path, stem: str, painter: Painter) -> Job:
+    """The painter's share of a diagnosis's evidence figures (the first half with a worker, none
+    without), started now: a command hands them over as soon as the candidates are judged, and
+    `diagnosis_figures` draws the rest."""
+    shown = _shown(d)
+    half = len(shown) // 2 if painter.remote else 0
+    return painter.draw(evidence_figures, d.base, d.verdict, shown[:half], out, f"{stem}_")
+
+
+def _shown(d) -> list:
+    return [c for c in d.candidates if c.fit is not None or c.mode is not None]
+
+
+def diagnosis_figures(
+    d, out: Path, stem: str, painter: Painter | None = None, resid: Job | None = None, there: Job | None = None
+) -> dict:
     """A diagnosis's figures: the residual (`resid`: already being drawn), one evidence figure per
     candidate, what is left. With a `painter`, the first half of the evidence figures are drawn
-    by it while this process draws the rest."""
+    by it (`there`: already being drawn, `evidence_there`) while this process draws the rest."""
     painter = painter or Painter(0)
     resid = resid or painter.draw(resid_figure, d.base, out, f"{stem}_resid.png")
-    shown = [c for c in d.candidates if c.fit is not None or c.mode is not None]
+    there = there or evidence_there(d, out, stem, painter)
+    shown = _shown(d)
     half = len(shown) // 2 if painter.remote else 0
-    there = painter.draw(evidence_figures, d.base, d.verdict, shown[:half], out, f"{stem}_")
     here = evidence_figures(d.base, d.verdict, shown[half:], out, f"{stem}_")
     left = unexplained_figure(d, out, f"{stem}_unexplained.png")
     drawn = {**there.result(), **here}
