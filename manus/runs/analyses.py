@@ -100,8 +100,8 @@ def diagnose_recording(
     note(f"diagnosing {model}: fitting it, then with each missing effect in turn ...")
     data = prepare(rec, cutoff_hz)
     cols = Columns(data)
-    columns_ahead(cols, model)  # (the candidates' columns, beside the fit)
-    base = fit(data, model, columns=cols, method=method)
+    with columns_ahead(cols, model):  # (the candidates' columns, beside the fit)
+        base = fit(data, model, columns=cols, method=method)
     if fitted is not None:
         fitted(base)
     bar = Bar("candidates judged", "candidate")

@@ -3,6 +3,8 @@ fit) are, bit for bit, those the search computes itself: the same list of values
 batches (a Stribeck grid's columns differ in the last bits between a batch of many values and
 one value alone)."""
 
+import threading
+
 import numpy as np
 import pytest
 
@@ -25,7 +27,8 @@ def test_columns_computed_ahead_are_those_computed_in_place(data):
     lists = [list(o.values) for o in offers if o.effect.linear and not model.has(o.effect.name)]
     assert any(o.effect.name == "stribeck" and len(o.values) > 1 for o in offers)
     ahead, here = Columns(d), Columns(d)
-    columns_ahead(ahead, start)
+    with columns_ahead(ahead, start):
+        pass  # (the model's fit would go here; the thread goes on after it)
     for values in lists:
         ahead.prefetch(values)  # (computed by the thread, or waited for)
         here.prefetch(values)
@@ -37,3 +40,11 @@ def test_columns_computed_ahead_are_those_computed_in_place(data):
     for v in stribeck:
         alone.effect(v)
     assert max(float(np.max(np.abs(alone.effect(v) - here.effect(v)))) for v in stribeck) < 1e-9
+
+
+def test_a_fit_that_fails_stops_the_columns_ahead(data):
+    d, start = data
+    cols = Columns(d)
+    with pytest.raises(RuntimeError), columns_ahead(cols, start):
+        raise RuntimeError("the fit failed")
+    assert not any(t.name == "manus-ahead" and t.is_alive() for t in threading.enumerate())

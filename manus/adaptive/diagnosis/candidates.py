@@ -21,6 +21,7 @@ and proposed in its place unless keeping both predicts the held-out blocks signi
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass, field, replace
 from typing import ClassVar, NamedTuple
 
@@ -239,14 +240,14 @@ def offered(model: Model, span: Span, prismatic) -> tuple[list[Offer], list[str]
     return out, notes
 
 
-def columns_ahead(cols: Columns, model: Model | str) -> None:
-    """Start computing the columns `judge` will search on top of `model` (every linear effect it
-    lacks, each with the values of its space, in the order they are judged) while the caller fits
+def columns_ahead(cols: Columns, model: Model | str) -> contextlib.AbstractContextManager[None]:
+    """The columns `judge` will search on top of `model` (every linear effect it lacks, each with
+    the values of its space, in the order they are judged), computed beside the block that fits
     the model (`Columns.ahead`). An effect the model holds that can grow is left to its step: its
     values follow the fit."""
     m, _ = model_from(model, cols.data.rec.structure)
     offers, _ = offered(m, cols.data.span(), cols.data.rec.prismatic)
-    cols.ahead([list(o.values) for o in offers if o.effect.linear and not m.has(o.effect.name)])
+    return cols.ahead([list(o.values) for o in offers if o.effect.linear and not m.has(o.effect.name)])
 
 
 def judge(ctx: Context, offer: Offer) -> Candidate:

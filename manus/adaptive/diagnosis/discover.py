@@ -230,8 +230,8 @@ def discover(
     say = progress or (lambda line: None)
     data = rec if isinstance(rec, Data) else prepare(rec, cutoff_hz)
     cols = Columns(data)
-    columns_ahead(cols, model)  # (the first diagnosis's candidates' columns, beside the fit)
-    start = fit(data, model, columns=cols, method=method)
+    with columns_ahead(cols, model):  # (the first diagnosis's candidates' columns, beside the fit)
+        start = fit(data, model, columns=cols, method=method)
     given = model_from(model, data.rec.structure)[1]  # values the user wrote stay as written
     current = start
     spec = start.model.spec

@@ -24,6 +24,7 @@ the model plus the verdict) is tested for structure no effect of the vocabulary 
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -181,9 +182,8 @@ def diagnose(
     if fitted is not None and fitted.data is data and fitted.model.spec == parsed.spec:
         base = fitted
     else:
-        if columns is None:
-            columns_ahead(cols, parsed)
-        base = fit(data, model, columns=cols, method=method)
+        with columns_ahead(cols, parsed) if columns is None else contextlib.nullcontext():
+            base = fit(data, model, columns=cols, method=method)
     icols = base.instruments if base.method == "iv" else None
     k = _blocks_for(data, blocks)
     guard = int(np.ceil(1.0 / (data.cutoff_hz * data.dt)))

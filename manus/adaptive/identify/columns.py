@@ -9,9 +9,10 @@ columns on the simulated motion (`Columns(data, kinematics=...)`).
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import threading
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -114,24 +115,32 @@ class Columns:
         with lock:
             self._prefetch(effects, batch)
 
-    def ahead(self, lists: Sequence[Sequence[Effect]]) -> None:
-        """`prefetch` each of `lists` in turn on a thread of its own, while the caller goes on (a
-        diagnosis's candidates' columns while its model is fitted, on the core the fit leaves
-        idle). A later `prefetch` of the same list finds its columns computed, or waits for
-        them: the columns are those it would have computed itself, bit for bit."""
+    @contextlib.contextmanager
+    def ahead(self, lists: Sequence[Sequence[Effect]]) -> Iterator[None]:
+        """`prefetch` each of `lists` in turn on a thread of its own while the caller goes on
+        inside the block (a diagnosis's candidates' columns while its model is fitted, on the
+        core the fit leaves idle). A later `prefetch` of the same list finds its columns
+        computed, or waits for them: the columns are those it would have computed itself, bit
+        for bit. A block that fails stops the thread after the list it is computing."""
+        stop = threading.Event()
 
         def work() -> None:
             for effects in lists:
+                if stop.is_set():
+                    return
                 try:
                     self.prefetch(effects)
                 except Exception:  # (the same prefetch asked for later meets the failure again and says it)
                     return
 
-        import os
-
-        if os.environ.get("NOAHEAD"):
-            return
-        threading.Thread(target=work, name="manus-ahead", daemon=True).start()
+        thread = threading.Thread(target=work, name="manus-ahead", daemon=True)
+        thread.start()
+        try:
+            yield
+        except BaseException:
+            stop.set()
+            thread.join()
+            raise
 
     def _prefetch(self, effects: Sequence[Effect], batch: int) -> None:
         todo = list({e.spec: e for e in effects if e.spec not in self._cache}.values())
