@@ -114,32 +114,18 @@ def residual_structure(ctx: Context, f: Fit, alpha: float) -> dict:
     torque = float(np.sum(tau**2)) or 1.0
     bases = _bases(data, f.predicted())
     t = data.rec.t[data.rows]
-    n, k = data.n_joints, len(folds)
-    # each basis's held-out squared errors on every joint's residual at once (one least-squares
-    # solve per basis and block, a right-hand side per joint); the sinusoid's basis is each joint's own
-    errors = {}
-    for key, B in bases.items():
-        with_, without = np.zeros((k, n)), np.zeros((k, n))
-        for b, (r, tr, te) in enumerate(resid):
-            c = np.linalg.lstsq(B[tr], r[tr], rcond=1e-10)[0]
-            e = r[te] - B[te] @ c
-            for j in range(n):
-                with_[b, j], without[b, j] = e[:, j] @ e[:, j], r[te, j] @ r[te, j]
-        errors[key] = (with_, without)
+    n = data.n_joints
+    # each basis's held-out squared errors on every joint's residual at once (`_held_out`); the
+    # sinusoid's basis is each joint's own
+    errors = {key: _held_out(B, resid) for key, B in bases.items()}
     tests: list[Tested] = []
     for j in range(n):
         for what, i in [*bases, ("frequency", None)]:
             if what != "frequency":
                 with_, without = (x[:, j] for x in errors[(what, i)])
             else:
-                with_, without = np.zeros(k), np.zeros(k)
-                for b, (r, tr, te) in enumerate(resid):
-                    Bk = _sinusoid(t, r[tr, j], tr)
-                    if Bk is None:
-                        continue
-                    c = np.linalg.lstsq(Bk[tr], r[tr, j], rcond=1e-10)[0]
-                    e = r[te, j] - Bk[te] @ c
-                    with_[b], without[b] = e @ e, r[te, j] @ r[te, j]
+                per_block = [_sinusoid(t, r[tr, j], tr) for r, tr, _ in resid]
+                with_, without = (x[:, 0] for x in _held_out(per_block, [(r[:, [j]], tr, te) for r, tr, te in resid]))
             if not without.sum() > 0:
                 continue
             frac = 1 - float(np.sqrt(with_.sum() / without.sum()))
@@ -180,6 +166,24 @@ def residual_structure(ctx: Context, f: Fit, alpha: float) -> dict:
             if counts[k] and k != b
         ][:6]
     return out
+
+
+def _held_out(B, resid: list) -> tuple[np.ndarray, np.ndarray]:
+    """Per held-out block and residual column (blocks, m): the squared error of a smooth
+    function fitted on the block's training rows, on its own rows, and the residual's own
+    squared error there. `B`: the basis (rows, q), or one per block (None: no basis there, both 0);
+    `resid`: per block (residual (rows, m), training rows, its own rows)."""
+    m = resid[0][0].shape[1]
+    with_, without = np.zeros((len(resid), m)), np.zeros((len(resid), m))
+    for b, (r, tr, te) in enumerate(resid):
+        Bk = B[b] if isinstance(B, list) else B
+        if Bk is None:
+            continue
+        c = np.linalg.lstsq(Bk[tr], r[tr], rcond=1e-10)[0]
+        e = r[te] - Bk[te] @ c
+        for j in range(m):
+            with_[b, j], without[b, j] = e[:, j] @ e[:, j], r[te, j] @ r[te, j]
+    return with_, without
 
 
 def what_removes(u: dict) -> str:

@@ -490,16 +490,17 @@ def unexplained_figure(d, out: Path, name: str, title: str = "") -> str | None:
 
 
 def evidence_there(d, out: Path, stem: str, painter: Painter) -> Job:
-    """The painter's share of a diagnosis's evidence figures (the first half with a worker, none
-    without), started now: a command hands them over as soon as the candidates are judged, and
-    `diagnosis_figures` draws the rest."""
-    shown = _shown(d)
+    """The painter's share of a diagnosis's evidence figures (`_shares`), started now: a command
+    hands them over as soon as the candidates are judged, and `diagnosis_figures` draws the rest."""
+    return painter.draw(evidence_figures, d.base, d.verdict, _shares(d, painter)[0], out, f"{stem}_")
+
+
+def _shares(d, painter: Painter) -> tuple[list, list]:
+    """A diagnosis's candidates with an evidence figure (fitted, or with a mode), split between
+    the painter (the first half with a worker, none without) and this process."""
+    shown = [c for c in d.candidates if c.fit is not None or c.mode is not None]
     half = len(shown) // 2 if painter.remote else 0
-    return painter.draw(evidence_figures, d.base, d.verdict, shown[:half], out, f"{stem}_")
-
-
-def _shown(d) -> list:
-    return [c for c in d.candidates if c.fit is not None or c.mode is not None]
+    return shown[:half], shown[half:]
 
 
 def diagnosis_figures(
@@ -511,9 +512,12 @@ def diagnosis_figures(
     painter = painter or Painter(0)
     resid = resid or painter.draw(resid_figure, d.base, out, f"{stem}_resid.png")
     there = there or evidence_there(d, out, stem, painter)
-    shown = _shown(d)
-    half = len(shown) // 2 if painter.remote else 0
-    here = evidence_figures(d.base, d.verdict, shown[half:], out, f"{stem}_")
+    theirs, mine = _shares(d, painter)
+    here = evidence_figures(d.base, d.verdict, mine, out, f"{stem}_")
     left = unexplained_figure(d, out, f"{stem}_unexplained.png")
     drawn = {**there.result(), **here}
-    return {"resid": resid.result(), "evidence": {c.effect: drawn[c.effect] for c in shown}, "unexplained": left}
+    return {
+        "resid": resid.result(),
+        "evidence": {c.effect: drawn[c.effect] for c in theirs + mine},
+        "unexplained": left,
+    }
