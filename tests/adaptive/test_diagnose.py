@@ -237,6 +237,13 @@ def test_a_white_floor_on_the_recorded_torque_is_fitted_not_read_as_inertia():
         assert many[qi] == pytest.approx(one, rel=1e-6, abs=1e-12) and misfits[qi] == pytest.approx(
             m1, rel=1e-6, abs=1e-15
         )
+    # bins of zero weight (out of the band, incoherent) take no part, in the grid as in one fit
+    part = np.where((f > 150) & (f < 300), 0.0, 1 + f / 400)
+    many, misfits = modes.fit_grid(z * (1 + 0.01j * np.sin(f)), part, G, modes.floor_column(sxy, sxx))
+    for qi in (5, 150):
+        cols = np.stack([np.ones_like(f, complex), G[qi]])
+        one, m1 = modes.fit_response(z * (1 + 0.01j * np.sin(f)), part, cols, modes.floor_column(sxy, sxx))
+        assert many[qi] == pytest.approx(one, rel=1e-6, abs=1e-12) and misfits[qi] == pytest.approx(m1, rel=1e-6)
     assert coef[0] == pytest.approx(r * inertia, rel=1e-6) and coef[1] == pytest.approx((1 - r) * inertia, rel=1e-6)
     assert coef[2] == pytest.approx(snn, rel=1e-6) and misfit < 1e-12
     _, without = modes.fit_response(z, w, g, np.zeros_like(f))

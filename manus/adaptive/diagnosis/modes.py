@@ -230,12 +230,22 @@ def search_grid(f: np.ndarray, fs: float) -> tuple[np.ndarray, np.ndarray]:
 def fit_grid(z, w, G, floor):
     """`fit_response` of z (F,) on the columns 1, G_q and the floor, for every grid point q at once:
     coefficients (Q, 3) (α, β, S_nn ≥ 0) and misfits (Q,). (The normal equations of three
-    columns scaled to unit norm; S_nn held at 0 where it comes out negative.)"""
+    columns scaled to unit norm; S_nn held at 0 where it comes out negative. Only the bins of
+    non-zero weight take part, and the columns shared by every point are summed once.)"""
     rel2 = w / np.maximum(np.abs(z) ** 2, 1e-300)
-    Q, F = G.shape
-    C = np.stack([np.ones((Q, F), complex), G, np.broadcast_to(floor, (Q, F))], 1)  # (Q, 3, F)
-    M = np.einsum("qaf,qbf,f->qab", C.conj(), C, rel2).real
-    v = np.einsum("qaf,f,f->qa", C.conj(), z, rel2).real
+    on = rel2 > 0
+    z, rel2, G, floor = z[on], rel2[on], G[:, on], floor[on]
+    Q = G.shape[0]
+    Gc = G.conj()
+    M = np.empty((Q, 3, 3))
+    M[:, 0, 0] = rel2.sum()
+    M[:, 0, 1] = M[:, 1, 0] = (G @ rel2).real
+    M[:, 0, 2] = M[:, 2, 0] = rel2 @ floor.real
+    M[:, 1, 1] = (G * Gc).real @ rel2
+    M[:, 1, 2] = M[:, 2, 1] = (Gc @ (rel2 * floor)).real
+    M[:, 2, 2] = rel2 @ np.abs(floor) ** 2
+    zw = rel2 * z
+    v = np.stack([np.full(Q, zw.sum().real), (Gc @ zw).real, np.full(Q, (floor.conj() @ zw).real)], 1)
     d = np.sqrt(np.maximum(np.einsum("qaa->qa", M), 1e-300))
     Ms, vs = M / (d[:, :, None] * d[:, None, :]), v / d
 
@@ -244,7 +254,7 @@ def fit_grid(z, w, G, floor):
 
     x = solve(3)
     x = np.where(x[:, 2:] < 0, np.concatenate([solve(2), np.zeros((Q, 1))], 1), x)
-    misfit = np.abs(z - np.einsum("qa,qaf->qf", x, C)) ** 2 @ rel2
+    misfit = np.abs(z - x[:, :1] - x[:, 1:2] * G - x[:, 2:] * floor) ** 2 @ rel2
     return x, misfit
 
 

@@ -2,8 +2,9 @@
 
 The model's regressor is the stack of its effects' columns (`manus.plants.effects`, ∂torque/∂θ),
 so candidate models share the columns computed once (`Columns`, cached by effect spec). Each
-column is evaluated on the kinematic band's q, q̇, q̈ at full rate, then low-passed at the cut-off
-like the torque (`Data.smoothed`) and read on the used rows. IDIM-IV's instruments are the same
+column is evaluated on the kinematic band's q, q̇, q̈ on the working grid (`Data.work`: the full
+rate, or every `stride`-th sample where the rate is far above the band), then low-passed at the
+cut-off like the torque (`Data.smoothed`) and read on the used rows. IDIM-IV's instruments are the same
 columns on the simulated motion (`Columns(data, kinematics=...)`).
 """
 
@@ -41,12 +42,14 @@ SUBSAMPLES = 16  # points per sample period over which a friction column is aver
 
 
 def _columns_of(effect: Effect, structure, q, qd, qdd, dt):
-    """One effect's columns at every sample. A friction effect switches with the sign of q̇, and
-    near a reversal it does so within a sample period: what the recorded motion integrates over
-    the period is the torque's average there, not its value at the sample (at 200 Hz a Stribeck
-    hump a few milliseconds wide falls between samples or on one). Its columns are averaged over
-    the period [t_k − T/2, t_k + T/2] along the motion q + q̇ s + q̈ s²/2 (`SUBSAMPLES` midpoints);
-    smooth effects' columns are their values at the samples."""
+    """One effect's columns at every sample of a grid of period `dt`. A friction effect switches
+    with the sign of q̇, and near a reversal it does so within a sample period: what the recorded
+    motion integrates over the period is the torque's average there, not its value at the sample
+    (at 200 Hz a Stribeck hump a few milliseconds wide falls between samples or on one), and on a
+    working grid coarser than the recording a step read at the grid's samples would alias into
+    the band. Its columns are averaged over the period [t_k − T/2, t_k + T/2] along the motion
+    q + q̇ s + q̈ s²/2 (`SUBSAMPLES` midpoints); smooth effects' columns are their values at the
+    samples."""
     reg = jax.vmap(Model(structure, (effect,)).regressor)
     if not effect.dry or not dt > 0:
         return reg(q, qd, qdd)
@@ -71,7 +74,7 @@ def _batch_columns(effects: Effect, structure, q, qd, qdd, dt):
 class Columns:
     """Regressor columns of effects on prepared data, cached by effect spec. `kinematics` (q, q̇,
     q̈ at full rate) replaces the measured ones: the instruments of IDIM-IV are the same columns
-    on the simulated motion."""
+    on the simulated motion. `rows`: other rows than the data's (on its working grid)."""
 
     def __init__(self, data: Data, rows: np.ndarray | None = None, kinematics: tuple | None = None):
         self.data = data
@@ -79,23 +82,27 @@ class Columns:
         self.rows = data.rows if rows is None else rows
         self.mask = None if data.mask is None or rows is not None else data.mask[:, :, None]  # stuck joints' equations
         # (other rows than the data's, rests included: the plain low-pass)
-        self.smoothed = data.smoothed if rows is None else (lambda x, at: lowpass(x, data.dt, data.cutoff_hz)[at])
+        self.smoothed = (
+            data.smoothed
+            if rows is None
+            else (lambda x, at: lowpass(x, data.work_dt, data.cutoff_hz)[at // data.stride])
+        )
         self._cache: dict[str, np.ndarray] = {}
         q, qd, qdd = kinematics if kinematics is not None else (data.q, data.qd, data.qdd)
         self._kin = (np.asarray(q), np.asarray(qd), np.asarray(qdd))
-        self._args = (jnp.asarray(q), jnp.asarray(qd), jnp.asarray(qdd))
+        self._args = tuple(jnp.asarray(data.work(x)) for x in self._kin)
         self._lists: dict[tuple[str, ...], threading.Lock] = {}  # one per list of effects `prefetch` is given
         self._guard = threading.Lock()
 
     def effect(self, e: Effect) -> np.ndarray:
         """(rows, n, p) columns of one linear effect, low-passed like the torque."""
         if e.spec not in self._cache:
-            full = np.asarray(effect_columns(e, self.structure, *self._args, self.data.dt))
+            full = np.asarray(effect_columns(e, self.structure, *self._args, self.data.work_dt))
             self._cache[e.spec] = self._filtered(full[None])[0]
         return self._cache[e.spec]
 
     def _filtered(self, full: np.ndarray) -> np.ndarray:
-        """Columns (V, T, n, p) at full rate -> low-passed on the used rows (V, rows, n, p); the
+        """Columns (V, W, n, p) on the working grid -> low-passed on the used rows (V, rows, n, p); the
         entries that are zero throughout (a joint's own parameter on another joint) not filtered."""
         on = np.any(full, axis=(0, 1))  # (n, p)
         out = np.zeros((full.shape[0], self.rows.size) + full.shape[2:])
@@ -107,7 +114,7 @@ class Columns:
     def prefetch(self, effects: Sequence[Effect], batch: int = 32) -> None:
         """The columns of many values of one effect (a search's grid: the same effect with other
         non-linear parameters, array fields) computed together: one compiled call and one
-        filter pass per `batch` of them, fewer on a long recording (their full-rate columns held
+        filter pass per `batch` of them, fewer on a long recording (their columns held
         at once stay under `PREFETCH_BYTES`: a 20-minute recording is no reason to run out of memory).
         The same list asked for twice at once (`ahead`) is computed once, in the same batches."""
         with self._guard:
@@ -145,7 +152,7 @@ class Columns:
     def _prefetch(self, effects: Sequence[Effect], batch: int) -> None:
         todo = list({e.spec: e for e in effects if e.spec not in self._cache}.values())
         if todo:
-            per_value = len(self.data.q) * self.data.n_joints * max(len(todo[0].names(self.structure)), 1) * 8
+            per_value = self._args[0].shape[0] * self.data.n_joints * max(len(todo[0].names(self.structure)), 1) * 8
             batch = int(np.clip(PREFETCH_BYTES // (2 * per_value), 1, batch))  # (two held at once)
             batch = min(batch, -(-len(todo) // 2))  # (at least two batches: two threads)
 
@@ -153,7 +160,7 @@ class Columns:
             if len(part) == 1:
                 return [self.effect(part[0])]
             stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *part)
-            return self._filtered(np.asarray(_batch_columns(stacked, self.structure, *self._args, self.data.dt)))
+            return self._filtered(np.asarray(_batch_columns(stacked, self.structure, *self._args, self.data.work_dt)))
 
         parts = [todo[i : i + batch] for i in range(0, len(todo), batch)]
         # two batches at a time on two threads (JAX and the filter's loop release the GIL; each
@@ -166,7 +173,7 @@ class Columns:
         """The columns of `e` on the used rows without the low-pass: a cheap stand-in to rank
         the many values of a grid search before the best few are evaluated exactly."""
         q, qd, qdd = (jnp.asarray(x[self.rows]) for x in self._kin)
-        out = np.asarray(effect_columns(e, self.structure, q, qd, qdd, self.data.dt))
+        out = np.asarray(effect_columns(e, self.structure, q, qd, qdd, self.data.work_dt))
         return out if self.mask is None else out * self.mask
 
     def model(self, model: Model) -> np.ndarray:

@@ -167,7 +167,7 @@ def quantization(data: Data, cols: Columns, f: Fit) -> Quantization | None:
     G = X.T @ X
     at = [names.index(k) for k in inertial]
     sigma2 = _qdd_noise_variance(data)
-    signal = np.mean(data.smoothed(data.qdd, data.rows) ** 2, axis=0)
+    signal = np.mean(data.smoothed(data.work(data.qdd), data.rows) ** 2, axis=0)
     inflation = np.diag(G)[at] * np.diag(np.linalg.pinv(G, rcond=1e-12))[at]
     if not np.max(sigma2 / np.maximum(signal, 1e-300)) * np.max(inflation, initial=0) >= FAMILY_SHARE / 10:
         return None
@@ -245,7 +245,7 @@ def window_samples(data: Data) -> int:
     rows (the joint whose motion is quickest), within `MIN_WINDOW` samples and `MAX_WINDOW_S`."""
     rows = data.rows if data.rows.size else np.arange(len(data.rec))
     qd = np.sqrt(np.mean(data.qd[rows] ** 2, axis=0))
-    qdd = np.sqrt(np.mean(data.smoothed(data.qdd, rows) ** 2, axis=0))
+    qdd = np.sqrt(np.mean(data.smoothed(data.work(data.qdd), rows) ** 2, axis=0))
     moving = qdd > 0
     period = float(np.min(qd[moving] / qdd[moving])) * np.pi / 2 if moving.any() else MAX_WINDOW_S
     T = int(round(min(period, MAX_WINDOW_S) / data.dt))

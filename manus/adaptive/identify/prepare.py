@@ -19,9 +19,16 @@ the kinematics, the rows.
   filtering; for a non-linear one such as sgn(q̇) the step at a velocity reversal is smeared
   exactly as the friction step in the filtered torque is, instead of being compared sharp
   against a smooth torque;
+- the columns and the torque are computed on a working grid, every `stride`-th sample, where the
+  rate is far above the band: at least `WORK_RATE` samples per cut-off period remain (ten per
+  period of the kinematic band, whose filter has taken the torque over 100 dB down at the
+  grid's Nyquist frequency). Smooth columns are read at the grid's samples as the torque is; friction
+  columns are averaged over each grid period (`manus.adaptive.identify.columns`), so their steps
+  do not alias into the band. A 5 kHz log with a 10 Hz band is worked on at 417 Hz, a 1 kHz
+  MANUS-2 recording with a 15 Hz band at its own rate;
 - the filter's start-up transient is cut at both ends and the rows are decimated to about four
   samples per cut-off period (neighbouring rows of a low-passed signal carry no new information,
-  and the standard deviations are computed from the decimated rows).
+  and the standard deviations are computed from the decimated rows), on the working grid.
 """
 
 from __future__ import annotations
@@ -51,6 +58,7 @@ REST_GUARD = 1.0
 MIN_WEIGHT = 0.5  # a row whose cut-off window holds less moving weight than this (deep in a rest) is left out
 MIN_SAMPLES = 8  # below this the recording cannot even be differentiated
 MIN_ROWS = 20  # fewer usable rows than this identify nothing reliably
+WORK_RATE = 40.0  # the working grid keeps at least this many samples per cut-off period
 PREFETCH_BYTES = 64e6  # full-rate arrays a search holds at once (shifted torques, columns) stay under this
 # serial chains: a joint's equations are left out within JOINT_GUARD cut-off periods of each of its
 # reversals (its speed under the standstill threshold for any time: under Coulomb friction even a
@@ -80,6 +88,7 @@ class Data:
     mask: np.ndarray | None = None
     lost: str = ""  # samples lost in gaps of the time column, filled and left out ("" when none)
     rest: np.ndarray | None = None  # (T,) samples where a joint is at rest: kept out of the cut-off's low-pass
+    stride: int = 1  # the working grid: every `stride`-th sample (the rows are on it)
     _tau: dict = field(default_factory=dict)
 
     @property
@@ -114,28 +123,40 @@ class Data:
     def kinematic_hz(self) -> float:
         return min(KINEMATIC_BAND * self.cutoff_hz, 0.45 / self.dt)
 
+    @property
+    def work_dt(self) -> float:
+        """The working grid's period [s]."""
+        return self.dt * self.stride
+
+    def work(self, x: np.ndarray) -> np.ndarray:
+        """x (T, ...) at full rate read on the working grid (every `stride`-th sample)."""
+        return x if self.stride == 1 else x[:: self.stride]
+
     def smoothed(self, x: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
-        """x (T, ...) through the cut-off, the samples at rest left out of it: the low-pass of
-        x·m over the low-pass of m (m = 0 at rest; a normalized convolution). Each row is a
-        weighted mean of moving samples only, the same weights for the torque and for every
-        column, so the equations stay exact while the unknown stiction torque of a rest is kept
-        out of its neighbours (`prepare`). `rows`: only those samples of the result."""
-        pick = (lambda y: y) if rows is None else (lambda y: y[rows])
+        """x (W, ...) on the working grid (`work`) through the cut-off, the samples at rest left
+        out of it: the low-pass of x·m over the low-pass of m (m = 0 at rest; a normalized
+        convolution). Each row is a weighted mean of moving samples only, the same weights for
+        the torque and for every column, so the equations stay exact while the unknown stiction
+        torque of a rest is kept out of its neighbours (`prepare`). `rows` (sample indices, on the
+        working grid): only those samples of the result."""
+        at = None if rows is None else rows // self.stride
+        pick = (lambda y: y) if at is None else (lambda y: y[at])
         if self.rest is None or not self.rest.any():
-            return pick(lowpass(x, self.dt, self.cutoff_hz))
-        m = (~self.rest).astype(float).reshape((-1,) + (1,) * (np.ndim(x) - 1))
+            return pick(lowpass(x, self.work_dt, self.cutoff_hz))
+        m = (~self.work(self.rest)).astype(float).reshape((-1,) + (1,) * (np.ndim(x) - 1))
         weight = pick(self.weight()).reshape((-1,) + m.shape[1:])
-        return pick(lowpass(np.asarray(x) * m, self.dt, self.cutoff_hz)) / np.maximum(weight, 1e-12)
+        return pick(lowpass(np.asarray(x) * m, self.work_dt, self.cutoff_hz)) / np.maximum(weight, 1e-12)
 
     def weight(self) -> np.ndarray:
-        """(T,) `moving_weight` of the rests (computed by `prepare`, kept here)."""
+        """(W,) `moving_weight` of the rests on the working grid (computed by `prepare`, kept here)."""
         if "weight" not in self._tau:
             assert self.rest is not None, "only a recording with rests is weighted"
-            self._tau["weight"] = moving_weight(self.rest, self.dt, self.cutoff_hz)
+            self._tau["weight"] = moving_weight(self.work(self.rest), self.work_dt, self.cutoff_hz)
         return self._tau["weight"]
 
     def tau(self, delay: float | np.ndarray = 0.0, full: bool = False) -> np.ndarray:
-        """The torque acting on the joints, aligned with the positions, filtered like the columns.
+        """The torque acting on the joints, aligned with the positions, filtered like the columns,
+        on the used rows (`full`: at every sample of the working grid).
         (The kinematic band's low-pass and the fractional shift are linear and time-invariant:
         they commute, so the torque goes through that filter once. The cut-off's low-pass leaves
         the rests of the motion out, so it follows the shift: the torque that acted at a moving
@@ -147,7 +168,8 @@ class Data:
             out = self._late(np.asarray(delay, float) / self.dt + hold)
         if full:
             return out
-        return out[self.rows] if self.mask is None else out[self.rows] * self.mask
+        at = self.rows // self.stride
+        return out[at] if self.mask is None else out[at] * self.mask
 
     def _late(self, lag: np.ndarray) -> np.ndarray:
         """`smoothed(align(band, lag))`, built from the smoothed whole-sample shifts either side
@@ -160,14 +182,14 @@ class Data:
                 del self._tau[k]
         band = self._tau["band"]
         lags = np.broadcast_to(lag, band.shape[1:])
-        out = np.zeros_like(band)
+        out = np.zeros_like(self.work(band))
         for j, x in enumerate(lags):
             i = np.floor(x)
             for shift, weight in ((i, 1 - (x - i)), (i + 1, x - i)):
                 if weight > 0:
                     key = ("shift", int(shift))
                     if key not in self._tau:
-                        self._tau[key] = self.smoothed(align(band, float(shift)))
+                        self._tau[key] = self.smoothed(self.work(align(band, float(shift))))
                     out[:, j] += weight * self._tau[key][:, j]
         return out
 
@@ -356,14 +378,28 @@ def prepare(
             near = np.convolve(still.astype(float), np.ones(2 * w + 1))[w : w + len(rec)] > 0  # dilated by w
             weight = moving_weight(still, dt, cutoff_hz)
             keep &= ~near & (weight >= MIN_WEIGHT)
+    stride = max(1, int(1 / (WORK_RATE * cutoff_hz * dt)))
     if decimate is None:
         decimate = max(1, int(0.25 / (cutoff_hz * dt)))
-    rows = np.flatnonzero(keep)[::decimate]
-    window = np.flatnonzero(keep_edges)[::decimate]
+    decimate = max(1, round(decimate / stride))  # (on the working grid)
+    rows = stride * np.flatnonzero(keep[::stride])[::decimate]
+    window = stride * np.flatnonzero(keep_edges[::stride])[::decimate]
     if per_joint:
         left_out = float(1 - equations[keep].sum() / max(usable * rec.n_joints, 1))
         return Data(
-            rec, cutoff_hz, q, qd, qdd, rows, step, left_out, window, note, equations[rows].astype(float), lost=lost
+            rec,
+            cutoff_hz,
+            q,
+            qd,
+            qdd,
+            rows,
+            step,
+            left_out,
+            window,
+            note,
+            equations[rows].astype(float),
+            lost=lost,
+            stride=stride,
         )
     return Data(
         rec,
@@ -378,5 +414,6 @@ def prepare(
         note,
         lost=lost,
         rest=rest,
-        _tau={} if rest is None else {"weight": weight},
+        stride=stride,
+        _tau={} if rest is None or stride > 1 else {"weight": weight},
     )

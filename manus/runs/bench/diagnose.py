@@ -147,7 +147,7 @@ def scipy_fit(data, delay: float | np.ndarray = 0.0) -> tuple[np.ndarray, float]
 
     def residual(th):
         full = arm_torque(th, data.q, data.qd, data.qdd, data.dt)
-        return (data.smoothed(full)[data.rows] - tau).ravel()
+        return (data.smoothed(data.work(full), data.rows) - tau).ravel()
 
     res = least_squares(residual, np.full(7, 0.1))
     return res.x, float(np.linalg.norm(res.fun) / np.linalg.norm(tau))

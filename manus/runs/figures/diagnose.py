@@ -320,7 +320,7 @@ def _evidence(base, c, verdict, title: str, reuse: dict | None) -> Figure:
             continue
         assert c.fit is not None and effect is not None  # a candidate without a mode is a fitted effect
         if effect.evidence == "shift":
-            x = np.gradient(data.tau(base.delay, full=True)[:, i], data.dt)[rows]
+            x = np.gradient(data.tau(base.delay, full=True)[:, i], data.work_dt)[rows // data.stride]
             shift = np.broadcast_to(np.asarray(c.fit.delay - base.delay, float), (data.n_joints,))[i]
             xl, y = labelled(f"dτ{i + 1}/dt", u.torque_rate), shift * x
         elif effect.evidence == "position" and "order" in effect.describe():
