@@ -3,6 +3,7 @@ fit) are, bit for bit, those the search computes itself: the same list of values
 batches (a Stribeck grid's columns differ in the last bits between a batch of many values and
 one value alone)."""
 
+import pickle
 import threading
 
 import numpy as np
@@ -49,3 +50,19 @@ def test_a_fit_that_fails_stops_the_columns_ahead(data):
     with pytest.raises(RuntimeError), columns_ahead(cols, start):
         raise RuntimeError("the fit failed")
     assert not any(t.name == "manus-ahead" and t.is_alive() for t in threading.enumerate())
+
+
+def test_columns_travel_to_another_process_without_their_locks_and_cache(data):
+    """A fit shipped to the figure worker carries its IV instruments' columns: they pickle, and
+    where unpickled give the same columns again, computed anew."""
+    d, start = data
+    model, _ = model_from(start, d.rec.structure)
+    cols = Columns(d)
+    here = cols.model(model)
+    with columns_ahead(cols, start):  # (its thread holds the locks meanwhile)
+        there = pickle.loads(pickle.dumps(cols))
+    assert not there._cache
+    np.testing.assert_array_equal(there.model(model), here)
+    window = d.window if d.window is not None else d.rows
+    other = pickle.loads(pickle.dumps(Columns(d, rows=window)))
+    np.testing.assert_array_equal(other.model(model), Columns(d, rows=window).model(model))

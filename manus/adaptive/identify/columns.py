@@ -81,18 +81,27 @@ class Columns:
         self.structure = identified(data.rec.structure)
         self.rows = data.rows if rows is None else rows
         self.mask = None if data.mask is None or rows is not None else data.mask[:, :, None]  # stuck joints' equations
-        # (other rows than the data's, rests included: the plain low-pass)
-        self.smoothed = (
-            data.smoothed
-            if rows is None
-            else (lambda x, at: lowpass(x, data.work_dt, data.cutoff_hz)[at // data.stride])
-        )
+        self._plain = rows is not None  # (other rows than the data's, rests included: the plain low-pass)
         self._cache: dict[str, np.ndarray] = {}
         q, qd, qdd = kinematics if kinematics is not None else (data.q, data.qd, data.qdd)
         self._kin = (np.asarray(q), np.asarray(qd), np.asarray(qdd))
         self._args = tuple(jnp.asarray(data.work(x)) for x in self._kin)
         self._lists: dict[tuple[str, ...], threading.Lock] = {}  # one per list of effects `prefetch` is given
         self._guard = threading.Lock()
+
+    def __getstate__(self) -> dict:
+        """Pickled (a fit shipped to the figure worker) without its locks and its cache: where it
+        is unpickled, the columns asked for are computed again."""
+        return {**self.__dict__, "_cache": {}, "_lists": {}, "_guard": None}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state, _guard=threading.Lock())
+
+    def smoothed(self, x: np.ndarray, at: np.ndarray) -> np.ndarray:
+        """x on the working grid low-passed like the torque, on the samples `at`."""
+        if self._plain:
+            return lowpass(x, self.data.work_dt, self.data.cutoff_hz)[at // self.data.stride]
+        return self.data.smoothed(x, at)
 
     def effect(self, e: Effect) -> np.ndarray:
         """(rows, n, p) columns of one linear effect, low-passed like the torque."""

@@ -59,7 +59,7 @@ MIN_WEIGHT = 0.5  # a row whose cut-off window holds less moving weight than thi
 MIN_SAMPLES = 8  # below this the recording cannot even be differentiated
 MIN_ROWS = 20  # fewer usable rows than this identify nothing reliably
 WORK_RATE = 40.0  # the working grid keeps at least this many samples per cut-off period
-PREFETCH_BYTES = 64e6  # full-rate arrays a search holds at once (shifted torques, columns) stay under this
+PREFETCH_BYTES = 64e6  # a search's arrays held at once (shifted torques, columns: working grid) stay under this
 # serial chains: a joint's equations are left out within JOINT_GUARD cut-off periods of each of its
 # reversals (its speed under the standstill threshold for any time: under Coulomb friction even a
 # reversal holds the joint for an instant, an unknown torque the filter spreads over about a period)
