@@ -86,3 +86,19 @@ def test_iterations_stop_once_the_parameters_stay(nominal, monkeypatch):
     truth = hidden.truth_params(())
     for k in ("b1", "b2", "Fc1", "Fc2"):
         assert stopped.params[k] == pytest.approx(truth[k], rel=0.05), k
+
+
+def test_auto_stops_once_least_squares_is_kept_whatever_iv_gives(nominal, monkeypatch):
+    """Under `auto`, IV within `SETTLED` combined std of LS (which breaks no rule) keeps LS after
+    one simulation: the fit the iterations run to convergence choose, the same numbers."""
+    data, cols, ls = nominal
+    calls = []
+    simulate = instruments.simulate
+    monkeypatch.setattr(instruments, "simulate", lambda *a: calls.append(1) or simulate(*a))
+    quick = instruments.iv_fit(data, cols, ls, "auto")
+    assert len(calls) == 1 and quick.method == "ls", quick.why
+    monkeypatch.setattr(instruments, "SETTLED", 0.0)
+    slow = instruments.iv_fit(data, cols, ls, "auto")
+    assert len(calls) > 2 and slow.method == "ls", slow.why
+    np.testing.assert_array_equal(quick.theta, slow.theta)
+    assert quick.why.startswith("LS and IV agree within") and slow.why.startswith("LS and IV agree within")

@@ -10,7 +10,9 @@ correlated with the true regressor but not with its noise: here Z = Y evaluated 
 *simulated* by the current model from the recorded command, which carries no measurement noise.
 Iterated: simulate with θ_k, θ_{k+1} = (ZᵀY)⁻¹ Zᵀτ, at most `ITERATIONS` times, stopping once
 no parameter moves by more than `CONVERGED` of its standard deviation (the instruments simulated
-from θ_k gave θ_k back).
+from θ_k gave θ_k back), or, under `auto`, once least squares is kept whatever the iterations
+give (`settled`: IV within `SETTLED` combined standard deviations of LS on every parameter, and
+LS breaking no rule; to be chosen, IV would have to move to `Z_DISAGREE`).
 
 The simulation is the project's simulator (`manus.plants.Simulator`: exact stick-slip, the
 model's delay, the command held over each period), run in windows of `WINDOW_S` restarted from
@@ -46,6 +48,7 @@ MIN_WINDOW = 8  # samples
 SUBSTEP_S = 5e-4  # the simulation's sub-step [s] at most
 FINE_SUBSTEP_S = 1e-4  # ... where that one diverges (a fast mode: a light joint under viscous friction)
 Z_DISAGREE = 3.0  # LS and IV disagree when a parameter differs by more than this many std
+SETTLED = 1.0  # under auto, IV within this many combined std of LS (which breaks no rule) keeps LS: no more iterations
 IV_WORSE = 1.5  # IV is not used when its error exceeds LS's by this factor (a model too wrong to simulate)
 
 
@@ -161,7 +164,7 @@ def iv_fit(data: Data, cols: Columns, ls: Fit, method: str, start: Fit | None = 
         if icols is None:
             break
         iv = fit_rows(data, cols, ls.model, ls.search, icols)
-        if converged(current, iv):
+        if converged(current, iv) or (method == "auto" and settled(ls, iv)):
             break
         current = iv
     if iv is None:
@@ -188,6 +191,19 @@ def converged(before: Fit, after: Fit) -> bool:
     return bool(np.all(np.abs(after.theta - before.theta) <= CONVERGED * sd))
 
 
+def _z(ls: Fit, iv: Fit) -> np.ndarray:
+    """Per parameter: |IV − LS| over their combined standard deviation (0 where that is 0)."""
+    sd = np.sqrt(np.nan_to_num(ls.std, nan=np.inf) ** 2 + np.nan_to_num(iv.std, nan=np.inf) ** 2)
+    return np.where(sd > 0, np.abs(iv.theta - ls.theta) / np.where(sd > 0, sd, 1), 0.0)
+
+
+def settled(ls: Fit, iv: Fit) -> bool:
+    """Whether `choose` keeps least squares whatever further iterations give: LS breaks no rule
+    and IV lies within `SETTLED` combined standard deviations of it on every parameter (IV would
+    have to move to `Z_DISAGREE` to be chosen)."""
+    return not ls.violations() and bool(np.all(_z(ls, iv) < SETTLED))
+
+
 def choose(ls: Fit, iv: Fit) -> Fit:
     """LS unless the evidence says it is biased: LS breaks physics where IV does not, or the
     two disagree beyond `Z_DISAGREE` combined standard deviations on some parameter; the one
@@ -200,8 +216,7 @@ def choose(ls: Fit, iv: Fit) -> Fit:
             f"{100 * ls.rel_error:.1f} %): the model is too far from the data for its simulation to "
             "serve as instruments; least squares kept",
         )
-    sd = np.sqrt(np.nan_to_num(ls.std, nan=np.inf) ** 2 + np.nan_to_num(iv.std, nan=np.inf) ** 2)
-    z = np.where(sd > 0, np.abs(iv.theta - ls.theta) / np.where(sd > 0, sd, 1), 0.0)
+    z = _z(ls, iv)
     worst = int(np.argmax(z)) if z.size else 0
     if bad_ls and not bad_iv:
         return replace(iv, why=f"least squares breaks physics ({bad_ls[0]}); instrumental variables do not")
