@@ -384,23 +384,11 @@ def prepare(
     decimate = max(1, round(decimate / stride))  # (on the working grid)
     rows = stride * np.flatnonzero(keep[::stride])[::decimate]
     window = stride * np.flatnonzero(keep_edges[::stride])[::decimate]
-    if per_joint:
-        left_out = float(1 - equations[keep].sum() / max(usable * rec.n_joints, 1))
-        return Data(
-            rec,
-            cutoff_hz,
-            q,
-            qd,
-            qdd,
-            rows,
-            step,
-            left_out,
-            window,
-            note,
-            equations[rows].astype(float),
-            lost=lost,
-            stride=stride,
-        )
+    left_out = (
+        float(1 - equations[keep].sum() / max(usable * rec.n_joints, 1))
+        if per_joint
+        else float(1 - keep.sum() / max(usable, 1))
+    )
     return Data(
         rec,
         cutoff_hz,
@@ -409,9 +397,10 @@ def prepare(
         qdd,
         rows,
         step,
-        float(1 - keep.sum() / max(usable, 1)),
+        left_out,
         window,
         note,
+        equations[rows].astype(float) if per_joint else None,
         lost=lost,
         rest=rest,
         stride=stride,
