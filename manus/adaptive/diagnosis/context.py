@@ -4,7 +4,9 @@ its columns, the model fitted, the held-out blocks and the levels."""
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 import numpy as np
 
@@ -15,6 +17,7 @@ from manus.adaptive.identify.result import Fit, fit_rows
 from manus.adaptive.identify.search import delay_of
 from manus.plants.effects import Model, Span
 
+T = TypeVar("T")
 KEEP = 3  # statistics a context keeps (each holds its rows' columns)
 _STATS_LOCK = threading.Lock()  # candidates are judged on threads (`verdict`): one computes statistics at a time
 
@@ -34,6 +37,7 @@ class Context:
     alpha: float  # the level each candidate is judged at (the step's, shared among its candidates)
     min_share: float  # the share of the recorded torque (RMS) a candidate must explain
     _stats: dict = field(init=False, repr=False, default_factory=dict)  # `stats` computed, by model and delay
+    _kept: dict = field(init=False, repr=False, default_factory=dict)  # `once`'s answers
 
     @property
     def whole(self) -> np.ndarray:
@@ -52,8 +56,21 @@ class Context:
 
     def fit(self, model: Model, held: tuple = ()) -> Fit:
         """`model` fitted on every row as the base model is (LS, or IV with its instruments);
-        the parameters named in `held` held at 0."""
-        return fit_rows(self.data, self.cols, model, None, self.icols, held)
+        the parameters named in `held` held at 0 (`once`)."""
+        return self.once(
+            ("fit", model.spec, held), lambda: fit_rows(self.data, self.cols, model, None, self.icols, held)
+        )
+
+    def once(self, key: tuple, compute: Callable[[], T]) -> T:
+        """`compute()` the first time `key` is asked for in this step, its answer after: the step asks
+        some questions twice (a model holding the verdict and a rival is fitted and tested on top of
+        each, to tell whether the verdict accounts for the rival, then whether it overlaps it)."""
+        with _STATS_LOCK:
+            if key in self._kept:
+                return self._kept[key]
+        answer = compute()
+        with _STATS_LOCK:
+            return self._kept.setdefault(key, answer)
 
     def stats(self, model: Model, delay: float | np.ndarray | None = None) -> Stats:
         """The least-squares statistics of `model` over the segments (its instruments' too with

@@ -202,8 +202,12 @@ def score_p(
         for k, V, dflat, Qi, spread, Qs, R in pre:
             m = (w @ dflat).reshape(n, V, k)
             omega = spread(w, (Qi[None] @ m[..., None])[..., 0])
-            m = physical(m, Qs, Qi, R, omega, signed)
-            W = np.sum(m * _solve_psd(omega.reshape(-1, k, k), m.reshape(-1, k)).reshape(n, V, k), axis=2)
+            W = _wald(m, omega)
+            # the physical statistic is at most Wald's (a projection on a cone through 0 shortens β̂ in
+            # its own metric): only the draws whose Wald statistic reaches the observed one can count
+            near = W.max(1) >= observed[best] * (1 - 1e-6) if signed is not None else np.zeros(n, bool)
+            if near.any():
+                W[near] = _wald(physical(m[near], Qs, Qi, R, omega[near], signed), omega[near])
             top = np.maximum(top, W.max(1))
         exceed += int(np.sum(top >= observed[best] * (1 - 1e-9)))
         done += n
@@ -320,6 +324,12 @@ def _noncentrality(k: int, dof: int, alpha: float, power: float) -> float:
     while gap(top) < 0 and top < 1e6:
         top *= 4
     return float(cast(float, brentq(gap, 1e-9, top)))
+
+
+def _wald(m: np.ndarray, omega: np.ndarray) -> np.ndarray:
+    """mᵀ Ω⁻¹ m for summed scores m (n, V, k) and their spreads Ω (n, V, k, k): (n, V)."""
+    n, V, k = m.shape
+    return np.sum(m * _solve_psd(omega.reshape(-1, k, k), m.reshape(-1, k)).reshape(n, V, k), axis=2)
 
 
 def _solve_psd(omega: np.ndarray, m: np.ndarray) -> np.ndarray:
