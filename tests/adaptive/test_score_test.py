@@ -87,6 +87,53 @@ def test_the_flips_fast_algebra_equals_the_statistic_computed_again(mode, route,
     assert p == pytest.approx((1 + exceed) / (1 + score_test.FLIPS), abs=1e-12)
 
 
+@pytest.mark.parametrize("skew", [0.0, 0.3], ids=["least squares", "instruments"])
+@pytest.mark.parametrize("shift", [0.0, 0.6], ids=["null", "an effect"])
+def test_the_one_sided_flips_count_as_every_draw_projected(shift, skew):
+    """With least squares (each block's information Q symmetric) the flips project a draw on the
+    physical cone only where its Wald statistic reaches the observed one (a projection on a cone
+    through 0, in the statistic's own metric, never lengthens it); with instruments (Q not
+    symmetric, the projection's metric not the statistic's) every draw. A loop that projects
+    every draw (`physical`) and computes its statistic from the draw's jackknifed block scores
+    counts the same exceedances; the unprojected Wald statistic would count otherwise."""
+    rng = np.random.default_rng(7)
+    G, k = 16, 2
+    signed = np.array([True, True])
+    scores = []
+    for _ in range(3):  # three values of a searched parameter
+        A = rng.normal(size=(G, k, k))
+        Q = np.einsum("gij,gkj->gik", A, A) + skew * np.array([[0.0, -1.0], [1.0, 0.0]])  # (IV: ZᵀX, not XᵀX)
+        scores.append(score_test.Scores(rng.normal(size=(G, k)) + shift, Q))
+    js = [x.jackknife for x in scores]
+    assert all(j is not None and j.k == k for j in js)
+
+    def statistics(w, projected):  # each value's statistic of the draw w (None: the data's scores)
+        out = []
+        for j in js:
+            d = j.s if w is None else w[:, None] * (j.noise if wild else j.s)
+            m = d.sum(0)
+            beta = j.Q_inv @ m
+            e = np.stack([j.L[b] @ (d[b] - j.Q[b] @ beta) for b in range(G)]) if w is not None else j.noise
+            omega = e.T @ e
+            if projected:
+                m = score_test.physical(
+                    m[None, None], j.Q.sum(0)[None], j.Q_inv[None], j.R[None], omega[None, None], signed
+                )[0, 0]
+            out.append(m @ np.linalg.solve(omega + 1e-12 * np.trace(omega) * np.eye(k), m))
+        return max(out)
+
+    effective = min(j.k**2 / np.sum(np.einsum("gij,ji->g", j.Q, j.Q_inv) ** 2) for j in js)
+    wild = effective >= score_test.MIN_EFFECTIVE_BLOCKS
+    observed = statistics(None, True)
+    w = np.random.default_rng(0).choice((-1.0, 1.0), size=(score_test.FLIPS, G))  # the draws score_p makes
+    drawn = [statistics(wi, True) for wi in w]
+    exceed = sum(x >= observed * (1 - 1e-9) for x in drawn)
+    wald = sum(statistics(wi, False) >= observed * (1 - 1e-9) for wi in w)
+    p, _, _ = score_test.score_p(scores, alpha=0.5, stop_above=2.0, signed=signed)
+    assert p == pytest.approx((1 + exceed) / (1 + score_test.FLIPS), abs=1e-12)
+    assert exceed > 0 and exceed != wald  # (draws the projection decides, on both sides)
+
+
 def _null_case(rng, G=40, heavy=40, beta=0.0):
     """Blocks of unequal information (the tested column 10x larger in the first `heavy` blocks),
     noise whose level differs between blocks; the tested column's coefficient `beta`."""

@@ -189,7 +189,10 @@ def score_p(
         Qi = np.stack([j.Q_inv for j in vals])
         Qs, R = np.stack([j.Q.sum(0) for j in vals]), np.stack([j.R for j in vals])
         spread = _Spread(np.stack([j.L for j in vals]), d, np.stack([j.Q for j in vals]))
-        pre.append((k, len(vals), d.transpose(1, 0, 2).reshape(G, -1), Qi, spread, Qs, R))
+        # least squares' information is symmetric: there the projection on the physical cone is one
+        # in the statistic's own metric, and never lengthens it (with instruments it may)
+        symmetric = bool(np.all(np.abs(Qs - np.swapaxes(Qs, 1, 2)) <= 1e-9 * np.abs(Qs).max()))
+        pre.append((k, len(vals), d.transpose(1, 0, 2).reshape(G, -1), Qi, spread, Qs, R, symmetric))
     best = int(np.argmax(observed))
     rng = np.random.default_rng(seed)
     exceed = done = 0
@@ -199,13 +202,16 @@ def score_p(
         n = min(chunk, draws - done)
         w = rng.choice((-1.0, 1.0), size=(n, G))
         top = np.full(n, -np.inf)
-        for k, V, dflat, Qi, spread, Qs, R in pre:
+        for k, V, dflat, Qi, spread, Qs, R, symmetric in pre:
             m = (w @ dflat).reshape(n, V, k)
             omega = spread(w, (Qi[None] @ m[..., None])[..., 0])
             W = _wald(m, omega)
-            # the physical statistic is at most Wald's (a projection on a cone through 0 shortens β̂ in
-            # its own metric): only the draws whose Wald statistic reaches the observed one can count
-            near = W.max(1) >= observed[best] * (1 - 1e-6) if signed is not None else np.zeros(n, bool)
+            # the physical statistic is at most Wald's where the projection on the cone (through 0) is
+            # in the statistic's own metric: there only the draws whose Wald statistic reaches the
+            # observed one can count
+            near = np.zeros(n, bool) if signed is None else np.ones(n, bool)
+            if signed is not None and symmetric:
+                near = W.max(1) >= observed[best] * (1 - 1e-6)
             if near.any():
                 W[near] = _wald(physical(m[near], Qs, Qi, R, omega[near], signed), omega[near])
             top = np.maximum(top, W.max(1))
