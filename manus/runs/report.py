@@ -30,13 +30,13 @@ class Section:
     free_run: str = ""  # one line: what drove the free run (or why there is none)
 
 
-def make_figures(section: Section, out: Path, prefix: str, free_run: bool = True, drawn: dict | None = None) -> None:
+def make_figures(section: Section, out: Path, prefix: str, free_run: bool = True) -> None:
     """Draw the section's figures into `out` (names start with `prefix`): the steps' evidence and
     the final residual in a worker (`Painter`) while the waterfall, the free run and its `compare`
-    figure are made here. `drawn`: the steps' evidence figures already handed to the worker
-    (`step_figure`), by step."""
+    figure are made here."""
     from manus.experiments.freerun import free_run_or_reason
     from manus.runs.figures.diagnose import (
+        evidence_figure,
         evidence_panels,
         resid_figure,
         resid_panels,
@@ -48,9 +48,22 @@ def make_figures(section: Section, out: Path, prefix: str, free_run: bool = True
     disc = section.discovery
     name = Path(section.recording).name
     n = disc.start.data.n_joints
-    drawn = drawn or {}
     painter = Painter(len(disc.steps) * evidence_panels(n) + (resid_panels(n) if disc.final is not None else 0))
-    steps = [(s.spec, drawn.get(s.index) or step_figure(painter, s, out, prefix, name)) for s in disc.steps]
+    steps = [
+        (
+            s.spec,
+            painter.draw(
+                evidence_figure,
+                s.diagnosis.base,
+                s.verdict,
+                s.diagnosis.verdict,
+                out,
+                f"{prefix}step{s.index}_{s.effect}.png",
+                name,
+            ),
+        )
+        for s in disc.steps
+    ]
     resid = (
         None
         if disc.final is None
@@ -71,22 +84,6 @@ def make_figures(section: Section, out: Path, prefix: str, free_run: bool = True
     section.figures = figs
 
 
-def step_figure(painter, step, out: Path, prefix: str, name: str):
-    """A step's evidence figure (the verdict that proposed it, on the fit before it), handed to
-    `painter`: its `Job`."""
-    from manus.runs.figures.diagnose import evidence_figure
-
-    return painter.draw(
-        evidence_figure,
-        step.diagnosis.base,
-        step.verdict,
-        step.diagnosis.verdict,
-        out,
-        f"{prefix}step{step.index}_{step.effect}.png",
-        name,
-    )
-
-
 def discover_section(
     rec,
     model: str,
@@ -102,19 +99,11 @@ def discover_section(
     """Run the loop on `rec` and make its report section (figures drawn into `out`)."""
     from manus.adaptive import discover
     from manus.runs.figures.diagnose import evidence_panels, resid_panels
-    from manus.runs.figures.worker import Painter, expect
+    from manus.runs.figures.worker import expect
     from manus.runs.progress import Bar
 
-    drawn = {}
-    painter = None
     if figures:  # (its figures: at least one step's evidence and the final residual)
         expect(evidence_panels(rec.n_joints) + resid_panels(rec.n_joints))
-        painter = Painter(0)  # (a worker started: each step's figure is drawn there while the loop goes on)
-
-    def stepped(step) -> None:
-        if painter is not None and painter.remote:
-            drawn[step.index] = step_figure(painter, step, out, prefix, Path(rec.path).name)
-
     bar = Bar("  candidates judged", "candidate")
     disc = discover(
         rec,
@@ -123,13 +112,12 @@ def discover_section(
         max_steps=max_steps,
         method=method,
         progress=lambda line: note("  " + line),
-        stepped=stepped,
         told=bar,
     )
     section = Section(title, str(rec.path), disc, intro=intro)
     if figures:
         note("  figures ...")
-        make_figures(section, out, prefix, drawn=drawn)
+        make_figures(section, out, prefix)
     return section
 
 

@@ -221,12 +221,10 @@ def discover(
     max_steps: int = MAX_STEPS,
     progress: Callable[[str], None] | None = None,
     method: str = "auto",
-    stepped: Callable[[Step], None] | None = None,
     **diagnose_options,
 ) -> Discovery:
     """Run the loop from `model` (text, e.g. "rigid,viscous,coulomb"). `progress` receives a line
-    per step, `stepped` each step as it is added (its figure can be drawn while the loop goes on);
-    `diagnose_options` go to `diagnose` (blocks, alpha, min_share, told)."""
+    per step; `diagnose_options` go to `diagnose` (blocks, alpha, min_share, told)."""
     if max_steps < 1:
         raise ModelError(f"max_steps must be at least 1 (got {max_steps})")
     say = progress or (lambda line: None)
@@ -294,8 +292,6 @@ def discover(
                 )
             )
             say(f"step {len(steps)}: + {v.spec} (frequency response; not refitted)")
-            if stepped is not None:
-                stepped(steps[-1])
             return Discovery(start, steps, None, "compliance (not refitted)", notes)
         v, current, moved = tried
         spec = current.model.spec
@@ -315,5 +311,3 @@ def discover(
             )
         )
         say(f"step {len(steps)}: + {v.spec}, rel_error {100 * before:.2f} % -> {100 * current.rel_error:.2f} %")
-        if stepped is not None:
-            stepped(steps[-1])

@@ -28,7 +28,6 @@ import contextlib
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import TypeVar
 
 import numpy as np
 
@@ -237,7 +236,6 @@ def _torque_gain(c: Candidate) -> float:
     return 0.0 if c.mode is not None else c.cv_error_reduction
 
 
-T = TypeVar("T")
 JUDGES = 2  # candidates judged at once (threads: their statistics and columns spend most of their time outside the GIL)
 
 
@@ -263,17 +261,6 @@ def _judged(ctx: Context, tried: list[Offer], told: Callable[[int, int], None] |
         for done, _ in enumerate(as_completed(futures), 1):
             tell(done, len(tried))
         return [f.result() for f in futures]
-
-
-def _each(fn: Callable[[Candidate], T], cands: list[Candidate]) -> list[T]:
-    """`fn` of each candidate, `JUDGES` at a time (each reads only what the context holds), in
-    their order."""
-    from concurrent.futures import ThreadPoolExecutor
-
-    if len(cands) < 2:
-        return [fn(c) for c in cands]
-    with ThreadPoolExecutor(JUDGES, thread_name_prefix="manus-judge") as pool:
-        return list(pool.map(fn, cands))
 
 
 def _relevant_on_joints(ctx: Context, base_st: lsq.Stats, cands: list[Candidate]) -> None:
@@ -399,28 +386,23 @@ def _encompassing(ctx: Context, verdict: Candidate, cands: list[Candidate]) -> C
         key=lambda c: c.cv_sse.sum(),
     )
     with_v = verdict.fitted()
-
-    def accounts(c: Candidate) -> tuple[float, bool] | None:
-        """What the rival `c` adds on top of the verdict, and whether it accounts for the verdict and more."""
+    for c in rivals:
         if with_v.model.has(c.effect):
-            return None
+            continue
         model = with_v.model
         for e in c.fitted().model.effects:  # the rival with what it brings
             model = model if model.has(e.name) else model.with_effect(e)
         both = ctx.fit(model)
         extra, adds = _adds(ctx, model, with_v, both)
         if not adds:
-            return None
+            continue
         nested = {e.name for e in model.effects} == {
             e.name for e in c.fitted().model.effects
         }  # (a delay has no columns)
-        return extra, nested or not _adds(ctx, model, c.fitted(), both)[1]
-
-    for c, found in zip(rivals, _each(accounts, rivals), strict=True):
-        if found is not None and found[1]:
+        if nested or not _adds(ctx, model, c.fitted(), both)[1]:
             c.note = ((c.note + "; ") if c.note else "") + (
                 f"it accounts for what {verdict.spec} explains and more: on top of {verdict.spec} it adds "
-                f"{100 * found[0]:.2f}% of the torque, significantly, while {verdict.spec} adds nothing significant on "
+                f"{100 * extra:.2f}% of the torque, significantly, while {verdict.spec} adds nothing significant on "
                 f"top of it; {c.spec} is proposed in its place"
             )
             return c
@@ -436,27 +418,16 @@ def _mark_overlaps(ctx: Context, verdict: Candidate, cands: list[Candidate]) -> 
         return
     with_v = verdict.fit
     same, names = [], [verdict.effect]
-    others = [
-        c
-        for c in cands
-        if c is not verdict
-        and c.significant
-        and c.fit is not None
-        and c.effect not in verdict.aliases
-        and not with_v.model.has(c.effect)
-    ]
-
-    def on_top(c: Candidate) -> tuple[float, bool, bool]:
-        """What `c` adds on top of the verdict, whether that is relevant and significantly there,
-        and (where it is not) whether the verdict adds anything on top of `c`."""
+    for c in cands:
+        if c is verdict or not c.significant or c.fit is None or c.effect in verdict.aliases:
+            continue
+        if with_v.model.has(c.effect):
+            continue
         model = with_v.model.with_effect(c.found())
         both = ctx.fit(model)
         extra, adds = _adds(ctx, model, with_v, both)
-        return extra, adds, adds or _adds(ctx, model, c.fitted(), both)[1]
-
-    for c, (extra, adds, back) in zip(others, _each(on_top, others), strict=True):
         if not adds:
-            if not back:  # nor back
+            if not _adds(ctx, model, c.fitted(), both)[1]:  # nor back
                 same.append(c.spec)
                 names.append(c.effect)
             c.overlaps = verdict.effect
