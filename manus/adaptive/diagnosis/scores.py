@@ -205,15 +205,16 @@ def score_p(
         for k, V, dflat, Qi, spread, Qs, R, symmetric in pre:
             m = (w @ dflat).reshape(n, V, k)
             omega = spread(w, (Qi[None] @ m[..., None])[..., 0])
-            W = _wald(m, omega)
-            # the physical statistic is at most Wald's where the projection on the cone (through 0) is
-            # in the statistic's own metric: there only the draws whose Wald statistic reaches the
-            # observed one can count
-            near = np.zeros(n, bool) if signed is None else np.ones(n, bool)
             if signed is not None and symmetric:
+                # the physical statistic is at most Wald's where the projection on the cone (through 0)
+                # is in the statistic's own metric: only the draws whose Wald statistic reaches the
+                # observed one can count
+                W = _wald(m, omega)
                 near = W.max(1) >= observed[best] * (1 - 1e-6)
-            if near.any():
-                W[near] = _wald(physical(m[near], Qs, Qi, R, omega[near], signed), omega[near])
+                if near.any():
+                    W[near] = _wald(physical(m[near], Qs, Qi, R, omega[near], signed), omega[near])
+            else:
+                W = _wald(physical(m, Qs, Qi, R, omega, signed), omega)
             top = np.maximum(top, W.max(1))
         exceed += int(np.sum(top >= observed[best] * (1 - 1e-9)))
         done += n
