@@ -781,9 +781,10 @@ class SerialBase(Reparametrized):
         if q is None:
             span = np.where(self.serial.prismatic, 0.5, np.pi)
             q = np.random.default_rng(0).uniform(-span, span, (self.CHECK_STATES, self.n_joints))
+        theta = np.zeros(len(self.serial.rigid_names))  # (`standard`'s vector, without a dispatch per entry)
+        theta[np.asarray(self.columns)] = [float(p[k]) for k in self.base_names]
         with jax.enable_x64(True):
-            theta = self.standard({k: float(p[k]) for k in self.base_names})
-            H = np.asarray(_mass_matrices(self.serial, jnp.asarray(q), theta))
+            H = np.asarray(_mass_matrices(self.serial, jnp.asarray(q), jnp.asarray(theta)))
         low = np.linalg.eigvalsh(H)[:, 0]
         bad = int(np.sum(~(low > 0)))
         if not bad:

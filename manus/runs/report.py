@@ -31,9 +31,9 @@ class Section:
 
 
 def make_figures(section: Section, out: Path, prefix: str, free_run: bool = True) -> None:
-    """Draw the section's figures into `out` (names start with `prefix`): the steps' evidence and
-    the final residual in a worker (`Painter`) while the waterfall, the free run and its `compare`
-    figure are made here."""
+    """Draw the section's figures into `out` (names start with `prefix`): the final residual and
+    the steps' evidence in a worker (`Painter`) while the waterfall, the free run and its `compare`
+    figure are made here, then the steps' figures the worker has not started."""
     from manus.experiments.freerun import free_run_or_reason
     from manus.runs.figures.diagnose import (
         evidence_figure,
@@ -49,6 +49,12 @@ def make_figures(section: Section, out: Path, prefix: str, free_run: bool = True
     name = Path(section.recording).name
     n = disc.start.data.n_joints
     painter = Painter(len(disc.steps) * evidence_panels(n) + (resid_panels(n) if disc.final is not None else 0))
+    # (the largest first: the steps not started when this process is done with its own figures are drawn here)
+    resid = (
+        None
+        if disc.final is None
+        else painter.draw(resid_figure, disc.final.base, out, f"{prefix}final_resid.png", name)
+    )
     steps = [
         (
             s.spec,
@@ -64,11 +70,6 @@ def make_figures(section: Section, out: Path, prefix: str, free_run: bool = True
         )
         for s in disc.steps
     ]
-    resid = (
-        None
-        if disc.final is None
-        else painter.draw(resid_figure, disc.final.base, out, f"{prefix}final_resid.png", name)
-    )
     figs: dict = {"waterfall": waterfall_figure(disc, out, f"{prefix}waterfall.png", name)}
     if disc.final is not None:
         left = unexplained_figure(disc.final, out, f"{prefix}final_unexplained.png", name)
@@ -78,7 +79,8 @@ def make_figures(section: Section, out: Path, prefix: str, free_run: bool = True
     run = free_run_or_reason(final) if free_run else "skipped"
     section.free_run = run if isinstance(run, str) else run.how
     figs["compare"] = compare_figure(final, run, out, f"{prefix}final_compare.png", name)
-    figs["steps"] = [(spec, job.result()) for spec, job in steps]
+    drawn = [job.result() for _, job in reversed(steps)][::-1]  # (the last handed over: the least likely started)
+    figs["steps"] = [(spec, path) for (spec, _), path in zip(steps, drawn, strict=True)]
     if resid is not None:
         figs["resid"] = resid.result()
     section.figures = figs

@@ -120,3 +120,49 @@ def test_a_fit_asked_for_again_is_the_same_and_a_callers_change_does_not_reach_i
     np.testing.assert_array_equal(again, fresh.coefs(masks, lower))
     np.testing.assert_array_equal(free, fresh.coefs(masks))
     assert not np.array_equal(again, free)  # (the bounds are part of what is asked)
+
+
+def _pinv_bounded(M, r, low, hermitian):
+    """The bounded solution of one M c = r by numpy's pseudo-inverse (its SVD, cut at `RCOND`),
+    coefficients below their bound held there one more at a time (`lsq._bounded`'s rule)."""
+    pinv = lambda m: np.linalg.pinv(m, rcond=lsq.RCOND, hermitian=hermitian)
+    c, held = pinv(M) @ r, np.zeros(r.size, bool)
+    while ((low > c) & ~held).any():
+        held |= low > c
+        x, free = np.where(held, low, 0.0), (~held).astype(float)
+        c = np.where(held, low, pinv(M * np.outer(free, free)) @ ((r - M @ x) * free))
+    return c
+
+
+def test_solutions_near_the_cut_are_the_pseudo_inverses():
+    """Matrices whose smallest singular value is just above `RCOND` times the largest (solved as
+    the inverse) and just below it (the pseudo-inverse leaves it out), with bounds that bind: the
+    solutions are numpy's pseudo-inverse's, least squares (symmetric) and instruments alike."""
+    rng = np.random.default_rng(7)
+    P, per = 8, 6
+    for iv in (False, True):
+        Ms, rs = [], []
+        for smallest in (1e-8, 3e-10, 3e-11, 1e-13):
+            for _ in range(per):
+                s = np.geomspace(1.0, smallest, P)
+                U = np.linalg.qr(rng.normal(size=(P, P)))[0]
+                V = np.linalg.qr(rng.normal(size=(P, P)))[0] if iv else U
+                Ms.append((U * s) @ V.T)
+                rs.append(U @ rng.normal(size=P))
+        if iv:  # invertible, but not once its last coordinate is held at its bound: checked again then
+            m = np.zeros((P, P))
+            m[: P - 2, : P - 2] = rng.normal(size=(P - 2, P - 2)) + 4 * np.eye(P - 2)
+            m[P - 2, P - 1] = m[P - 1, P - 2] = 1.0
+            Ms.append(m)
+            rs.append(np.r_[rng.normal(size=P - 2), -1.0, 0.5])
+        M, r = np.array(Ms), np.array(rs)
+        low = np.r_[np.full(P - 3, -np.inf), np.zeros(3)]
+        C = lsq._bounded(M, r, low, iv)
+        for m, rr, c in zip(M, r, C, strict=True):
+            ref = _pinv_bounded(m, rr, low, hermitian=not iv)
+            # (near the cut the solution is determined to about its condition number times rounding)
+            np.testing.assert_allclose(c, ref, rtol=0, atol=1e-4 * np.abs(ref).max())
+            assert np.all(c >= low)
+            if not iv:  # the objective c'Mc - 2 r'c, which the ill-determined directions barely move
+                here, there = (x @ m @ x - 2 * rr @ x for x in (c, ref))
+                assert abs(here - there) <= 1e-7 * max(abs(there), 1.0)

@@ -4,6 +4,7 @@ drawn at once, without a worker."""
 
 import os
 import signal
+import time
 
 import numpy as np
 import pytest
@@ -104,4 +105,30 @@ def test_a_worker_already_up_draws_few_panels_too():
     Painter(WORKER_PANELS).draw(int, "1").result()  # (as `expect` starts it)
     painter = Painter(1)
     assert painter.remote
-    assert painter.draw(os.getpid).result() != os.getpid()
+    job = painter.draw(os.getpid)
+    future = job._future  # (the worker takes it: a job not yet taken when asked for is drawn here)
+    assert future is not None
+    while not (future.running() or future.done()):
+        time.sleep(0.01)
+    assert job.result() != os.getpid()
+
+
+def test_a_job_the_worker_has_not_started_is_drawn_here(tmp_path):
+    import subprocess
+
+    go = tmp_path / "go"
+    painter = Painter(WORKER_PANELS)
+    painter.draw(int, "1").result()  # the worker is up
+    # the worker busy until `go` exists; it holds at most three jobs at once (one running, two queued)
+    busy = painter.draw(subprocess.run, ["sh", "-c", f"while [ ! -e {go} ]; do sleep 0.05; done"])
+    queued = [painter.draw(os.getpid) for _ in range(2)]
+    last = painter.draw(os.getpid)
+    import threading
+
+    late = threading.Timer(60, go.touch)  # (a result that waited for the worker would come, from it, then)
+    late.start()
+    assert last.result() == os.getpid()  # not started: drawn here, without waiting for the worker
+    late.cancel()
+    go.touch()
+    assert busy.result().returncode == 0
+    assert all(job.result() != os.getpid() for job in queued)

@@ -493,11 +493,14 @@ def _bounded(M: np.ndarray, r: np.ndarray, low: np.ndarray | None, iv: bool) -> 
     """Minimum-norm solutions of M c = r (..., P, P), (..., P), each coefficient held at its lower
     bound `low` (in the scaled units of c, broadcast to c's shape; −inf: none) where it would fall
     below it (see `Stats.coefs`)."""
-    C = _solve(M, r, iv)
+    C, inverse = _solve(M, r, iv)
     if low is None or not np.isfinite(low).any():
         return C
     low, r = np.broadcast_to(low, C.shape), np.broadcast_to(r, C.shape)
     M = np.broadcast_to(M, C.shape[:-1] + M.shape[-2:])
+    # (least squares: a symmetric M whose eigenvalues are all kept keeps them on any coordinates it is
+    # restricted to: its principal submatrices' eigenvalues lie between its smallest and largest)
+    kept = inverse if not iv else np.zeros(inverse.shape, bool)
     held = np.zeros(C.shape, bool)
     for _ in range(C.shape[-1]):
         more = (low > C) & ~held
@@ -509,12 +512,49 @@ def _bounded(M: np.ndarray, r: np.ndarray, low: np.ndarray | None, iv: bool) -> 
         x = np.where(h, low[again], 0.0)
         free = (~h).astype(float)
         r2 = (r[again] - np.einsum("...pq,...q->...p", m, x)) * free
-        C[again] = np.where(h, low[again], _solve(m * free[..., :, None] * free[..., None, :], r2, iv))
+        m = m * free[..., :, None] * free[..., None, :]
+        known = kept[again]
+        c = np.empty(r2.shape)
+        if known.any():
+            c[known] = _inverse_solve(m[known], r2[known], h[known])
+        if not known.all():
+            c[~known] = _solve(m[~known], r2[~known], iv, h[~known])[0]
+        C[again] = np.where(h, low[again], c)
     return C
 
 
-def _solve(M: np.ndarray, r: np.ndarray, iv: bool) -> np.ndarray:
-    """Minimum-norm solutions of M c = r for a batch (..., P, P), (..., P)."""
+def _solve(M: np.ndarray, r: np.ndarray, iv: bool, held: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Minimum-norm solutions of M c = r for a batch (..., P, P), (..., P): the pseudo-inverse's,
+    singular values (least squares, M symmetric: eigenvalues) at most `RCOND` times the largest
+    left out; and where that leaves out nothing but the held coordinates. `held` (..., P):
+    coordinates whose rows and columns of M and entries of r are 0 (their solution is 0). Where
+    nothing else is left out the pseudo-inverse is the inverse on the other coordinates, and the
+    solution an LU solve's: a fraction of a decomposition's cost; elsewhere the decomposition's."""
+    P = M.shape[-1]
+    lead = np.broadcast_shapes(M.shape[:-2], r.shape[:-1])
+    M, r = np.broadcast_to(M, lead + (P, P)), np.broadcast_to(r, lead + (P,))
+    # (least squares: from its eigenvalues, cheaper than singular values)
+    s = np.linalg.svd(M, compute_uv=False) if iv else np.linalg.eigvalsh(M)
+    kept = np.sum(s > RCOND * np.abs(s).max(axis=-1, keepdims=True), axis=-1)
+    inverse = kept == (P if held is None else P - np.sum(held, axis=-1))
+    out = np.empty(lead + (P,))
+    if inverse.any():
+        out[inverse] = _inverse_solve(M[inverse], r[inverse], None if held is None else held[inverse])
+    if not inverse.all():
+        out[~inverse] = _pinv_solve(M[~inverse], r[~inverse], iv)
+    return out, inverse
+
+
+def _inverse_solve(M: np.ndarray, r: np.ndarray, held: np.ndarray | None) -> np.ndarray:
+    """`_solve` where M is invertible on the coordinates not `held`: (n, P, P), (n, P); an LU
+    solve with 1 on the held coordinates' diagonal (their r is 0, and so their solution)."""
+    if held is not None:
+        M = M + held[..., None] * np.eye(M.shape[-1])
+    return np.linalg.solve(M, r[..., None])[..., 0]
+
+
+def _pinv_solve(M: np.ndarray, r: np.ndarray, iv: bool) -> np.ndarray:
+    """`_solve` by the decomposition: (n, P, P), (n, P)."""
     if iv:
         return np.einsum("...pq,...q->...p", np.linalg.pinv(M, rcond=RCOND), r)
     # least squares: M is symmetric, its pseudo-inverse from its eigenvectors (cheaper than an SVD)

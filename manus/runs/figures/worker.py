@@ -3,7 +3,8 @@
 A 6–7-joint diagnosis draws about a hundred panels: seconds of matplotlib, all of it Python
 holding one core, while the statistics leave the other core mostly idle. A `Painter` with a
 worker hands it figure functions (`draw(fn, *args)`: the function and its arguments pickled, the
-results of the analysis it draws) and keeps going; each `Job.result()` waits for its figure.
+results of the analysis it draws) and keeps going; each `Job.result()` waits for its figure, or
+draws it here where the worker has not started it.
 Figures few enough that starting the worker (forked, or where it cannot be, a Python with matplotlib and
 JAX: about 2 s of the other core; `_start_method`) would cost more than drawing them are drawn at
 once, here: `Painter(panels)` decides from the number of panels the caller expects; a worker
@@ -64,8 +65,9 @@ def _started() -> None:
 
 
 class Job:
-    """A figure being drawn: `result()` waits for it (what its function returned, a path). One whose
-    worker died is drawn here."""
+    """A figure being drawn: `result()` waits for it (what its function returned, a path). One the
+    worker has not started yet is drawn here instead (the caller asking is free, the worker is
+    not), and so is one whose worker died."""
 
     def __init__(self, fn: Callable, args: tuple, future: Future | None):
         self._fn, self._args, self._future = fn, args, future
@@ -74,7 +76,7 @@ class Job:
     def result(self) -> Any:
         if self._future is not None:
             try:
-                self._value = self._future.result()
+                self._value = self._fn(*self._args) if self._future.cancel() else self._future.result()
             except BrokenProcessPool:
                 _pool.cache_clear()
                 self._value = self._fn(*self._args)
