@@ -512,13 +512,13 @@ def _bounded(M: np.ndarray, r: np.ndarray, low: np.ndarray | None, iv: bool) -> 
         x = np.where(h, low[again], 0.0)
         free = (~h).astype(float)
         r2 = (r[again] - np.einsum("...pq,...q->...p", m, x)) * free
-        m = m * free[..., :, None] * free[..., None, :]
         known = kept[again]
         c = np.empty(r2.shape)
         if known.any():
             c[known] = _inverse_solve(m[known], r2[known], h[known])
         if not known.all():
-            c[~known] = _solve(m[~known], r2[~known], iv, h[~known])[0]
+            f = free[~known]
+            c[~known] = _solve(m[~known] * f[..., :, None] * f[..., None, :], r2[~known], iv, h[~known])[0]
         C[again] = np.where(h, low[again], c)
     return C
 
@@ -547,9 +547,11 @@ def _solve(M: np.ndarray, r: np.ndarray, iv: bool, held: np.ndarray | None = Non
 
 def _inverse_solve(M: np.ndarray, r: np.ndarray, held: np.ndarray | None) -> np.ndarray:
     """`_solve` where M is invertible on the coordinates not `held`: (n, P, P), (n, P); an LU
-    solve with 1 on the held coordinates' diagonal (their r is 0, and so their solution)."""
+    solve with the held coordinates' rows and columns those of the identity (their r is 0, and
+    so their solution)."""
     if held is not None:
-        M = M + held[..., None] * np.eye(M.shape[-1])
+        free = ~held
+        M = np.where(free[..., :, None] & free[..., None, :], M, np.eye(M.shape[-1]))
     return np.linalg.solve(M, r[..., None])[..., 0]
 
 
