@@ -158,6 +158,10 @@ def test_solutions_near_the_cut_are_the_pseudo_inverses():
         M, r = np.array(Ms), np.array(rs)
         low = np.r_[np.full(P - 3, -np.inf), np.zeros(3)]
         C = lsq._bounded(M, r, low, iv)
+        # right-hand sides broadcast over the matrices: each the same as alone
+        both = lsq._bounded(M, np.stack([r, 2 * r]), low, iv)
+        np.testing.assert_allclose(both[0], C, rtol=1e-12, atol=0)
+        np.testing.assert_allclose(both[1], lsq._bounded(M, 2 * r, low, iv), rtol=1e-12, atol=0)
         for m, rr, c in zip(M, r, C, strict=True):
             ref = _pinv_bounded(m, rr, low, hermitian=not iv)
             # (near the cut the solution is determined to about its condition number times rounding)

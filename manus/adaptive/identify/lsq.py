@@ -525,30 +525,32 @@ def _bounded(M: np.ndarray, r: np.ndarray, low: np.ndarray | None, iv: bool) -> 
 
 def _solve(M: np.ndarray, r: np.ndarray, iv: bool, held: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Minimum-norm solutions of M c = r for a batch (..., P, P), (..., P): the pseudo-inverse's,
-    singular values (least squares, M symmetric: eigenvalues) at most `RCOND` times the largest
-    left out; and where that leaves out nothing but the held coordinates. `held` (..., P):
-    coordinates whose rows and columns of M and entries of r are 0 (their solution is 0). Where
-    nothing else is left out the pseudo-inverse is the inverse on the other coordinates, and the
-    solution an LU solve's: a fraction of a decomposition's cost; elsewhere the decomposition's."""
+    its singular values (least squares, M symmetric: eigenvalues) at most `RCOND` times the
+    largest left out. `held` (..., P): coordinates whose rows and columns of M and entries of r
+    are 0 (their solution is 0). Where nothing but them is left out the pseudo-inverse is the
+    inverse on the other coordinates and the solution an LU solve's (a fraction of a
+    decomposition's cost); elsewhere the decomposition's. Returns the solutions and where the
+    inverse gave them."""
     P = M.shape[-1]
-    lead = np.broadcast_shapes(M.shape[:-2], r.shape[:-1])
-    M, r = np.broadcast_to(M, lead + (P, P)), np.broadcast_to(r, lead + (P,))
-    # (least squares: from its eigenvalues, cheaper than singular values)
+    # (on M's own batch, which r may broadcast over; least squares: eigenvalues, cheaper than singular values)
     s = np.linalg.svd(M, compute_uv=False) if iv else np.linalg.eigvalsh(M)
     kept = np.sum(s > RCOND * np.abs(s).max(axis=-1, keepdims=True), axis=-1)
-    inverse = kept == (P if held is None else P - np.sum(held, axis=-1))
+    lead = np.broadcast_shapes(M.shape[:-2], r.shape[:-1])
+    inverse = np.broadcast_to(kept == (P if held is None else P - np.sum(held, axis=-1)), lead)
+    if inverse.all():
+        return _inverse_solve(M, r, held), inverse
+    M, r = np.broadcast_to(M, lead + (P, P)), np.broadcast_to(r, lead + (P,))
     out = np.empty(lead + (P,))
     if inverse.any():
         out[inverse] = _inverse_solve(M[inverse], r[inverse], None if held is None else held[inverse])
-    if not inverse.all():
-        out[~inverse] = _pinv_solve(M[~inverse], r[~inverse], iv)
+    out[~inverse] = _pinv_solve(M[~inverse], r[~inverse], iv)
     return out, inverse
 
 
 def _inverse_solve(M: np.ndarray, r: np.ndarray, held: np.ndarray | None) -> np.ndarray:
-    """`_solve` where M is invertible on the coordinates not `held`: (n, P, P), (n, P); an LU
-    solve with the held coordinates' rows and columns those of the identity (their r is 0, and
-    so their solution)."""
+    """`_solve` where M is invertible on the coordinates not `held`: (..., P, P), (..., P),
+    broadcast; an LU solve with the held coordinates' rows and columns those of the identity
+    (their r is 0, and so their solution)."""
     if held is not None:
         free = ~held
         M = np.where(free[..., :, None] & free[..., None, :], M, np.eye(M.shape[-1]))
