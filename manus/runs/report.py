@@ -79,8 +79,9 @@ def make_figures(section: Section, out: Path, prefix: str, free_run: bool = True
     run = free_run_or_reason(final) if free_run else "skipped"
     section.free_run = run if isinstance(run, str) else run.how
     figs["compare"] = compare_figure(final, run, out, f"{prefix}final_compare.png", name)
-    drawn = [job.result() for _, job in reversed(steps)][::-1]  # (the last handed over: the least likely started)
-    figs["steps"] = [(spec, path) for (spec, _), path in zip(steps, drawn, strict=True)]
+    for _, job in reversed(steps):  # (the last handed over first: the least likely started)
+        job.result()
+    figs["steps"] = [(spec, job.result()) for spec, job in steps]
     if resid is not None:
         figs["resid"] = resid.result()
     section.figures = figs
