@@ -30,18 +30,13 @@ class Section:
     free_run: str = ""  # one line: what drove the free run (or why there is none)
 
 
-def make_figures(section: Section, out: Path, prefix: str, free_run: bool = True) -> None:
-    """Draw the section's figures into `out` (names start with `prefix`): the final residual and
-    the steps' evidence in a worker (`Painter`) while the waterfall, the free run and its `compare`
-    figure are made here, then the steps' figures the worker has not started."""
+def make_figures(section: Section, out: Path, prefix: str, steps: list, free_run: bool = True) -> None:
+    """Draw the section's figures into `out` (names start with `prefix`): the final residual in a
+    worker (`Painter`) while the waterfall, the free run and its `compare` figure are made here,
+    then the steps' evidence figures (`steps`: their jobs, handed over as the loop added each,
+    `step_figure`) the worker has not started."""
     from manus.experiments.freerun import free_run_or_reason
-    from manus.runs.figures.diagnose import (
-        evidence_figure,
-        evidence_panels,
-        resid_figure,
-        resid_panels,
-        unexplained_figure,
-    )
+    from manus.runs.figures.diagnose import evidence_panels, resid_figure, resid_panels, unexplained_figure
     from manus.runs.figures.fit import compare_figure, waterfall_figure
     from manus.runs.figures.worker import Painter
 
@@ -49,27 +44,11 @@ def make_figures(section: Section, out: Path, prefix: str, free_run: bool = True
     name = Path(section.recording).name
     n = disc.start.data.n_joints
     painter = Painter(len(disc.steps) * evidence_panels(n) + (resid_panels(n) if disc.final is not None else 0))
-    # (the largest first: the steps not started when this process is done with its own figures are drawn here)
     resid = (
         None
         if disc.final is None
         else painter.draw(resid_figure, disc.final.base, out, f"{prefix}final_resid.png", name)
     )
-    steps = [
-        (
-            s.spec,
-            painter.draw(
-                evidence_figure,
-                s.diagnosis.base,
-                s.verdict,
-                s.diagnosis.verdict,
-                out,
-                f"{prefix}step{s.index}_{s.effect}.png",
-                name,
-            ),
-        )
-        for s in disc.steps
-    ]
     figs: dict = {"waterfall": waterfall_figure(disc, out, f"{prefix}waterfall.png", name)}
     if disc.final is not None:
         left = unexplained_figure(disc.final, out, f"{prefix}final_unexplained.png", name)
@@ -87,6 +66,16 @@ def make_figures(section: Section, out: Path, prefix: str, free_run: bool = True
     section.figures = figs
 
 
+def step_figure(painter, step, out: Path, prefix: str, name: str) -> tuple:
+    """A step's evidence figure (the candidate it added, beside its diagnosis's verdict) handed to
+    `painter`: (its spec, the `Job`)."""
+    from manus.runs.figures.diagnose import evidence_figure
+
+    s = step
+    path = f"{prefix}step{s.index}_{s.effect}.png"
+    return s.spec, painter.draw(evidence_figure, s.diagnosis.base, s.verdict, s.diagnosis.verdict, out, path, name)
+
+
 def discover_section(
     rec,
     model: str,
@@ -102,11 +91,17 @@ def discover_section(
     """Run the loop on `rec` and make its report section (figures drawn into `out`)."""
     from manus.adaptive import discover
     from manus.runs.figures.diagnose import evidence_panels, resid_panels
-    from manus.runs.figures.worker import expect
+    from manus.runs.figures.worker import Painter
     from manus.runs.progress import Bar
 
+    steps: list = []  # each step's evidence figure, handed over as the loop adds the step
     if figures:  # (its figures: at least one step's evidence and the final residual)
-        expect(evidence_panels(rec.n_joints) + resid_panels(rec.n_joints))
+        painter = Painter(evidence_panels(rec.n_joints) + resid_panels(rec.n_joints))
+        name = Path(str(rec.path)).name
+
+        def drawn(step) -> None:
+            steps.append(step_figure(painter, step, out, prefix, name))
+
     bar = Bar("  candidates judged", "candidate")
     disc = discover(
         rec,
@@ -115,12 +110,13 @@ def discover_section(
         max_steps=max_steps,
         method=method,
         progress=lambda line: note("  " + line),
+        on_step=drawn if figures else None,
         told=bar,
     )
     section = Section(title, str(rec.path), disc, intro=intro)
     if figures:
         note("  figures ...")
-        make_figures(section, out, prefix)
+        make_figures(section, out, prefix, steps)
     return section
 
 

@@ -102,7 +102,7 @@ def test_a_worker_forked_before_jax_runs_draws_what_this_process_draws(tmp_path)
 
 
 def test_a_worker_already_up_draws_few_panels_too():
-    Painter(WORKER_PANELS).draw(int, "1").result()  # (as `expect` starts it)
+    Painter(WORKER_PANELS).draw(int, "1").result()  # (as a command expecting a large figure set starts it)
     painter = Painter(1)
     assert painter.remote
     job = painter.draw(os.getpid)

@@ -221,13 +221,16 @@ def discover(
     max_steps: int = MAX_STEPS,
     progress: Callable[[str], None] | None = None,
     method: str = "auto",
+    on_step: Callable[[Step], None] | None = None,
     **diagnose_options,
 ) -> Discovery:
     """Run the loop from `model` (text, e.g. "rigid,viscous,coulomb"). `progress` receives a line
-    per step; `diagnose_options` go to `diagnose` (blocks, alpha, min_share, told)."""
+    per step; `on_step` each step as it is added (its figure may be drawn while the loop goes
+    on); `diagnose_options` go to `diagnose` (blocks, alpha, min_share, told)."""
     if max_steps < 1:
         raise ModelError(f"max_steps must be at least 1 (got {max_steps})")
     say = progress or (lambda line: None)
+    added = on_step or (lambda step: None)
     data = rec if isinstance(rec, Data) else prepare(rec, cutoff_hz)
     cols = Columns(data)
     with columns_ahead(cols, model):  # (the first diagnosis's candidates' columns, beside the fit)
@@ -292,6 +295,7 @@ def discover(
                 )
             )
             say(f"step {len(steps)}: + {v.spec} (frequency response; not refitted)")
+            added(steps[-1])
             return Discovery(start, steps, None, "compliance (not refitted)", notes)
         v, current, moved = tried
         spec = current.model.spec
@@ -311,3 +315,4 @@ def discover(
             )
         )
         say(f"step {len(steps)}: + {v.spec}, rel_error {100 * before:.2f} % -> {100 * current.rel_error:.2f} %")
+        added(steps[-1])

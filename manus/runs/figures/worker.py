@@ -8,13 +8,14 @@ draws it here where the worker has not started it.
 Figures few enough that starting the worker (forked, or where it cannot be, a Python with matplotlib and
 JAX: about 2 s of the other core; `_start_method`) would cost more than drawing them are drawn at
 once, here: `Painter(panels)` decides from the number of panels the caller expects; a worker
-already started (`expect`) draws whatever it is given. The worker is started once per process and
+already started draws whatever it is given. The worker is started once per process and
 kept for the next command (the test suite runs many); a worker that dies leaves its figures drawn
 here."""
 
 from __future__ import annotations
 
 import functools
+import threading
 from collections.abc import Callable
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -48,16 +49,36 @@ def _start_method():
     return multiprocessing.get_context("fork" if quiet else "spawn")
 
 
-def _ready() -> None:
-    """The worker's start: matplotlib's figure and Agg canvas and the figure modules imported
-    before the first figure is asked for (importing manus sets JAX as `manus` runs it:
-    `manus.config`; a figure may evaluate a model)."""
+def _imported() -> None:
+    """matplotlib's figure and Agg canvas and the figure modules imported before the first figure
+    is asked for (importing manus sets JAX as `manus` runs it: `manus.config`; a figure may
+    evaluate a model). Safe beside other threads: nothing global changes."""
     import importlib
 
     for module in ("matplotlib.figure", "matplotlib.backends.backend_agg"):
         importlib.import_module(module)
     for module in ("common", "diagnose", "fit"):
         importlib.import_module(f"manus.runs.figures.{module}")
+
+
+def _ready() -> None:
+    """The worker's start: `_imported`, and a small figure drawn in the figures' style, which
+    loads the fonts (0.4 s of a process's first figure). Not beside other threads: the style is
+    set in matplotlib's global settings while it draws, and the fonts are kept per thread."""
+    import io
+
+    _imported()
+    from manus.runs.figures.common import panels, styled
+
+    @styled
+    def small() -> None:
+        fig, axes = panels(1, 1, (1.0, 1.0), "0.0 N·m")
+        axes[0, 0].plot([0.0, 1.0], [0.0, 1.0], label="0")
+        axes[0, 0].legend()
+        axes[0, 0].set_xlabel("t [s]")
+        fig.savefig(io.BytesIO(), format="png")
+
+    small()
 
 
 def _started() -> None:
@@ -84,20 +105,15 @@ class Job:
         return self._value
 
 
-def expect(panels: int) -> None:
-    """Figures of about `panels` panels will be asked for later: where that is worth a worker,
-    start it now, while this process may still be quiet enough to fork it (`_start_method`)."""
-    if panels >= WORKER_PANELS:
-        Painter(panels)
-
-
 class Painter:
     """Figure functions run beside the analysis (in the worker) or at once (here)."""
 
     def __init__(self, panels: int):
-        self.remote = panels >= WORKER_PANELS or _pool.cache_info().currsize > 0  # (or the worker is up already)
-        if self.remote:
-            self._submit(_started)  # the worker starts now, while the caller works
+        started = _pool.cache_info().currsize > 0
+        self.remote = panels >= WORKER_PANELS or started  # (or the worker is up already)
+        if self.remote and not started:
+            self._submit(_started)  # the worker starts now, while the caller works; so do this process's imports
+            threading.Thread(target=_imported, name="manus-figures-imported", daemon=True).start()
 
     def _submit(self, fn: Callable, *args) -> Future | None:
         try:
