@@ -34,8 +34,11 @@ def test_a_mode_comes_after_a_candidate_that_removes_torque_error(square_wave):
 def test_discover_adds_the_friction_before_the_mode(square_wave):
     """From rigid,viscous the loop adds the friction level first (the torque error falls, by more
     than `min_share` of the torque: the rest is the mode's ringing) and only then records the
-    mode, which it cannot refit."""
-    r = discover(square_wave, "rigid,viscous", max_steps=3)
+    mode, which it cannot refit. Each step is handed to `on_step` as it is added (a figure of it
+    can be drawn while the loop goes on)."""
+    seen = []
+    r = discover(square_wave, "rigid,viscous", max_steps=3, on_step=seen.append)
+    assert len(seen) == len(r.steps) and all(a is b for a, b in zip(seen, r.steps, strict=True))
     effects = [s.effect for s in r.steps]
     assert effects[0] in FRICTION, effects
     first = r.steps[0]
