@@ -464,9 +464,15 @@ def compliance(ctx: Context) -> Candidate | str:
     """The structural mode (`compliance`), judged in the frequency band where it lives
     (`manus.adaptive.diagnosis.modes`: the measured response's fit with the mode against the
     rigid one over its own blocks); where the recording cannot show one, why (a sentence)."""
-    data, base = ctx.data, ctx.base
-    tau = align(data.rec.tau, base.delay / data.dt)  # (the hold is part of `modes.sampling`)
-    mode = modes.detect(data.rec.q, tau, data.dt)  # its own blocks: the frequency resolution needs long ones
+    data, delay = ctx.data, ctx.base.delay
+    mode = data.once(  # (the same at every step of a loop: the recording's, at the model's delay)
+        ("mode", np.asarray(delay, float).tobytes()),
+        lambda: modes.detect(  # its own blocks: the frequency resolution needs long ones
+            data.rec.q,
+            align(data.rec.tau, delay / data.dt),  # (the hold is part of `modes.sampling`)
+            data.dt,
+        ),
+    )
     if isinstance(mode, str):
         return mode
     p = one_sided_p(mode.err_rigid, mode.err_mode)

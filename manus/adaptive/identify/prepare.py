@@ -34,7 +34,9 @@ the kinematics, the rows.
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 import numpy as np
 
@@ -67,7 +69,9 @@ JOINT_STANDSTILL_S = 0.0
 JOINT_GUARD = 1.0
 
 
-_TAU_LOCK = threading.RLock()  # guards `Data._tau`, the torque's filtered shifts kept
+R = TypeVar("R")
+
+_TAU_LOCK = threading.RLock()  # guards `Data._tau`, the torque's filtered shifts kept, and `Data._kept`
 
 
 @dataclass
@@ -90,6 +94,7 @@ class Data:
     rest: np.ndarray | None = None  # (T,) samples where a joint is at rest: kept out of the cut-off's low-pass
     stride: int = 1  # the working grid: every `stride`-th sample (the rows are on it)
     _tau: dict = field(default_factory=dict)
+    _kept: dict = field(default_factory=dict)  # `once`'s answers
 
     @property
     def hold(self) -> str:
@@ -146,6 +151,17 @@ class Data:
         m = (~self.work(self.rest)).astype(float).reshape((-1,) + (1,) * (np.ndim(x) - 1))
         weight = pick(self.weight()).reshape((-1,) + m.shape[1:])
         return pick(lowpass(np.asarray(x) * m, self.work_dt, self.cutoff_hz)) / np.maximum(weight, 1e-12)
+
+    def once(self, key: tuple, compute: Callable[[], R]) -> R:
+        """What `compute()` gives, computed once for this data and kept under `key`: what depends
+        on the recording alone and each step of a loop asks again (a structural mode's frequency
+        response at the model's delay)."""
+        with _TAU_LOCK:
+            if key in self._kept:
+                return self._kept[key]
+        out = compute()
+        with _TAU_LOCK:
+            return self._kept.setdefault(key, out)
 
     def weight(self) -> np.ndarray:
         """(W,) `moving_weight` of the rests on the working grid (computed by `prepare`, kept here)."""
