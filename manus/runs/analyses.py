@@ -101,7 +101,7 @@ def diagnose_recording(
     data = prepare(rec, cutoff_hz)
     cols = Columns(data)
     with columns_ahead(cols, model):  # (the candidates' columns, beside the fit)
-        base = fit(data, model, columns=cols, method=method)
+        base = fit(data, model, columns=cols, method=method, readings=True)
     if fitted is not None:
         fitted(base)
     bar = Bar("candidates judged", "candidate")

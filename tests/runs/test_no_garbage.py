@@ -239,3 +239,40 @@ def test_a_structure_the_data_contradict_is_said():
         ]
         assert bool(notes) == contradicted, notes
         assert not notes or "the data contradict `structure: axis`: read as manus2" in notes[0], notes
+
+
+def _reading_notes(rec, model: str) -> tuple[float, list[str]]:
+    import warnings
+
+    from manus.adaptive import fit
+    from manus.plants.errors import RecordingNote
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        f = fit(rec, model, method="ls")
+    return f.rel_error, [str(w.message) for w in caught if issubclass(w.category, RecordingNote)]
+
+
+def test_a_chain_logged_in_degrees_is_said():
+    """A 6-joint chain's angles logged in degrees, on no grid `read` could check: sines and
+    cosines of angles 57 times too large fit next to nothing (90 % of the torque left), the angles
+    read in degrees fit as the radians do, and a note says the positions look like degrees. The
+    same recording in radians: no note. The thesis's planar arm, whose radians fit is poor
+    (a shaft mode ringing) and whose angles read 57 times smaller fit better, is not a chain: no
+    note either."""
+    import dataclasses
+
+    from manus.experiments import calibration, chains
+
+    rec = chains.case(0).rec  # the UR5 at 100 Hz
+    revolute = np.where(np.asarray(rec.prismatic), 1.0, 180 / math.pi)
+    degrees = dataclasses.replace(rec, q=rec.q * revolute, qd=None if rec.qd is None else rec.qd * revolute)
+    error, notes = _reading_notes(degrees, "rigid,viscous,smooth:0.088")
+    assert error > 0.8
+    said = [n for n in notes if "look like degrees" in n]
+    assert len(said) == 1 and "against" in said[0] and "manus reads radians" in said[0], notes
+    error, notes = _reading_notes(rec, "rigid,viscous,smooth:0.088")
+    assert error < 0.01 and not any("degrees" in n for n in notes), notes
+    arm = calibration.case(4, "compliance", structure="arm").rec
+    error, notes = _reading_notes(arm, "rigid,viscous,coulomb")
+    assert error > 0.5 and not any("degrees" in n for n in notes), notes

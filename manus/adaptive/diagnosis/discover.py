@@ -234,7 +234,7 @@ def discover(
     data = rec if isinstance(rec, Data) else prepare(rec, cutoff_hz)
     cols = Columns(data)
     with columns_ahead(cols, model):  # (the first diagnosis's candidates' columns, beside the fit)
-        start = fit(data, model, columns=cols, method=method)
+        start = fit(data, model, columns=cols, method=method, readings=True)
     given = model_from(model, data.rec.structure)[1]  # values the user wrote stay as written
     current = start
     spec = start.model.spec

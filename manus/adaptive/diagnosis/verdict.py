@@ -183,7 +183,7 @@ def diagnose(
         base = fitted
     else:
         with columns_ahead(cols, parsed) if columns is None else contextlib.nullcontext():
-            base = fit(data, model, columns=cols, method=method)
+            base = fit(data, model, columns=cols, method=method, readings=columns is None)
     icols = base.instruments if base.method == "iv" else None
     k = _blocks_for(data, blocks)
     guard = int(np.ceil(1.0 / (data.cutoff_hz * data.dt)))

@@ -26,6 +26,7 @@ friction), the closest consistent parameters in the data's metric, the estimate 
 
 from __future__ import annotations
 
+import math
 import warnings
 from dataclasses import replace
 
@@ -63,12 +64,15 @@ def fit(
     fixed: set[str] | None = None,
     columns: Columns | None = None,
     method: str = "auto",
+    readings: bool | None = None,
 ) -> Fit:
     """Identify `model`'s parameters from `rec`. Non-linear parameters of effects not in
     `fixed` are searched (a model given as text fixes those written with an argument).
     `method`: "ls" (IDIM-LS), "iv" (IDIM-IV), "oe" (output error) or "auto" (IV or OE where LS
     is biased, see the module docstring). `columns`: the columns of this data computed already (a
-    loop over one recording)."""
+    loop over one recording). `readings`: where least squares fits poorly, try the other ways the
+    recording may have been meant and note one that fits far better (`other_readings`); by default
+    on a fit on its own (no `columns`), the first of a command's."""
     if method not in METHODS:
         raise ModelError(f"unknown method {method!r}: expected one of {', '.join(METHODS)}")
     data = rec if isinstance(rec, Data) else prepare(rec, cutoff_hz)
@@ -95,8 +99,8 @@ def fit(
     check_motion(data, model)
     model, search = search_all(data, cols, model, fixed)
     ls = fit_rows(data, cols, model, search)
-    if columns is None:  # (a fit on its own, not one of a loop's)
-        _another_structure(data, model, ls)
+    if columns is None if readings is None else readings:
+        other_readings(data, model, ls)
     start = physical(ls, cols)  # IV's simulations start from a consistent model
     if method == "ls":
         return replace(start, why="least squares (asked for)")
@@ -110,39 +114,67 @@ def fit(
     return physical(chosen, cols)
 
 
-POOR_FIT = 0.1  # a least-squares error from which another reading of the structure is tried
+POOR_FIT = 0.1  # a least-squares error from which the recording's other readings are tried
+NOTHING_FIT = 0.5  # ... and from which its angles are read in degrees (a model that explains next to nothing)
 OTHER_STRUCTURE = {"manus2": "axis", "axis": "manus2"}  # the structures of two joints: each the other's reading
+DEGREES = math.pi / 180  # radians per degree
 
 
-def _another_structure(data: Data, model: Model, ls: Fit) -> None:
-    """Where least squares leaves `POOR_FIT` of the torque or more on two revolute joints, the
-    same model fitted with the other structure two joints can have (the thesis's arm in absolute
-    angles, or two independent axes): if that leaves under half the error, the recording's
-    structure (stated, or the default for two joints) is contradicted by its data, and a note
-    says so."""
+def other_readings(data: Data, model: Model, ls: Fit) -> None:
+    """Where least squares leaves `POOR_FIT` of the torque or more, the same model fitted to the
+    recording read the other ways it may have been meant. A reading that leaves under half the
+    error contradicts the recording as read, and a note says so:
+
+    - two revolute joints in the other structure two joints can have (the thesis's arm in
+      absolute angles, or two independent axes): the structure stated, or the default for two
+      joints, is contradicted;
+    - a serial chain's (a URDF's) revolute angles in degrees, where the model explains next to
+      nothing (`NOTHING_FIT`). A log in degrees printed to a few places lies on no encoder grid
+      that `read` could check, and a chain's gravity and couplings, sines and cosines of its
+      angles, then fit nothing. Elsewhere reading the angles 57 times smaller changes the model's
+      function more than it tests the unit: on the thesis's planar arm, without gravity, its
+      sines become linear in the angles, and a model that leaves most of a recording's torque
+      (a shaft mode ringing) was fitted better so on radians.
+    """
+    if not ls.rel_error >= POOR_FIT:
+        return
     rec = data.rec
+    for alt, said, hint in _readings(rec, ls.rel_error):
+        try:
+            alt_data = prepare(alt, data.cutoff_hz)
+            alt_ls = fit_rows(alt_data, Columns(alt_data), Model(identified(alt.structure), model.spec), None)
+        except (ManusError, ValueError, np.linalg.LinAlgError):  # (a reading that cannot be fitted contradicts nothing)
+            continue
+        if alt_ls.rel_error < 0.5 * ls.rel_error:
+            warnings.warn(
+                f"{rec.path}: {said}: {model.spec} leaves {100 * alt_ls.rel_error:.3g} % of the torque, "
+                f"against {100 * ls.rel_error:.3g} % as read ({hint})",
+                RecordingNote,
+                stacklevel=3,
+            )
+
+
+def _readings(rec: Recording, rel_error: float):
+    """(the recording read another way, what the note says of it, what to do) for each reading
+    `other_readings` tries on `rec`, fitted as read to `rel_error`."""
+    revolute = ~np.asarray(rec.prismatic, bool)
+    if rec.structure_name == "urdf" and revolute.any() and rel_error >= NOTHING_FIT:
+        scale = np.where(revolute, DEGREES, 1.0)
+        yield (
+            replace(rec, q=rec.q * scale, qd=None if rec.qd is None else rec.qd * scale),
+            "the angles look like degrees: read in degrees",
+            "manus reads radians: convert them",
+        )
     other = OTHER_STRUCTURE.get(rec.structure_name)
     if other is None or rec.n_joints != 2 or any(rec.prismatic) or "transmission" in rec.meta:
         return  # (a prismatic axis is no arm's joint; a stated transmission is a structure of its own)
-    if not ls.rel_error >= POOR_FIT:
-        return
-    try:
-        alt = replace(rec, meta={**rec.meta, "structure": other})
-        alt_data = prepare(alt, data.cutoff_hz)
-        alt_model = Model(identified(alt.structure), model.spec)
-        alt_ls = fit_rows(alt_data, Columns(alt_data), alt_model, None)
-    except (ManusError, ValueError, np.linalg.LinAlgError):  # (a reading that cannot be fitted contradicts nothing)
-        return
-    if alt_ls.rel_error < 0.5 * ls.rel_error:
-        said = (
-            "`structure: " + rec.structure_name + "`"
-            if "structure" in rec.meta
-            else f"{rec.structure_name} (the default for two joints)"
-        )
-        warnings.warn(
-            f"{rec.path}: the data contradict {said}: read as {other}, {model.spec} leaves "
-            f"{100 * alt_ls.rel_error:.3g} % of the torque, against {100 * ls.rel_error:.3g} % (state the rig's "
-            f"structure: `# structure: {other}`)",
-            RecordingNote,
-            stacklevel=3,
-        )
+    said = (
+        "`structure: " + rec.structure_name + "`"
+        if "structure" in rec.meta
+        else f"{rec.structure_name} (the default for two joints)"
+    )
+    yield (
+        replace(rec, meta={**rec.meta, "structure": other}),
+        f"the data contradict {said}: read as {other}",
+        f"state the rig's structure: `# structure: {other}`",
+    )
