@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from collections.abc import Iterator
 from dataclasses import replace
 
 import numpy as np
@@ -131,10 +132,10 @@ def other_readings(data: Data, model: Model, ls: Fit) -> None:
     - a serial chain's (a URDF's) revolute angles in degrees, where the model explains next to
       nothing (`NOTHING_FIT`). A log in degrees printed to a few places lies on no encoder grid
       that `read` could check, and a chain's gravity and couplings, sines and cosines of its
-      angles, then fit nothing. Elsewhere reading the angles 57 times smaller changes the model's
-      function more than it tests the unit: on the thesis's planar arm, without gravity, its
-      sines become linear in the angles, and a model that leaves most of a recording's torque
-      (a shaft mode ringing) was fitted better so on radians.
+      angles, then fit nothing. Elsewhere, reading the angles 57 times smaller changes the model's
+      function more than it tests the unit: on the thesis's planar arm, without gravity, the sines
+      become linear in the angles, and a recording in radians whose model left most of the torque
+      (a shaft mode ringing) fitted better read that way.
     """
     if not ls.rel_error >= POOR_FIT:
         return
@@ -154,7 +155,7 @@ def other_readings(data: Data, model: Model, ls: Fit) -> None:
             )
 
 
-def _readings(rec: Recording, rel_error: float):
+def _readings(rec: Recording, rel_error: float) -> Iterator[tuple[Recording, str, str]]:
     """(the recording read another way, what the note says of it, what to do) for each reading
     `other_readings` tries on `rec`, fitted as read to `rel_error`."""
     revolute = ~np.asarray(rec.prismatic, bool)
