@@ -276,3 +276,29 @@ def test_a_chain_logged_in_degrees_is_said():
     arm = calibration.case(4, "compliance", structure="arm").rec
     error, notes = _reading_notes(arm, "rigid,viscous,coulomb")
     assert error > 0.5 and not any("degrees" in n for n in notes), notes
+
+
+def test_a_chain_torque_in_another_unit_is_said():
+    """A chain's torque logged in mN·m fits as well as in N·m, every parameter 1000 times larger:
+    its gravity moments, compared with the URDF's, name the scale and the unit. In N·m, or
+    scaled by 3 (a URDF's masses may be that far off), no note."""
+    import dataclasses
+
+    from manus.experiments import chains
+
+    rec = chains.case(0).rec  # the UR5 at 100 Hz: two gravity moments identified within 10 %
+    for scale, said in (
+        (1e3, "the torque in mN·m"),
+        (1e-3, "the torque in kN·m"),
+        (50.0, "a gear ratio"),
+        (3.0, None),
+        (1.0, None),
+    ):
+        _, notes = _reading_notes(dataclasses.replace(rec, tau=rec.tau * scale), "rigid,viscous,smooth:0.088")
+        moments = [n for n in notes if "gravity moments" in n]
+        if said is None:
+            assert not moments, (scale, moments)
+        else:
+            assert len(moments) == 1 and said in moments[0], (scale, notes)
+            found = float(moments[0].split("identified ")[1].split(" times")[0])
+            assert abs(found / scale - 1) < 0.1, (scale, moments[0])

@@ -27,6 +27,7 @@ friction), the closest consistent parameters in the data's metric, the estimate 
 from __future__ import annotations
 
 import math
+import re
 import warnings
 from collections.abc import Iterator
 from dataclasses import replace
@@ -43,6 +44,7 @@ from manus.adaptive.identify.search import search_all
 from manus.plants.effects import Model
 from manus.plants.errors import ManusError, ModelError, RecordingNote
 from manus.plants.recording import Recording
+from manus.plants.serial import SerialBase
 
 METHODS = ("auto", "ls", "iv", "oe")
 
@@ -102,6 +104,7 @@ def fit(
     ls = fit_rows(data, cols, model, search)
     if columns is None if readings is None else readings:
         other_readings(data, model, ls)
+        urdf_scale(ls)
     start = physical(ls, cols)  # IV's simulations start from a consistent model
     if method == "ls":
         return replace(start, why="least squares (asked for)")
@@ -153,6 +156,48 @@ def other_readings(data: Data, model: Model, ls: Fit) -> None:
                 RecordingNote,
                 stacklevel=3,
             )
+
+
+URDF_SCALE = 5.0  # a chain's gravity moments identified this many times its URDF's (or 1/this), all alike
+TORQUE_UNITS = ((1e3, "mN·m (mN)"), (1e2, "N·cm"), (1e-3, "kN·m (kN)"))  # (scale, the unit it suggests)
+
+
+def urdf_scale(ls: Fit) -> None:
+    """A serial chain's torque in another unit than N·m (N on a prismatic joint): least squares
+    fits a scaled torque as well as the true one, with every parameter scaled alike. The chain's
+    gravity moments (the base parameters m·x, m·y, m·z, which gravity identifies well) are
+    compared with its URDF's; where those identified within 10 % of their value (at least 2, each
+    a tenth or more of the URDF's largest) are all `URDF_SCALE` times the URDF's or more (or as
+    many times less), within a factor of 3 of each other, a note names the scale and the unit it
+    suggests."""
+    s = ls.model.structure
+    if not isinstance(s, SerialBase):
+        return
+    urdf = dict(zip(s.rigid_names, s.rigid_defaults, strict=True))
+    params, stds = ls.params, ls.stds
+    moments = [k for k in urdf if re.fullmatch(r"m[xyz]\d+R?", k) and k in params]
+    largest = max((abs(urdf[k]) for k in moments), default=0.0)
+    known = [
+        k
+        for k in moments
+        if abs(urdf[k]) >= 0.1 * largest > 0 and np.isfinite(stds[k]) and stds[k] < 0.1 * abs(params[k])
+    ]
+    ratio = np.array([params[k] / urdf[k] for k in known])
+    if ratio.size < 2 or np.any(ratio <= 0):
+        return  # (too few to tell, or signs that no one scale explains)
+    logs = np.log10(ratio)
+    scale = float(10 ** np.median(logs))
+    if 1 / URDF_SCALE < scale < URDF_SCALE or np.ptp(logs) > np.log10(3.0):
+        return
+    unit = next((u for f, u in TORQUE_UNITS if abs(np.log10(scale / f)) < 0.15), None)
+    warnings.warn(
+        f"{ls.data.rec.path}: the chain's gravity moments are identified {scale:.3g} times its URDF's "
+        f"({len(known)} of them, each within 10 %: {', '.join(known[:4])}{', ...' if len(known) > 4 else ''}): "
+        + (f"the torque in {unit}? " if unit else "a torque not converted to N·m (a gear ratio, a torque constant)? ")
+        + "manus reads N·m (N on a prismatic joint), or the URDF's masses are not the robot's",
+        RecordingNote,
+        stacklevel=3,
+    )
 
 
 def _readings(rec: Recording, rel_error: float) -> Iterator[tuple[Recording, str, str]]:
