@@ -4,9 +4,11 @@ their figures; the API draws them when asked."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
-from collections.abc import Callable
+import warnings
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -27,6 +29,27 @@ def _time_base(rec: Recording, out: dict) -> dict:
     if rec.time_base:
         out["time_base"] = rec.time_base.report()
     return out
+
+
+@contextlib.contextmanager
+def _noted() -> Iterator[list[str]]:
+    """The notes (`RecordingNote`) an analysis raises about its recording (another reading of it
+    that fits far better, a torque in another unit), collected for its JSON as they are shown
+    (the command prints each as a line when it is raised), each time it is raised."""
+    from manus.plants.errors import RecordingNote
+
+    said: list[str] = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("always", RecordingNote)
+        shown = warnings.showwarning
+
+        def show(message, category, *rest, **kw):
+            if issubclass(category, RecordingNote):
+                said.append(str(message))
+            shown(message, category, *rest, **kw)
+
+        warnings.showwarning = show
+        yield said
 
 
 @dataclass
@@ -65,8 +88,10 @@ def fit_recording(rec: Recording, model: str, cutoff_hz: float | None = None, me
     from manus.experiments.freerun import nrmse_fit
 
     note(f"fitting {model} ...")
-    f = fit(rec, model, cutoff_hz=cutoff_hz, method=method)
+    with _noted() as said:
+        f = fit(rec, model, cutoff_hz=cutoff_hz, method=method)
     out = f.report()
+    out["notes"] = said
     out["fit_percent"] = {"torque": nrmse_fit(f.data.tau(f.delay), f.predicted()).tolist()}
     _time_base(rec, out)
     if "urdf_values" in out:  # a serial chain: the physically consistent stage of the fit, in full
@@ -100,12 +125,13 @@ def diagnose_recording(
     note(f"diagnosing {model}: fitting it, then with each missing effect in turn ...")
     data = prepare(rec, cutoff_hz)
     cols = Columns(data)
-    with columns_ahead(cols, model):  # (the candidates' columns, beside the fit)
+    with _noted() as said, columns_ahead(cols, model):  # (the candidates' columns, beside the fit)
         base = fit(data, model, columns=cols, method=method, readings=True)
     if fitted is not None:
         fitted(base)
     bar = Bar("candidates judged", "candidate")
     d = diagnose(data, model, columns=cols, method=method, fitted=base, told=bar)
+    d.notes[:0] = said
     if judged is not None:
         judged(d)
     return DiagnosisAnalysis(base, d, _time_base(rec, d.report()))
@@ -137,17 +163,19 @@ def discover_recording(
 
     stem = Path(rec.path).stem
     note(f"discovering from {model} ...")
-    sec = report.discover_section(
-        rec,
-        model,
-        figures or Path("."),
-        f"discover_{stem}_",
-        f"{Path(rec.path).name} from `{model}`",
-        cutoff_hz=cutoff_hz,
-        max_steps=max_steps,
-        figures=figures is not None,
-        method=method,
-    )
+    with _noted() as said:
+        sec = report.discover_section(
+            rec,
+            model,
+            figures or Path("."),
+            f"discover_{stem}_",
+            f"{Path(rec.path).name} from `{model}`",
+            cutoff_hz=cutoff_hz,
+            max_steps=max_steps,
+            figures=figures is not None,
+            method=method,
+        )
+    sec.discovery.notes[:0] = said
     return DiscoveryAnalysis(sec, _time_base(rec, report.section_result(sec)))
 
 

@@ -302,3 +302,19 @@ def test_a_chain_torque_in_another_unit_is_said():
             assert len(moments) == 1 and said in moments[0], (scale, notes)
             found = float(moments[0].split("identified ")[1].split(" times")[0])
             assert abs(found / scale - 1) < 0.1, (scale, moments[0])
+
+
+def test_the_notes_on_a_recording_are_in_the_json_each_time():
+    """`manus fit`'s JSON holds the notes its fit raised about the recording (`notes`), every time
+    the same analysis runs, and none on a recording with nothing to say."""
+    import dataclasses
+
+    from manus.experiments import chains
+    from manus.runs.analyses import fit_recording
+
+    rec = chains.case(0).rec
+    scaled = dataclasses.replace(rec, tau=rec.tau * 1e3)
+    for _ in range(2):
+        notes = fit_recording(scaled, "rigid,viscous,smooth:0.088", method="ls").report["notes"]
+        assert len(notes) == 1 and "the torque in mN·m" in notes[0], notes
+    assert fit_recording(rec, "rigid,viscous,smooth:0.088", method="ls").report["notes"] == []
