@@ -30,7 +30,7 @@ class Section:
     free_run: str = ""  # one line: what drove the free run (or why there is none)
 
 
-def make_figures(section: Section, out: Path, prefix: str, steps: list, free_run: bool = True) -> None:
+def make_figures(section: Section, out: Path, prefix: str, steps: list) -> None:
     """Draw the section's figures into `out` (names start with `prefix`): the final residual in a
     worker (`Painter`) while the waterfall, the free run and its `compare` figure are made here,
     then the steps' evidence figures (`steps`: their jobs, handed over as the loop added each,
@@ -55,7 +55,7 @@ def make_figures(section: Section, out: Path, prefix: str, steps: list, free_run
         if left:
             figs["unexplained"] = left
     final = disc.final_fit
-    run = free_run_or_reason(final) if free_run else "skipped"
+    run = free_run_or_reason(final)
     section.free_run = run if isinstance(run, str) else run.how
     figs["compare"] = compare_figure(final, run, out, f"{prefix}final_compare.png", name)
     for _, job in reversed(steps):  # (the last handed over first: the least likely started)
@@ -71,9 +71,10 @@ def step_figure(painter, step, out: Path, prefix: str, name: str) -> tuple:
     `painter`: (its spec, the `Job`)."""
     from manus.runs.figures.diagnose import evidence_figure
 
-    s = step
-    path = f"{prefix}step{s.index}_{s.effect}.png"
-    return s.spec, painter.draw(evidence_figure, s.diagnosis.base, s.verdict, s.diagnosis.verdict, out, path, name)
+    path = f"{prefix}step{step.index}_{step.effect}.png"
+    return step.spec, painter.draw(
+        evidence_figure, step.diagnosis.base, step.verdict, step.diagnosis.verdict, out, path, name
+    )
 
 
 def discover_section(
