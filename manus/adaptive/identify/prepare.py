@@ -204,8 +204,9 @@ class Data:
             for shift, weight in ((i, 1 - (x - i)), (i + 1, x - i)):
                 if weight > 0:
                     key = ("shift", int(shift))
-                    if key not in self._tau:
-                        self._tau[key] = self.smoothed(self.work(align(band, float(shift))))
+                    if key not in self._tau:  # (`align` at a whole shift, read on the working grid only)
+                        at = np.clip(np.arange(0, len(band), self.stride) - int(shift), 0, len(band) - 1)
+                        self._tau[key] = self.smoothed(band[at])
                     out[:, j] += weight * self._tau[key][:, j]
         return out
 
