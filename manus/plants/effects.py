@@ -123,6 +123,14 @@ class Span(NamedTuple):
     resolution: float = 0.0  # the smallest speed the data resolve (an encoder count per filter time)
     band: float = math.inf  # the identification band [Hz]: torque above it is filtered away
     typical: np.ndarray | None = None  # (n,) a typical speed of the motion (median of |q̇|)
+    # the same in actuator coordinates θ = N q where the structure has a transmission, else None
+    actuators: Span | None = None
+
+    def of(self, effect: Effect) -> Span:
+        """The span in the coordinates `effect` acts on: the actuators' for an effect a
+        transmission maps (`Effect.actuated`: a motor's friction searches its width among the
+        motor's speeds, a geared joint's among speeds N times its own), else this one."""
+        return self.actuators if self.actuators is not None and effect.actuated else self
 
 
 class Effect(eqx.Module):
@@ -141,6 +149,14 @@ class Effect(eqx.Module):
     # Its torque is written on the joints' own coordinates even on the motor side (a coupling names
     # the joints it combines): a transmission does not map it (`Model.torque`).
     on_joints: ClassVar[bool] = False
+
+    @property
+    def actuated(self) -> bool:
+        """Whether a transmission θ = N q maps it (`manus.plants.transmission`): a motor-side
+        effect not written on the joints acts at (N q, N q̇, N q̈), its torque reaching the joints
+        as Nᵀ τ, and its search space is the actuators' (`Span.of`)."""
+        return self.side == "motor" and not self.on_joints
+
     requires: ClassVar[tuple[str, ...]] = ()  # offered only on top of these effects
     brings: ClassVar[tuple[str, ...]] = ()  # added with it when the model lacks them
     replaces: ClassVar[tuple[str, ...]] = ()  # offered in the place of these where the model holds them
@@ -1059,7 +1075,7 @@ class Model(eqx.Module):
         """The torque of the effect `e` on the joints, (n,): a motor-side effect's on the actuators
         θ = N q where the structure has a transmission (`manus.plants.transmission`), mapped by Nᵀ."""
         s, N = self.structure, self.structure.transmission
-        if N is not None and e.side == "motor" and not e.on_joints:
+        if N is not None and e.actuated:
             return N.acting(e.torque, s, q, qd, qdd, params, boundary)
         return e.torque(s, q, qd, qdd, params, boundary)
 

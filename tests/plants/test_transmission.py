@@ -212,3 +212,41 @@ def test_a_bad_transmission_on_the_command_line_is_a_manus_error(tmp_path):
     args = _options(str(_recording_file(tmp_path)), "--transmission", "q2; q2")
     with pytest.raises(ManusError, match=r"--transmission: .*singular"):
         load_recording(args)
+
+
+def test_a_geared_motors_smooth_friction_width_is_searched_among_the_motors_speeds():
+    """MANUS-2 behind 50:1 gears (`50 q1; 50 q2`), friction Fs tanh(θ̇/w) on the motors with w =
+    2.5 rad/s of the motor (0.05 rad/s of the joint): the search space of a motor-side effect is
+    the actuators' (`Span.of`: speeds 50 times the joints'), so the width is found within 30 %
+    and the friction levels within 10 %; a joint-side effect (a coupling) keeps the joints' span."""
+    import jax
+
+    from manus.adaptive import fit
+    from manus.adaptive.identify.prepare import prepare
+    from manus.adaptive.impedance import Impedance
+    from manus.plants import Simulator
+    from manus.plants.closed_loop import simulate
+    from manus.plants.effects import Coupling, Smooth
+    from manus.plants.recording import from_trajectory
+    from manus.plants.references import MultiSine
+
+    gear, statement = 50.0, "50 q1; 50 q2"
+    s = stated(Manus2(), statement)
+    truth = {"a1": 0.349, "a2": 0.241, "a3": 0.246, "b1": 0.2 / gear**2, "b2": 0.15 / gear**2}
+    truth |= {"Fs1": 0.6 / gear, "Fs2": 0.4 / gear}
+    width = 0.05 * gear
+    plant = Simulator(Model(s, (*Model(s, "rigid,viscous").effects, Smooth(width=width))), truth)
+    assert plant.actuator is not None
+    controller = Impedance(30.0, 1.0, n_joints=2, limit=plant.actuator.limit)
+    traj = simulate(plant, controller, MultiSine((0.464, 2.409), 0.3, seed=5), 8.0, key=jax.random.PRNGKey(5))
+    rec = from_trajectory(traj, plant.rate_hz, "manus2", 131072, {"transmission": statement})
+    rec.qd, rec.extra = None, {}
+    span = prepare(rec).span()
+    assert span.actuators is not None
+    assert span.of(Smooth()).speed == pytest.approx(gear * span.speed)
+    assert span.of(Coupling()) is span
+    f = fit(rec, "rigid,viscous,smooth")
+    found = f.model.get("smooth")
+    assert found is not None and float(found.width) == pytest.approx(width, rel=0.3)  # pyright: ignore[reportAttributeAccessIssue]
+    for k in ("Fs1", "Fs2"):
+        assert f.params[k] == pytest.approx(truth[k], rel=0.1), k

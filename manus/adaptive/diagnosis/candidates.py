@@ -211,12 +211,12 @@ def offered(model: Model, span: Span, prismatic) -> tuple[list[Offer], list[str]
         held = model.get(name)
         e0 = held if held is not None else VOCABULARY[name]()
         if held is not None:
-            values = held.grow(span)
+            values = held.grow(span.of(held))
             if not values:
                 continue
             e0 = values[0]
         else:
-            values = e0.space(span) if not e0.modal else ()
+            values = e0.space(span.of(e0)) if not e0.modal else ()
             if not (e0.modal or e0.timing) and not values and type(e0).space is not Effect.space:
                 notes.append(
                     f"{name}: the recording spans too little to search its parameter (travel or speed too small)"
@@ -344,7 +344,7 @@ def judge(ctx: Context, offer: Offer) -> Candidate:
     )
     significant = bool(p < ctx.alpha and (explained >= ctx.min_share or reduction >= MOST) and cv_red > 0)
     problems = [v for e in own for v in e.violations(s, f.params, f.stds)]
-    edge = chosen.edge(ctx.span) if len(values) > 1 else None
+    edge = chosen.edge(ctx.span.of(chosen)) if len(values) > 1 else None
     if edge:
         problems.append(edge)
     lost = [n for n in names if n in f.redundant]

@@ -166,7 +166,7 @@ def _refine(data: Data, cols: Columns, current: Fit, given: set[str], method: st
     joint, several cogging orders), stay. The refit is kept when it fits better and no value
     lands on the edge of its range. Returns the fit and what moved ("" when nothing)."""
     span = data.span()
-    grids = {e.name: {v.spec for v in e.space(span)} for e in current.model.effects if e.name not in given}
+    grids = {e.name: {v.spec for v in e.space(span.of(e))} for e in current.model.effects if e.name not in given}
     free = [e for e in current.model.effects if len(grids.get(e.name, ())) > 1 and e.spec in grids[e.name]]
     if not free:
         return current, ""
@@ -174,7 +174,7 @@ def _refine(data: Data, cols: Columns, current: Fit, given: set[str], method: st
     again = fit(data, current.model, fixed=keep, columns=cols, method=method)
     found = [(e, again.model.get(e.name)) for e in free]
     changed = [(a, b) for a, b in found if b is not None and b.spec != a.spec]
-    if not changed or not again.rel_error < current.rel_error or any(b.edge(span) for _, b in changed):
+    if not changed or not again.rel_error < current.rel_error or any(b.edge(span.of(b)) for _, b in changed):
         return current, ""
     return again, ", ".join(f"{a.spec} -> {b.spec}" for a, b in changed)
 

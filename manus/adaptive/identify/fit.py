@@ -89,7 +89,8 @@ def fit(
                 f"{e.name} is a structural mode above the identification bandwidth: "
                 "`manus diagnose` detects it from the spectrum; it has no inverse-dynamics columns"
             )
-        why = e.applies(model.structure, data.rec.prismatic) or (e.unresolved(data.span()) if e.name in fixed else None)
+        given = e.unresolved(data.span().of(e)) if e.name in fixed else None
+        why = e.applies(model.structure, data.rec.prismatic) or given
         if why:
             raise ModelError(why if why.startswith(e.spec) else f"{e.name}: {why}")
     if not np.any(data.rec.tau):

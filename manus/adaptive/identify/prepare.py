@@ -101,19 +101,31 @@ class Data:
         return self.rec.hold
 
     def span(self) -> Span:
-        """What the effects' search spaces are derived from (see `manus.plants.effects.Span`)."""
+        """What the effects' search spaces are derived from (see `manus.plants.effects.Span`);
+        where the structure has a transmission θ = N q, with the same in actuator coordinates
+        (`Span.actuators`: N q, N q̇, an encoder step of Σ_j |N_ij| steps on actuator i)."""
         q = self.q[self.rows] if self.rows.size else self.q
         qd = self.qd[self.rows] if self.rows.size else self.qd
-        return Span(
-            self.dt,
-            len(self.rec) * self.dt,
-            np.ptp(q, axis=0),
-            self.step,
-            np.percentile(np.abs(qd), 95, axis=0),
-            self.rec.prismatic,
-            self.step * self.cutoff_hz,
-            self.cutoff_hz,
-            np.median(np.abs(qd), axis=0),
+        N = self.rec.structure.transmission
+
+        def of(q: np.ndarray, qd: np.ndarray, step: float) -> Span:
+            return Span(
+                self.dt,
+                len(self.rec) * self.dt,
+                np.ptp(q, axis=0),
+                step,
+                np.percentile(np.abs(qd), 95, axis=0),
+                self.rec.prismatic,
+                step * self.cutoff_hz,
+                self.cutoff_hz,
+                np.median(np.abs(qd), axis=0),
+            )
+
+        if N is None:
+            return of(q, qd, self.step)
+        M = N.matrix
+        return of(q, qd, self.step)._replace(
+            actuators=of(q @ M.T, qd @ M.T, self.step * float(np.max(np.abs(M).sum(axis=1))))
         )
 
     @property

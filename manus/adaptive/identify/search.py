@@ -136,7 +136,7 @@ def grid(
     mask over the effect's columns (the others held at 0, their physical bound). `exact`: every
     value's statistics built now, their columns computed together (no screening). `base`: the
     statistics of `rest` on these segments where they are at hand (its instruments' too with IV)."""
-    vals: list[Effect] = list(values if values is not None else effect.space(data.span()))
+    vals: list[Effect] = list(values if values is not None else effect.space(data.span().of(effect)))
     src: Columns | _Kept = cols if keep is None else _Kept(cols, keep)
     isrc: Columns | _Kept | None = icols if keep is None or icols is None else _Kept(icols, keep)
     delay = delay_of(rest)
@@ -209,7 +209,7 @@ def search_all(
     span = data.span()
     everything = np.ones(1, bool)
     for e in model.effects:
-        if e.name in fixed or not e.space(span):
+        if e.name in fixed or not e.space(span.of(e)):
             continue
         g = grid(data, cols, model.without(e.name), e, np.array([0]), icols=icols)
         best, errs = g.choose(everything)
