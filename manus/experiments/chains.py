@@ -5,7 +5,11 @@ header, transmission, time base).
 
 Each recording's *condition* is drawn from its seed:
 
-- robot: `panda` or `ur5` (armatures 0.1–0.3 kg m², viscous and dry friction per joint);
+- robot: `panda` or `ur5` (armatures 0.1–0.3 kg m², viscous and dry friction per joint), or, where
+  asked (`robots`, `--robots`), `xarm7`: its URDF states a 100:1 gear on every joint, so friction
+  and the other motor-side effects act on its motors (levels of `FRICTION` felt at the joints,
+  Fc / 100 and b / 100² on the motors; widths and Stribeck velocities 100 times the joints';
+  `gear`). Its recordings keep the URDF's transmission, as a user's file read with that URDF does;
 - rate: 100, 200, 500 or 1000 Hz (`RATES`; the physics stepped at 1 kHz or faster), `SECONDS` long;
 - loop: `closed` (a computed-torque feedforward along a Fourier excitation plus a PD on the
   quantized encoder, `serial_sim.Feedforward`) or `open` (the torque of that loop run on exact
@@ -86,10 +90,13 @@ from manus.plants.transmission import parse, with_transmission
 ROBOTS = {
     "panda": ("panda_description/urdf/panda.urdf", (0.0, -0.3, 0.0, -2.0, 0.0, 1.8, 0.8)),
     "ur5": ("ur_description/urdf/ur5_robot.urdf", (0.0, -1.2, 1.2, -1.5, -1.5, 0.0)),
+    "xarm7": ("xarm_description/urdf/xarm7.urdf", (0.0, 0.3, 0.0, 1.2, 0.0, 0.9, 0.0)),  # 100:1 gears in its URDF
 }
-FRICTION = {  # (dry friction level [N·m], viscous [N·m·s/rad]) per joint
+DRAWN = ("panda", "ur5")  # the robots a seed draws from unless told (`--robots`)
+FRICTION = {  # (dry friction level [N·m], viscous [N·m·s/rad]) per joint, as felt at the joint
     "panda": ((0.5, 0.5, 0.4, 0.4, 0.3, 0.3, 0.2), (0.3, 0.3, 0.25, 0.25, 0.15, 0.15, 0.1)),
     "ur5": ((1.0, 1.0, 0.8, 0.3, 0.3, 0.3), (0.6, 0.6, 0.5, 0.15, 0.15, 0.15)),
+    "xarm7": ((1.0, 1.0, 0.8, 0.8, 0.4, 0.4, 0.2), (0.5, 0.5, 0.4, 0.4, 0.2, 0.2, 0.1)),
 }
 RATES = (100, 200, 500, 1000)
 LOOPS = ("closed", "open")
@@ -141,12 +148,18 @@ def chain(name: str) -> Chain:
     return Chain(name, Serial.from_urdf(path, armature=np.linspace(0.1, 0.3, n)), centre)
 
 
-def draw_condition(seed: int, rates: tuple = RATES, hidden: str | None = None, **overrides) -> dict:
-    """The condition of case `seed` with `hidden` hidden (overrides win; a Stribeck hump has
-    Coulomb friction on joints, a differential wrist and the pinocchio engine smooth friction)."""
+def draw_condition(
+    seed: int, rates: tuple = RATES, hidden: str | None = None, robots: tuple = DRAWN, **overrides
+) -> dict:
+    """The condition of case `seed` with `hidden` hidden, its robot drawn from `robots` (overrides
+    win; a Stribeck hump has Coulomb friction on joints, a differential wrist and the pinocchio
+    engine smooth friction)."""
+    unknown_robots = [r for r in robots if r not in ROBOTS]
+    if not robots or unknown_robots:
+        raise ValueError(f"robots: {', '.join(ROBOTS)} (got {', '.join(robots) or 'none'})")
     rng = np.random.default_rng([seed, 29])
     c = {
-        "structure": str(rng.choice(tuple(ROBOTS))),
+        "structure": str(rng.choice(tuple(robots))),
         "rate": int(rng.choice(check_rates(rates))),
         "excitation": str(rng.choice(LOOPS)),
         "torque": str(rng.choice(TORQUES)),
@@ -326,24 +339,46 @@ def same_coupling(a: str, b: str) -> bool:
     return x is not None and y is not None and set(x.joints) == set(y.joints) and float(x.sign) == float(y.sign)
 
 
-def case(seed: int, hidden: str | None = None, rates: tuple = RATES, amplitude: float = AMPLITUDE, **overrides) -> Case:
+def gear(ch: Chain) -> float:
+    """The robot's own reduction, the same on every joint (its URDF's `<transmission>` elements; 1:
+    none): what turns `FRICTION`'s levels, felt at the joints, into its motors' (Fc / r, b / r²)
+    and a width or a Stribeck velocity into the motor's speeds (× r)."""
+    N = ch.structure.transmission
+    if N is None:
+        return 1.0
+    r = np.diag(N.matrix)
+    if not (np.allclose(N.matrix, np.diag(r)) and np.allclose(r, r[0]) and r[0] > 0):
+        raise ValueError(f"{ch.name}: its own transmission is not one common gear")
+    return float(r[0])
+
+
+def case(
+    seed: int,
+    hidden: str | None = None,
+    rates: tuple = RATES,
+    amplitude: float = AMPLITUDE,
+    robots: tuple = DRAWN,
+    **overrides,
+) -> Case:
     """Chain recording `seed`: nothing hidden, or one effect of `HIDDEN` (a per-joint one on one
-    joint at `amplitude` of that joint's torque RMS). Keyword overrides fix condition values
-    (structure: the robot, rate, excitation: the loop, torque, friction, transmission, log)."""
+    joint at `amplitude` of that joint's torque RMS), the robot drawn from `robots`. Keyword
+    overrides fix condition values (structure: the robot, rate, excitation: the loop, torque,
+    friction, transmission, log)."""
     check_amplitude(amplitude)
     if hidden is not None and hidden not in HIDDEN:
         raise ValueError(f"the chain set hides one of {', '.join(HIDDEN)} (got {hidden!r})")
     t0 = time.perf_counter()
-    c = draw_condition(seed, rates, hidden, **overrides)
+    c = draw_condition(seed, rates, hidden, robots, **overrides)
     plain = chain(c["structure"])
     wrist = c["transmission"] == "differential"
-    structure = with_transmission(plain.structure, parse(DIFFERENTIAL, plain.n) if wrist else None)
+    structure = with_transmission(plain.structure, parse(DIFFERENTIAL, plain.n)) if wrist else plain.structure
     ch = replace(plain, structure=structure)
+    r = gear(plain)
     rate, dt = c["rate"], 1.0 / c["rate"]
     rng = np.random.default_rng([seed, 31])
     more = np.random.default_rng([seed, 41])
-    fc, b = FRICTION[ch.name]
-    width = round(float(more.uniform(*WIDTH)), 3)
+    fc, b = (tuple(f / r for f in FRICTION[ch.name][0]), tuple(x / r**2 for x in FRICTION[ch.name][1]))
+    width = round(float(more.uniform(*WIDTH)) * r, 3)
     law = Smooth(width=width) if c["friction"] == "smooth" else Coulomb()
     level = "Fs" if c["friction"] == "smooth" else "Fc"
     params = {**{f"{level}{i + 1}": v for i, v in enumerate(fc)}, **{f"b{i + 1}": v for i, v in enumerate(b)}}
@@ -354,7 +389,7 @@ def case(seed: int, hidden: str | None = None, rates: tuple = RATES, amplitude: 
     if hidden == "coupling":
         effect = _coupling(more, free)
     elif hidden == "stribeck":
-        effect = Stribeck(vs=STRIBECK_VS)
+        effect = Stribeck(vs=STRIBECK_VS * r)
     elif hidden == "cogging":
         effect = Cogging(order=order)
     elif hidden not in (None, "smooth"):

@@ -49,9 +49,11 @@ def judge(
     lost: float = 0.0,
     simulator: str = "manus",
     baseline: bool = False,
+    robots: tuple | None = None,
 ) -> dict:
     """Simulate one calibration recording and diagnose it; never raises (a ManusError is an
-    `error`, anything else a `crash`, both reported). `lost`: the fraction of its samples lost
+    `error`, anything else a `crash`, both reported). `robots`: the chains a `chain` recording's
+    robot is drawn from (default `manus.experiments.chains.DRAWN`). `lost`: the fraction of its samples lost
     at random (seeded by the case), as a loop that misses packets loses them."""
     import traceback
 
@@ -68,7 +70,7 @@ def judge(
         elif simulator == "chain":
             from manus.experiments import chains
 
-            c = chains.case(seed, hidden, rates or chains.RATES, amplitude or chains.AMPLITUDE)
+            c = chains.case(seed, hidden, rates or chains.RATES, amplitude or chains.AMPLITUDE, robots or chains.DRAWN)
         else:
             c = calibration.case(seed, hidden, rates or calibration.RATES, amplitude or calibration.AMPLITUDE)
     except Exception as e:  # the simulator: a bug of the bench, reported as a crash

@@ -103,3 +103,32 @@ def test_an_effect_on_one_joint_of_a_chain_is_named_relative_to_what_is_left(see
         assert chains.same_coupling(r["verdict_spec"], r["condition"]["hidden_spec"])
     else:
         assert own["explains"] < 0.005 and max(r["condition"]["hidden_fraction"]) >= chains.AMPLITUDE
+
+
+def test_a_geared_robots_smooth_friction_is_named_with_its_motors_width():
+    """The xArm7, whose URDF states a 100:1 gear on every joint: its recording keeps the gear
+    (read back through its URDF), its friction acts on the motors (levels 1/100 and 1/100² of
+    those felt at the joints), and smooth friction hidden behind a start model with Coulomb's sign
+    is named, its width within 30 % of the truth's, 100 times what the joints' speeds span
+    (the search space of a motor-side effect is the motors', `Span.of`)."""
+    from manus.adaptive import diagnose
+
+    c = chains.case(6302, "smooth", robots=("xarm7",), rate=500, excitation="open", torque="exact", log="clean")
+    assert c.condition["structure"] == "xarm7" and chains.gear(chains.chain("xarm7")) == 100.0
+    N = c.rec.structure.transmission
+    assert N is not None and np.allclose(N.matrix, 100.0 * np.eye(7))
+    assert c.truth["Fs1"] == pytest.approx(chains.FRICTION["xarm7"][0][0] / 100)
+    assert c.truth["b1"] == pytest.approx(chains.FRICTION["xarm7"][1][0] / 100**2)
+    width = c.condition["width"]
+    assert width > 5.0  # rad/s of the motor; a search among the joints' speeds stops at half their top: 0.55 rad/s here
+    d = diagnose(c.rec, c.start)
+    v = d.verdict
+    assert v is not None and v.effect == "smooth", [x.report() for x in d.candidates]
+    assert float(v.found().width) == pytest.approx(width, rel=0.3)  # pyright: ignore[reportAttributeAccessIssue]
+
+
+def test_the_robots_are_checked():
+    with pytest.raises(ValueError, match="robots"):
+        chains.draw_condition(0, robots=("kuka",))
+    assert {chains.draw_condition(s, robots=("xarm7",))["structure"] for s in range(5)} == {"xarm7"}
+    assert chains.draw_condition(3) == chains.draw_condition(3, robots=chains.DRAWN)

@@ -108,6 +108,13 @@ def add_arguments(p) -> None:
         "the set's own, 1000,200), e.g. your rig's",
     )
     p.add_argument(
+        "--robots",
+        default="",
+        help="with --simulator chain: comma-separated robots the recordings are drawn from (default: "
+        "panda,ur5); xarm7 is the xArm7, whose URDF states a 100:1 gear on every joint, so its friction "
+        "acts on the motors",
+    )
+    p.add_argument(
         "--no-pooled",
         dest="pooled",
         action="store_false",
@@ -260,6 +267,7 @@ def run_one(
     lost: float = 0.0,
     simulator: str = "manus",
     pooled: bool = True,
+    robots: tuple | None = None,
 ) -> dict:
     """`manus.experiments.judging.judge` in a worker (float64 and the environment as everywhere:
     importing manus sets them, `manus.config`). A chain recording is judged a second time
@@ -274,9 +282,25 @@ def run_one(
 
     baseline = pooled and simulator == "chain"
     try:
-        return judge(seed, hidden, alpha, blocks, rates, amplitude, lost, simulator, baseline=baseline)
+        return judge(seed, hidden, alpha, blocks, rates, amplitude, lost, simulator, baseline=baseline, robots=robots)
     finally:
         jax.clear_caches()
+
+
+def _robots(args, simulator: str) -> tuple | None:
+    """`--robots` as a tuple (None: the set's own), checked against the chains there are."""
+    given = [r.strip() for r in getattr(args, "robots", "").split(",") if r.strip()]
+    if not given:
+        return None
+    from manus.experiments import chains
+    from manus.plants.errors import ManusError
+
+    if simulator != "chain":
+        raise ManusError("--robots: only with --simulator chain (the other sets are the thesis's arm and axis)")
+    bad = [r for r in given if r not in chains.ROBOTS]
+    if bad:
+        raise ManusError(f"--robots: unknown robot(s) {', '.join(bad)}: the chain set has {', '.join(chains.ROBOTS)}")
+    return tuple(dict.fromkeys(given))
 
 
 def calibrate(args) -> dict:
@@ -344,7 +368,8 @@ def calibrate(args) -> dict:
     if not 0 <= lost < 0.5:
         raise ManusError(f"--lost must lie in [0, 0.5) (got {lost})")
     pooled = getattr(args, "pooled", True)
-    for k, r in enumerate(_each(plan, args.alpha, blocks, jobs, rates, amplitude, lost, simulator, pooled), 1):
+    robots = _robots(args, simulator)
+    for k, r in enumerate(_each(plan, args.alpha, blocks, jobs, rates, amplitude, lost, simulator, pooled, robots), 1):
         seed, hidden = r["seed"], r["hidden"]
         results.append(r)
         if r["outcome"] in ("crash", "error", "false alarm", "missed", "wrong", "reading"):
@@ -393,6 +418,7 @@ def calibrate(args) -> dict:
         "lost": lost,
         "simulator": simulator,
         "pooled": pooled and simulator == "chain",
+        "robots": list(robots) if robots else None,
         "results": [{k: v for k, v in r.items() if k != "trace"} for r in results],
         "load_average": os.getloadavg()[0],
         "cpu_count": os.cpu_count(),
@@ -409,12 +435,13 @@ def _each(
     lost: float = 0.0,
     simulator: str = "manus",
     pooled: bool = True,
+    robots: tuple | None = None,
 ):
     """`run_one` over the plan, in order: in this process (one job) or in `jobs` fresh worker
     processes (spawned, not forked: JAX is not fork-safe), each compiling its own simulations."""
     if jobs == 1 or len(plan) < 2:
         for seed, hidden in plan:
-            yield run_one(seed, hidden, alpha, blocks, rates, amplitude, lost, simulator, pooled)
+            yield run_one(seed, hidden, alpha, blocks, rates, amplitude, lost, simulator, pooled, robots)
         return
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
@@ -430,6 +457,7 @@ def _each(
             [lost] * len(plan),
             [simulator] * len(plan),
             [pooled] * len(plan),
+            [robots] * len(plan),
         )
 
 
