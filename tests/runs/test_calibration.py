@@ -259,3 +259,15 @@ def test_a_delay_is_sized_by_what_it_changes():
     assert want <= d < want + 1e-4 + 1e-9
     steps = np.repeat([[0.0], [1.0], [-1.0], [0.5]], 500, axis=0)
     assert sizing.size_delay(steps, rate, 0.05) == sizing.DELAY_MIN
+
+
+def test_robots_are_the_chain_sets_and_refused_by_name(calibrate_args):
+    """`--robots`: only with `--simulator chain`, only robots the chain set has; each refused in
+    one line before any recording is simulated."""
+    from manus.plants.errors import ManusError
+    from manus.runs.bench import diagnose as bench
+
+    with pytest.raises(ManusError, match=r"--robots: unknown robot\(s\) kuka: the chain set has panda, ur5, xarm7"):
+        bench.calibrate(calibrate_args(recordings=1, effects="none", simulator="chain", robots="kuka", jobs=1))
+    with pytest.raises(ManusError, match="--robots: only with --simulator chain"):
+        bench.calibrate(calibrate_args(recordings=1, effects="none", robots="xarm7", jobs=1))

@@ -314,6 +314,7 @@ def calibrate(args) -> dict:
     if n < 1:
         raise ManusError("--recordings must be at least 1")
     simulator = args.simulator
+    robots = _robots(args, simulator)
     if simulator == "independent":
         from manus.experiments import independent
     from manus.experiments import chains
@@ -368,7 +369,6 @@ def calibrate(args) -> dict:
     if not 0 <= lost < 0.5:
         raise ManusError(f"--lost must lie in [0, 0.5) (got {lost})")
     pooled = getattr(args, "pooled", True)
-    robots = _robots(args, simulator)
     for k, r in enumerate(_each(plan, args.alpha, blocks, jobs, rates, amplitude, lost, simulator, pooled, robots), 1):
         seed, hidden = r["seed"], r["hidden"]
         results.append(r)
