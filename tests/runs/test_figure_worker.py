@@ -125,6 +125,10 @@ def test_a_job_the_worker_has_not_started_is_drawn_here(tmp_path):
     taken = painter.draw(os.getpid)
     either = painter.draw(os.getpid)
     last = painter.draw(os.getpid)
+    queued = taken._future
+    assert queued is not None
+    while not (queued.running() or queued.done()):  # (in the worker's queue once the executor's thread moves it)
+        time.sleep(0.01)
     late = threading.Timer(60, go.touch)  # (a result that waited for the worker would come, from it, then)
     late.start()
     assert last.result() == os.getpid()  # not started: drawn here, without waiting for the worker
