@@ -325,7 +325,9 @@ def _evidence(base, c, verdict, title: str, reuse: dict | None) -> Figure:
             xl, y = labelled(f"dτ{i + 1}/dt", u.torque_rate), shift * x
         elif effect.evidence == "position" and "order" in effect.describe():
             N = float(effect.describe().get("orders", [effect.describe()["order"]])[-1])
-            x, xl = np.mod(N * q[:, i], 2 * np.pi), f"phase N·q{i + 1} mod 2π [rad] (N = {N:g})"
+            gears = data.rec.structure.transmission if effect.actuated else None  # (a motor's cogging: its angle)
+            angle, name = (q, "q") if gears is None else (q @ gears.matrix.T, "θ")
+            x, xl = np.mod(N * angle[:, i], 2 * np.pi), f"phase N·{name}{i + 1} mod 2π [rad] (N = {N:g})"
             assert term is not None  # every effect but the delay and the modes is linear
             y = term[:, i]
         else:
