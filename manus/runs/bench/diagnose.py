@@ -289,7 +289,7 @@ def run_one(
 
 def _robots(args, simulator: str) -> tuple | None:
     """`--robots` as a tuple (None: the set's own), checked against the chains there are."""
-    given = [r.strip() for r in getattr(args, "robots", "").split(",") if r.strip()]
+    given = [r.strip() for r in args.robots.split(",") if r.strip()]
     if not given:
         return None
     from manus.experiments import chains
